@@ -1,0 +1,30 @@
+"""diffbot-fusion: attitude, odometry and sensor fusion for two-wheel differential-drive robots.
+
+Public names are imported lazily (no import-time work): ``from fusion import Mahony``.
+Units are SI throughout (rad/s, m/s^2, m, s, rad, uT); quaternions are scalar first
+``[w, x, y, z]``, body -> world ENU.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+__version__ = "0.1.0"
+
+# public name -> module that defines it
+_EXPORTS = {
+    "ImuSample": "fusion.samples",
+    "WheelTicks": "fusion.samples",
+    "Mahony": "fusion.mahony",
+    "MahonyParams": "fusion.mahony",
+    "MahonyState": "fusion.mahony",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name: str):
+    module = _EXPORTS.get(name)
+    if module is None:
+        raise AttributeError(f"module 'fusion' has no attribute {name!r}")
+    return getattr(importlib.import_module(module), name)
