@@ -127,7 +127,7 @@ def from_matrix(R: ArrayLike) -> NDArray[np.float64]:
                 q[sel] = np.stack([c[sel] for c in comps], -1)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     q[q[:, 0] < 0] *= -1.0
-    return q.reshape(R.shape[:-2] + (4,))
+    return q.reshape((*R.shape[:-2], 4))
 
 
 def rotate(q: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:

@@ -1,0 +1,668 @@
+"""Mahony complementary attitude filter (6-axis IMU and 9-axis MARG).
+
+A port of the filter in seed 001 (``READ_DMP2``), corrected, and extended with the classic
+MahonyAHRS magnetometer (MARG) form. Frames and units:
+
+- inputs in the body (sensor) frame: angular rate rad/s, specific force m/s^2 (+g along up at
+  rest), magnetic field in any consistent unit (uT by convention; only its direction is used);
+- output quaternion scalar first ``[w, x, y, z]``, body -> world, world ENU (z up; with a
+  magnetometer, y points to magnetic north); Euler angles roll, pitch, yaw of the ZYX sequence.
+
+The algorithm, per sample with period ``dt`` (s)::
+
+    v = world up expressed in the body frame (third row of R(q))
+    e = a/|a| x v                                  (+ m/|m| x w  with a magnetometer)
+    integral += Ki * e * dt                        (rad/s)
+    omega = gyro + Kp * e + integral               (rad/s)
+    q += 0.5 * q (x) [0, omega] * dt ; q /= |q|    (first-order, RK1)
+
+where ``w`` is the horizontal-north/vertical reference field rotated into the body frame.
+
+Defects of the seed listing, fixed here:
+
+1. The error lines are missing: ``e`` is never computed from the measured and estimated gravity.
+   Here ``e`` is their cross product.
+2. The integral ``eInt += Ki*e`` appears twice, doubling the integral gain. Here it runs once.
+3. The gyro is fed in the MPU6050 scaled unit (deg/s) where the quaternion kinematics need
+   rad/s. This filter takes rad/s only (the driver converts at its edge).
+4. The seed's ``Ki`` multiplies the error once per sample, so its effect depends on the sample
+   rate. Here ``Ki`` is per second. **Gain mapping:** ``seed_Ki = Ki * dt`` and ``seed_Kp = Kp``
+   (both on rad/s). The seed's ``q / q30`` output scaling (a DMP Q30 leftover) is dropped.
+
+Beyond the seed (all optional, see :class:`MahonyParams`): rest detection that pulls the
+gyro-bias estimate towards the measured rate while the sensor is still (this makes the yaw bias
+observable without a magnetometer), acceleration rejection (no correction while ``|a|`` is far
+from g), and a start-up gain ramp (large Kp at first so the attitude converges quickly).
+
+Invalid samples are handled by documented skips, counted in :attr:`Mahony.counters`:
+a non-finite gyro row is skipped entirely (attitude held); a zero or non-finite accelerometer
+row propagates the gyro (with the bias estimate) without correction; a zero or non-finite
+magnetometer row falls back to the 6-axis correction. Non-positive or non-finite ``dt`` and
+wrong shapes raise ``ValueError``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from fusion import quaternion as quat
+from fusion._jit import njit
+
+__all__ = [
+    "DEFAULT_KI",
+    "DEFAULT_KP",
+    "Mahony",
+    "MahonyCounters",
+    "MahonyParams",
+    "MahonyState",
+]
+
+STANDARD_GRAVITY = 9.80665  # m/s^2
+
+# Defaults of the 6-axis filter, chosen on the BROAD trials (benchmarks/attitude_broad.py).
+DEFAULT_KP = 0.5
+DEFAULT_KI = 0.002
+
+# Layout of the packed arrays handed to the compiled core.
+# Parameters P:
+_P_KP, _P_KI, _P_G, _P_ACC_REJ, _P_REST_ON, _P_REST_GYR, _P_REST_ACC = range(7)
+_P_REST_T, _P_REST_TAU, _P_LP_TAU, _P_RAMP_KP, _P_RAMP_T = range(7, 12)
+_P_LEN = 12
+# State S: quaternion, integral (= -bias), elapsed time, rest timer, low-passed gyro and accel,
+# low-pass initialised flag.
+_S_Q, _S_I, _S_ELAPSED, _S_REST_TIMER, _S_GLP, _S_ALP, _S_LP_INIT = 0, 4, 7, 8, 9, 12, 15
+_S_LEN = 16
+# Counters C:
+_C_GYRO_SKIP, _C_ACC_SKIP, _C_MAG_SKIP, _C_ACC_REJECT, _C_REST = range(5)
+_C_LEN = 5
+
+
+@dataclass(frozen=True)
+class MahonyParams:
+    """Filter parameters (immutable; derive a variant with :func:`dataclasses.replace`).
+
+    Attributes:
+        kp: proportional gain, rad/s per unit error (seed ``Kp``).
+        ki: integral gain, rad/s^2 per unit error; ``seed_Ki = ki * dt``. 0 disables the
+            integral feedback (the bias estimate then changes only by rest detection).
+        sample_period: default ``dt`` in s when an update gives none; None to require one.
+        gravity: magnitude of gravity, m/s^2 (acceleration rejection and rest detection).
+        accel_rejection: skip the correction while ``| |a| - gravity |`` exceeds this, m/s^2;
+            None disables it.
+        rest_detection: refine the gyro-bias estimate while the sensor is still.
+        rest_gyro_threshold: max deviation of the gyro from its low-pass mean at rest, rad/s.
+        rest_accel_threshold: max deviation of the accelerometer from its low-pass mean, m/s^2.
+        rest_min_duration: how long the thresholds must hold before the bias is refined, s.
+        rest_bias_time_constant: time constant of the bias refinement at rest, s.
+        rest_lowpass_time_constant: time constant of the low-pass means used to detect rest, s.
+        ramp_kp: initial proportional gain of the start-up ramp, rad/s per unit error.
+        ramp_time: duration of the start-up ramp, s (0 disables it). During the ramp Kp falls
+            linearly from ``ramp_kp`` to ``kp`` and the integral is frozen.
+    """
+
+    kp: float = DEFAULT_KP
+    ki: float = DEFAULT_KI
+    sample_period: float | None = None
+    gravity: float = STANDARD_GRAVITY
+    accel_rejection: float | None = None
+    rest_detection: bool = False
+    rest_gyro_threshold: float = math.radians(2.0)
+    rest_accel_threshold: float = 0.5
+    rest_min_duration: float = 1.5
+    rest_bias_time_constant: float = 3.0
+    rest_lowpass_time_constant: float = 0.5
+    ramp_kp: float = 10.0
+    ramp_time: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("kp", "ki", "ramp_kp", "ramp_time"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+        positive = [
+            "gravity",
+            "rest_gyro_threshold",
+            "rest_accel_threshold",
+            "rest_bias_time_constant",
+            "rest_lowpass_time_constant",
+        ]
+        for name in positive:
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+        if not (math.isfinite(self.rest_min_duration) and self.rest_min_duration >= 0):
+            raise ValueError(f"rest_min_duration must be >= 0, got {self.rest_min_duration!r}")
+        if self.sample_period is not None:
+            _check_dt(self.sample_period)
+        if self.accel_rejection is not None and not self.accel_rejection > 0:
+            raise ValueError(f"accel_rejection must be > 0 or None, got {self.accel_rejection!r}")
+
+    def packed(self) -> NDArray[np.float64]:
+        """The parameters as the flat float64 array the compiled core reads."""
+        p = np.zeros(_P_LEN)
+        p[_P_KP], p[_P_KI], p[_P_G] = self.kp, self.ki, self.gravity
+        p[_P_ACC_REJ] = self.accel_rejection or 0.0
+        p[_P_REST_ON] = 1.0 if self.rest_detection else 0.0
+        p[_P_REST_GYR], p[_P_REST_ACC] = self.rest_gyro_threshold, self.rest_accel_threshold
+        p[_P_REST_T], p[_P_REST_TAU] = self.rest_min_duration, self.rest_bias_time_constant
+        p[_P_LP_TAU] = self.rest_lowpass_time_constant
+        p[_P_RAMP_KP], p[_P_RAMP_T] = self.ramp_kp, self.ramp_time
+        return p
+
+
+@dataclass
+class MahonyCounters:
+    """Samples handled by a documented skip since the last reset."""
+
+    gyro_skipped: int = 0  # non-finite gyro: sample skipped, attitude held
+    accel_skipped: int = 0  # zero/non-finite accelerometer: gyro-only propagation
+    mag_skipped: int = 0  # zero/non-finite magnetometer in 9-axis mode: 6-axis correction
+    accel_rejected: int = 0  # |a| too far from g: correction skipped (accel_rejection)
+    rest_samples: int = 0  # samples spent refining the bias at rest
+
+
+@dataclass
+class MahonyState:
+    """Complete filter state; :meth:`Mahony.set_state` of a saved state resumes exactly.
+
+    Attributes:
+        quaternion: attitude ``[w, x, y, z]``, body -> world ENU; None before initialisation.
+        integral: integral feedback, rad/s (the gyro-bias estimate is ``-integral``).
+        elapsed: time integrated since initialisation, s (drives the start-up ramp).
+        rest_timer: how long the sensor has looked still, s.
+        gyro_lowpass: low-pass gyro mean, rad/s (rest detection).
+        accel_lowpass: low-pass accelerometer mean, m/s^2 (rest detection).
+        lowpass_ready: whether the low-pass means hold data.
+        last_timestamp: timestamp of the last sample given with timestamps, s, or None.
+        counters: see :class:`MahonyCounters`.
+    """
+
+    quaternion: NDArray[np.float64] | None = None
+    integral: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    elapsed: float = 0.0
+    rest_timer: float = 0.0
+    gyro_lowpass: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    accel_lowpass: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    lowpass_ready: bool = False
+    last_timestamp: float | None = None
+    counters: MahonyCounters = field(default_factory=MahonyCounters)
+
+
+# --------------------------------------------------------------------------------------------
+# The core: one sample, shared by the streaming and the batch entry points.
+# --------------------------------------------------------------------------------------------
+
+
+@njit
+def _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
+    """Advance the packed state ``S`` by one sample. Returns nothing; mutates S and C."""
+    if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
+        C[_C_GYRO_SKIP] += 1
+        return
+    q0, q1, q2, q3 = S[0], S[1], S[2], S[3]
+    ix, iy, iz = S[4], S[5], S[6]
+    elapsed = S[_S_ELAPSED]
+
+    anorm = math.sqrt(ax * ax + ay * ay + az * az)
+    acc_ok = math.isfinite(anorm) and anorm > 0.0
+    if not acc_ok:
+        C[_C_ACC_SKIP] += 1
+
+    # Rest detection: deviation of the current sample from low-pass means.
+    if P[_P_REST_ON] != 0.0 and acc_ok:
+        if S[_S_LP_INIT] == 0.0:
+            S[9], S[10], S[11], S[12], S[13], S[14] = gx, gy, gz, ax, ay, az
+            S[_S_LP_INIT] = 1.0
+        alpha = dt / (P[_P_LP_TAU] + dt)
+        S[9] += alpha * (gx - S[9])
+        S[10] += alpha * (gy - S[10])
+        S[11] += alpha * (gz - S[11])
+        S[12] += alpha * (ax - S[12])
+        S[13] += alpha * (ay - S[13])
+        S[14] += alpha * (az - S[14])
+        dg = math.sqrt((gx - S[9]) ** 2 + (gy - S[10]) ** 2 + (gz - S[11]) ** 2)
+        da = math.sqrt((ax - S[12]) ** 2 + (ay - S[13]) ** 2 + (az - S[14]) ** 2)
+        if dg < P[_P_REST_GYR] and da < P[_P_REST_ACC] and abs(anorm - P[_P_G]) < P[_P_REST_ACC]:
+            S[_S_REST_TIMER] += dt
+        else:
+            S[_S_REST_TIMER] = 0.0
+        if S[_S_REST_TIMER] >= P[_P_REST_T]:
+            # At rest the true rate is zero: the gyro reads its bias, integral -> -gyro mean.
+            beta = dt / (P[_P_REST_TAU] + dt)
+            ix += beta * (-S[9] - ix)
+            iy += beta * (-S[10] - iy)
+            iz += beta * (-S[11] - iz)
+            C[_C_REST] += 1
+
+    correct = acc_ok
+    if correct and P[_P_ACC_REJ] > 0.0 and abs(anorm - P[_P_G]) > P[_P_ACC_REJ]:
+        correct = False
+        C[_C_ACC_REJECT] += 1
+
+    kp = P[_P_KP]
+    ramping = P[_P_RAMP_T] > 0.0 and elapsed < P[_P_RAMP_T]
+    if ramping:
+        kp = P[_P_RAMP_KP] + (P[_P_KP] - P[_P_RAMP_KP]) * (elapsed / P[_P_RAMP_T])
+
+    if correct:
+        ax /= anorm
+        ay /= anorm
+        az /= anorm
+        # World up in the body frame (third row of R(q)).
+        vx = 2.0 * (q1 * q3 - q0 * q2)
+        vy = 2.0 * (q0 * q1 + q2 * q3)
+        vz = q0 * q0 - q1 * q1 - q2 * q2 + q3 * q3
+        ex = ay * vz - az * vy
+        ey = az * vx - ax * vz
+        ez = ax * vy - ay * vx
+        if use_mag:
+            mnorm = math.sqrt(mx * mx + my * my + mz * mz)
+            if math.isfinite(mnorm) and mnorm > 0.0:
+                mx /= mnorm
+                my /= mnorm
+                mz /= mnorm
+                q0q1, q0q2, q0q3 = q0 * q1, q0 * q2, q0 * q3
+                q1q1, q1q2, q1q3 = q1 * q1, q1 * q2, q1 * q3
+                q2q2, q2q3, q3q3 = q2 * q2, q2 * q3, q3 * q3
+                # Field in the world frame, h = R m.
+                hx = 2.0 * (mx * (0.5 - q2q2 - q3q3) + my * (q1q2 - q0q3) + mz * (q1q3 + q0q2))
+                hy = 2.0 * (mx * (q1q2 + q0q3) + my * (0.5 - q1q1 - q3q3) + mz * (q2q3 - q0q1))
+                hz = 2.0 * (mx * (q1q3 - q0q2) + my * (q2q3 + q0q1) + mz * (0.5 - q1q1 - q2q2))
+                # Reference: horizontal part along north (+y in ENU), vertical part kept.
+                bn = math.sqrt(hx * hx + hy * hy)
+                # w = R^T [0, bn, hz]: the reference seen from the body.
+                wx = 2.0 * (bn * (q1q2 + q0q3) + hz * (q1q3 - q0q2))
+                wy = 2.0 * (bn * (0.5 - q1q1 - q3q3) + hz * (q0q1 + q2q3))
+                wz = 2.0 * (bn * (q2q3 - q0q1) + hz * (0.5 - q1q1 - q2q2))
+                ex += my * wz - mz * wy
+                ey += mz * wx - mx * wz
+                ez += mx * wy - my * wx
+            else:
+                C[_C_MAG_SKIP] += 1
+        if P[_P_KI] > 0.0 and not ramping:
+            ix += P[_P_KI] * ex * dt
+            iy += P[_P_KI] * ey * dt
+            iz += P[_P_KI] * ez * dt
+        gx += ix + kp * ex
+        gy += iy + kp * ey
+        gz += iz + kp * ez
+    else:
+        gx += ix
+        gy += iy
+        gz += iz
+
+    # First-order integration of qdot = 0.5 * q (x) [0, omega].
+    hdt = 0.5 * dt
+    gx *= hdt
+    gy *= hdt
+    gz *= hdt
+    n0 = q0 + (-q1 * gx - q2 * gy - q3 * gz)
+    n1 = q1 + (q0 * gx + q2 * gz - q3 * gy)
+    n2 = q2 + (q0 * gy - q1 * gz + q3 * gx)
+    n3 = q3 + (q0 * gz + q1 * gy - q2 * gx)
+    inv = 1.0 / math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
+    S[0], S[1], S[2], S[3] = n0 * inv, n1 * inv, n2 * inv, n3 * inv
+    S[4], S[5], S[6] = ix, iy, iz
+    S[_S_ELAPSED] = elapsed + dt
+
+
+@njit
+def _run_batch(S, P, C, gyro, acc, mag, use_mag, dt, out):
+    """Run ``_step`` over N rows; ``dt`` has N entries or 1 (constant); writes (N, 4) ``out``."""
+    n = gyro.shape[0]
+    const_dt = dt.shape[0] == 1
+    for i in range(n):
+        d = dt[0] if const_dt else dt[i]
+        if use_mag:
+            mx, my, mz = mag[i, 0], mag[i, 1], mag[i, 2]
+        else:
+            mx, my, mz = 0.0, 0.0, 0.0
+        _step(
+            S, P, C, gyro[i, 0], gyro[i, 1], gyro[i, 2], acc[i, 0], acc[i, 1], acc[i, 2],
+            mx, my, mz, use_mag, d,
+        )
+        out[i, 0], out[i, 1], out[i, 2], out[i, 3] = S[0], S[1], S[2], S[3]
+
+
+@njit
+def _run_one(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
+    """Streaming entry: one sample through the same ``_step`` as the batch loop."""
+    _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt)
+
+
+# --------------------------------------------------------------------------------------------
+# Input checks
+# --------------------------------------------------------------------------------------------
+
+
+def _check_dt(dt: float) -> float:
+    dt = float(dt)
+    if not (math.isfinite(dt) and dt > 0):
+        raise ValueError(f"sample period dt must be finite and > 0 s, got {dt!r}")
+    return dt
+
+
+def _as_rows(name: str, a: ArrayLike, n: int | None = None) -> NDArray[np.float64]:
+    arr = np.ascontiguousarray(a, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}")
+    if n is not None and arr.shape[0] != n:
+        raise ValueError(f"{name} has {arr.shape[0]} rows but gyro has {n}")
+    return arr
+
+
+class Mahony:
+    """Mahony attitude filter: 6-axis (gyro + accelerometer) or 9-axis (+ magnetometer).
+
+    Args:
+        kp, ki: gains (see :class:`MahonyParams`); defaults are the 6-axis values tuned on BROAD.
+        axes: 6 or 9. With 9 a magnetometer is expected (rows without one use the 6-axis
+            correction, counted in :attr:`counters`).
+        sample_period: default ``dt`` in s for updates that give none.
+        initial_quaternion: known initial attitude ``[w, x, y, z]`` body -> world ENU. Without
+            it the first valid sample initialises roll and pitch from the accelerometer (and
+            yaw from the magnetometer with ``axes=9``; yaw 0 otherwise), and is then filtered.
+        params: a full :class:`MahonyParams` (overrides kp, ki, sample_period and ``options``).
+        **options: any other :class:`MahonyParams` field (rest_detection=True, ...).
+
+    Example::
+
+        f = Mahony(sample_period=0.01)
+        for gyro, accel in samples:        # rad/s, m/s^2, body frame
+            q = f.update(gyro, accel)      # [w, x, y, z], body -> ENU
+        roll, pitch, yaw = f.euler
+    """
+
+    def __init__(
+        self,
+        kp: float | None = None,
+        ki: float | None = None,
+        *,
+        axes: int = 6,
+        sample_period: float | None = None,
+        initial_quaternion: ArrayLike | None = None,
+        params: MahonyParams | None = None,
+        **options,
+    ) -> None:
+        if axes not in (6, 9):
+            raise ValueError(f"axes must be 6 or 9, got {axes!r}")
+        if params is None:
+            given = {"kp": kp, "ki": ki, "sample_period": sample_period}
+            params = MahonyParams(**{k: v for k, v in given.items() if v is not None}, **options)
+        elif kp is not None or ki is not None or sample_period is not None or options:
+            raise ValueError("give either params or individual settings, not both")
+        self.axes = axes
+        self._initial = None
+        if initial_quaternion is not None:
+            q0 = np.asarray(initial_quaternion, dtype=float)
+            if q0.shape != (4,):
+                raise ValueError(f"initial_quaternion must have shape (4,), got {q0.shape}")
+            self._initial = quat.normalize(q0)
+        self.params = params
+        self.reset()
+
+    # -- parameters and state -----------------------------------------------------------------
+
+    @property
+    def params(self) -> MahonyParams:
+        return self._params
+
+    @params.setter
+    def params(self, params: MahonyParams) -> None:
+        if not isinstance(params, MahonyParams):
+            raise ValueError(f"params must be a MahonyParams, got {type(params).__name__}")
+        self._params = params
+        self._P = params.packed()
+
+    def reset(self) -> None:
+        """Forget everything: back to the state before the first sample."""
+        self._S = np.zeros(_S_LEN)
+        self._C = np.zeros(_C_LEN, dtype=np.int64)
+        self._initialised = False
+        self._last_t: float | None = None
+        if self._initial is not None:
+            self._S[:4] = self._initial
+            self._initialised = True
+
+    def get_state(self) -> MahonyState:
+        """A copy of the complete state."""
+        S, C = self._S, self._C
+        return MahonyState(
+            quaternion=S[:4].copy() if self._initialised else None,
+            integral=S[4:7].copy(),
+            elapsed=float(S[_S_ELAPSED]),
+            rest_timer=float(S[_S_REST_TIMER]),
+            gyro_lowpass=S[9:12].copy(),
+            accel_lowpass=S[12:15].copy(),
+            lowpass_ready=bool(S[_S_LP_INIT]),
+            last_timestamp=self._last_t,
+            counters=MahonyCounters(*(int(c) for c in C)),
+        )
+
+    def set_state(self, state: MahonyState) -> None:
+        """Restore a state from :meth:`get_state` (or a hand-made one)."""
+        S = np.zeros(_S_LEN)
+        if state.quaternion is not None:
+            S[:4] = quat.normalize(np.asarray(state.quaternion, dtype=float).reshape(4))
+        S[4:7] = np.asarray(state.integral, dtype=float).reshape(3)
+        S[_S_ELAPSED], S[_S_REST_TIMER] = state.elapsed, state.rest_timer
+        S[9:12] = np.asarray(state.gyro_lowpass, dtype=float).reshape(3)
+        S[12:15] = np.asarray(state.accel_lowpass, dtype=float).reshape(3)
+        S[_S_LP_INIT] = 1.0 if state.lowpass_ready else 0.0
+        self._S = S
+        c = state.counters
+        self._C = np.array(
+            [c.gyro_skipped, c.accel_skipped, c.mag_skipped, c.accel_rejected, c.rest_samples],
+            dtype=np.int64,
+        )
+        self._initialised = state.quaternion is not None
+        self._last_t = state.last_timestamp
+
+    @property
+    def quaternion(self) -> NDArray[np.float64]:
+        """Current attitude ``[w, x, y, z]``, body -> world ENU (identity before any sample)."""
+        return self._S[:4].copy() if self._initialised else quat.IDENTITY.copy()
+
+    @property
+    def euler(self) -> NDArray[np.float64]:
+        """Current roll, pitch, yaw in radians (ZYX)."""
+        return quat.to_euler(self.quaternion)
+
+    @property
+    def gyro_bias(self) -> NDArray[np.float64]:
+        """Gyro-bias estimate, rad/s, body frame (``-integral``): subtract it from the gyro."""
+        return -self._S[4:7].copy()
+
+    @gyro_bias.setter
+    def gyro_bias(self, bias: ArrayLike) -> None:
+        self._S[4:7] = -np.asarray(bias, dtype=float).reshape(3)
+
+    @property
+    def counters(self) -> MahonyCounters:
+        """Documented skips since the last reset (see :class:`MahonyCounters`)."""
+        return MahonyCounters(*(int(c) for c in self._C))
+
+    def with_params(self, **changes) -> Mahony:
+        """A fresh filter with the same settings and some parameters changed."""
+        return Mahony(
+            axes=self.axes,
+            initial_quaternion=self._initial,
+            params=replace(self._params, **changes),
+        )
+
+    # -- initialisation ---------------------------------------------------------------------
+
+    def _initialise(self, accel: NDArray, mag: NDArray | None) -> bool:
+        """Initial attitude from one sample; False if the sample cannot initialise."""
+        if not np.all(np.isfinite(accel)) or not np.any(accel != 0):
+            return False
+        if self.axes == 9 and mag is not None and np.all(np.isfinite(mag)):
+            try:
+                q = quat.from_accel_mag(accel, mag)
+            except ValueError:
+                q = quat.from_accel(accel)
+        else:
+            q = quat.from_accel(accel)
+        self._S[:4] = q
+        self._initialised = True
+        return True
+
+    # -- streaming -------------------------------------------------------------------------
+
+    def update(
+        self,
+        gyro: ArrayLike,
+        accel: ArrayLike,
+        mag: ArrayLike | None = None,
+        dt: float | None = None,
+        *,
+        timestamp: float | None = None,
+    ) -> NDArray[np.float64]:
+        """Filter one sample and return the attitude ``[w, x, y, z]`` (body -> world ENU).
+
+        Args:
+            gyro: angular rate (3,), rad/s, body frame.
+            accel: specific force (3,), m/s^2, body frame.
+            mag: magnetic field (3,), uT, body frame (9-axis filter only).
+            dt: time since the previous sample, s. Defaults to the difference of ``timestamp``
+                and the previous timestamp, else ``params.sample_period``.
+            timestamp: sample time, s (optional; see ``dt``).
+        """
+        gx, gy, gz = _three("gyro", gyro)
+        ax, ay, az = _three("accel", accel)
+        use_mag = self.axes == 9 and mag is not None
+        mx, my, mz = _three("mag", mag) if use_mag else (0.0, 0.0, 0.0)
+        dt = self._resolve_dt(dt, timestamp)
+        if not self._initialised:
+            a = np.array((ax, ay, az))
+            m = np.array((mx, my, mz)) if use_mag else None
+            if not self._initialise(a, m):
+                self._C[_C_ACC_SKIP] += 1
+                return quat.IDENTITY.copy()
+        _run_one(self._S, self._P, self._C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt)
+        return self._S[:4].copy()
+
+    def _resolve_dt(self, dt: float | None, timestamp: float | None) -> float:
+        if timestamp is not None:
+            timestamp = float(timestamp)
+            if not math.isfinite(timestamp):
+                raise ValueError(f"timestamp must be finite, got {timestamp!r}")
+            if dt is None and self._last_t is not None:
+                dt = timestamp - self._last_t
+                if not dt > 0:
+                    raise ValueError(
+                        f"timestamp {timestamp!r} s is not after the previous one "
+                        f"({self._last_t!r} s)"
+                    )
+            self._last_t = timestamp
+        if dt is None:
+            dt = self._params.sample_period
+            if dt is None:
+                raise ValueError("no dt: pass dt=, timestamps, or set sample_period")
+        return _check_dt(dt)
+
+    # -- batch --------------------------------------------------------------------------------
+
+    def update_batch(
+        self,
+        gyro: ArrayLike,
+        accel: ArrayLike,
+        mag: ArrayLike | None = None,
+        dt: float | ArrayLike | None = None,
+        *,
+        timestamps: ArrayLike | None = None,
+    ) -> NDArray[np.float64]:
+        """Filter N samples; returns the attitude after each one, shape (N, 4).
+
+        Exactly equivalent to N calls of :meth:`update` (same compiled step).
+
+        Args:
+            gyro: (N, 3) rad/s; accel: (N, 3) m/s^2; mag: (N, 3) uT or None.
+            dt: a constant sample period (s) or N per-sample periods (the period before each
+                sample). Defaults to differences of ``timestamps``, else ``sample_period``.
+            timestamps: (N,) sample times, s, strictly increasing. The first sample's period is
+                measured from the previous call's last timestamp when there was one, else it is
+                ``sample_period`` if set, else the first difference.
+        """
+        g = _as_rows("gyro", gyro)
+        n = g.shape[0]
+        a = _as_rows("accel", accel, n)
+        use_mag = self.axes == 9 and mag is not None
+        m = _as_rows("mag", mag, n) if use_mag else np.zeros((0, 3))
+        dts = self._batch_dt(n, dt, timestamps)
+        out = np.empty((n, 4))
+        if n == 0:
+            return out
+        start = 0
+        if not self._initialised:
+            # Rows that cannot initialise (no valid accelerometer) are counted and held at
+            # identity, as in streaming use.
+            while start < n and not self._initialise(a[start], m[start] if use_mag else None):
+                self._C[_C_ACC_SKIP] += 1
+                out[start] = quat.IDENTITY
+                start += 1
+            if start == n:
+                return out
+        d = dts if dts.shape[0] == 1 else dts[start:]
+        _run_batch(
+            self._S, self._P, self._C, g[start:], a[start:], m[start:] if use_mag else m,
+            use_mag, d, out[start:],
+        )
+        return out
+
+    def _batch_dt(self, n: int, dt, timestamps) -> NDArray[np.float64]:
+        if timestamps is not None:
+            t = np.asarray(timestamps, dtype=np.float64)
+            if t.shape != (n,):
+                raise ValueError(f"timestamps must have shape ({n},), got {t.shape}")
+            if n == 0:
+                return np.zeros(1)
+            if not np.all(np.isfinite(t)):
+                bad = int(np.flatnonzero(~np.isfinite(t))[0])
+                raise ValueError(f"timestamps[{bad}] is not finite ({t[bad]!r})")
+            if dt is None:
+                if self._last_t is not None:
+                    first = t[0] - self._last_t
+                elif self._params.sample_period is not None:
+                    first = self._params.sample_period
+                elif n > 1:
+                    first = t[1] - t[0]
+                else:
+                    raise ValueError("one timestamp alone gives no dt: pass dt= or sample_period")
+                dts = np.empty(n)
+                dts[0] = first
+                dts[1:] = np.diff(t)
+                self._check_dts(dts, "timestamps must increase strictly: at index")
+                self._last_t = float(t[-1])
+                return dts
+            self._last_t = float(t[-1])
+        if dt is None:
+            if self._params.sample_period is None:
+                raise ValueError("no dt: pass dt=, timestamps=, or set sample_period")
+            return np.array([self._params.sample_period])
+        dts = np.atleast_1d(np.asarray(dt, dtype=np.float64))
+        if dts.shape not in ((1,), (n,)):
+            raise ValueError(f"dt must be a scalar or have shape ({n},), got {dts.shape}")
+        self._check_dts(dts, "dt must be finite and > 0 s: at index")
+        return np.ascontiguousarray(dts)
+
+    @staticmethod
+    def _check_dts(dts: NDArray, message: str) -> None:
+        bad = ~(np.isfinite(dts) & (dts > 0))
+        if np.any(bad):
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"{message} {i} (dt = {dts[i]!r} s)")
+
+
+def _three(name: str, v: ArrayLike) -> tuple[float, float, float]:
+    try:
+        x, y, z = v  # fast path for sequences and (3,) arrays
+        return float(x), float(y), float(z)
+    except (TypeError, ValueError):
+        raise ValueError(
+            f"{name} must have 3 components, got shape {np.shape(v)}"
+        ) from None
