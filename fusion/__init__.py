@@ -18,6 +18,11 @@ _EXPORTS = {
     "Mahony": "fusion.mahony",
     "MahonyParams": "fusion.mahony",
     "MahonyState": "fusion.mahony",
+    "DiffDriveParams": "fusion.kinematics",
+    "WheelOdometry": "fusion.odometry",
+    "TwistOdometry": "fusion.odometry",
+    "OdometryState": "fusion.odometry",
+    "OdometryNoise": "fusion.odometry",
 }
 
 __all__ = ["__version__", *_EXPORTS]

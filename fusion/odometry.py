@@ -1,0 +1,402 @@
+"""Planar dead reckoning from wheel ticks (seed 000) and from twist feedback (seed 004).
+
+Frames (REP-105): the pose ``(x, y, theta)`` is the body frame ``base_footprint`` (x forward,
+y left) expressed in ``odom``; x, y in m, theta in rad, CCW positive from the odom x axis.
+``theta`` is kept continuous (unwrapped, so whole turns are counted); :attr:`OdometryState.yaw`
+gives it wrapped to (-pi, pi].
+
+One period moves the wheels by ``dl = ticks_l * speed_ratio`` and ``dr = ticks_r * speed_ratio``
+(m). With ``d = (dl + dr)/2`` and ``dtheta = (dr - dl)/L`` the pose update is
+``x += c*cos(phi)``, ``y += c*sin(phi)``, ``theta += dtheta`` where, by ``method``:
+
+- ``"midpoint"`` (seed 000's ``base_controller``): ``phi = theta + dtheta/2``, ``c = d``.
+  For a true circular arc it overstates the chord by the factor ``1/sinc(dtheta/2)``, an
+  error of about ``d*dtheta**2/24`` per period.
+- ``"arc"`` (exact for constant wheel speeds within a period): ``phi = theta + dtheta/2``,
+  ``c = d*sin(dtheta/2)/(dtheta/2)``, the chord of the arc.
+- ``"euler"`` (seed 004's twist integration): ``phi = theta``, ``c = d``.
+
+Velocities are per period: ``v = d/T``, ``w = dtheta/T`` (T = ``encode_sampling_time``), the
+wheel speeds ``dl/T``, ``dr/T`` (m/s), as seed 000 publishes them.
+
+Covariance (instead of the seed's constant 0.01 diagonal): each wheel's travel in a period has
+variance ``k_wheel*|d_wheel|`` (m^2; independent random slip, so sigma grows as the square root of
+distance), the heading change gets an extra ``k_turn*|dtheta|`` (rad^2; slip when turning), and
+both are propagated to ``(x, y, theta)`` through the Jacobians of the update above:
+``P <- F P F^T + G Q G^T``. The pose covariance therefore grows with distance travelled and
+with turning, and stays still when the robot stands still.
+
+One core step serves :meth:`WheelOdometry.update` (streaming) and
+:meth:`WheelOdometry.update_batch` (arrays); they agree exactly, and a split run equals a
+single run.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from fusion.kinematics import DiffDriveParams
+
+__all__ = [
+    "METHODS",
+    "OdometryNoise",
+    "OdometryState",
+    "TwistOdometry",
+    "WheelOdometry",
+    "integrate_wheel_travel",
+    "wrap_angle",
+]
+
+METHODS = ("midpoint", "arc", "euler")
+
+
+def wrap_angle(a: ArrayLike):
+    """Wrap an angle (rad) to (-pi, pi]."""
+    w = np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
+    return float(w) if np.ndim(a) == 0 else w
+
+
+@dataclass(frozen=True)
+class OdometryNoise:
+    """Odometry error model.
+
+    Attributes:
+        k_wheel: variance of a wheel's travel per metre travelled, m^2/m (sigma of a 1 m run is
+            ``sqrt(k_wheel)`` m per wheel; the default 2.5e-4 gives 1.6 cm).
+        k_turn: extra variance of the heading change per radian turned, rad^2/rad (the default
+            1e-3 gives sigma 4.5 deg per full turn).
+    """
+
+    k_wheel: float = 2.5e-4
+    k_turn: float = 1e-3
+
+    def __post_init__(self) -> None:
+        for name in ("k_wheel", "k_turn"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"OdometryNoise.{name} must be finite and >= 0, got {value!r}")
+
+
+@dataclass
+class OdometryState:
+    """Dead-reckoning state (saveable: copy it, restore it with ``set_state``).
+
+    Attributes:
+        x, y: position of base_footprint in odom, m.
+        theta: heading, rad, continuous (not wrapped).
+        v: forward speed over the last period, m/s.
+        w: yaw rate over the last period, rad/s.
+        vl, vr: left and right wheel ground speeds over the last period, m/s.
+        cov: (3, 3) covariance of (x, y, theta), m^2, m*rad, rad^2.
+        distance: total path length travelled by the wheel midpoint, m (sum of |d|).
+        t: host time of the last update, s, or None.
+        updates: number of periods integrated.
+    """
+
+    x: float = 0.0
+    y: float = 0.0
+    theta: float = 0.0
+    v: float = 0.0
+    w: float = 0.0
+    vl: float = 0.0
+    vr: float = 0.0
+    cov: NDArray[np.float64] = field(default_factory=lambda: np.zeros((3, 3)))
+    distance: float = 0.0
+    t: float | None = None
+    updates: int = 0
+
+    @property
+    def yaw(self) -> float:
+        """Heading wrapped to (-pi, pi], rad."""
+        return wrap_angle(self.theta)
+
+    @property
+    def pose(self) -> NDArray[np.float64]:
+        """``[x, y, yaw]`` (m, m, rad wrapped)."""
+        return np.array([self.x, self.y, self.yaw])
+
+    def copy(self) -> OdometryState:
+        return replace(self, cov=self.cov.copy())
+
+
+def _sinc_half(dth: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """``s = sin(a)/a`` with ``a = dth/2`` and its derivative ``ds/ddth``, series near 0."""
+    a = 0.5 * dth
+    small = np.abs(a) < 1e-4
+    a_safe = np.where(small, 1.0, a)
+    s = np.where(small, 1.0 - a * a / 6.0, np.sin(a_safe) / a_safe)
+    exact = (a_safe * np.cos(a_safe) - np.sin(a_safe)) / (a_safe * a_safe)
+    ds_da = np.where(small, -a / 3.0, exact)
+    return s, 0.5 * ds_da
+
+
+def _increments(theta_prev, d, dth, method: str):
+    """Per-period displacement in odom and the pieces of the Jacobians (vectorised)."""
+    if method == "euler":
+        phi = theta_prev
+        s = np.ones_like(d)
+        ds = np.zeros_like(d)
+        dphi_ddth = 0.0
+    elif method == "midpoint":
+        phi = theta_prev + 0.5 * dth
+        s = np.ones_like(d)
+        ds = np.zeros_like(d)
+        dphi_ddth = 0.5
+    elif method == "arc":
+        phi = theta_prev + 0.5 * dth
+        s, ds = _sinc_half(dth)
+        dphi_ddth = 0.5
+    else:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    c = d * s
+    cos_phi = np.cos(phi)
+    sin_phi = np.sin(phi)
+    return c * cos_phi, c * sin_phi, c, s, ds, dphi_ddth, cos_phi, sin_phi
+
+
+def integrate_wheel_travel(
+    dl: ArrayLike,
+    dr: ArrayLike,
+    wheel_distance: float,
+    pose0: ArrayLike = (0.0, 0.0, 0.0),
+    method: str = "midpoint",
+) -> NDArray[np.float64]:
+    """Integrate per-period wheel travel (m) into poses; the batch form of the core step.
+
+    Args:
+        dl, dr: left and right wheel travel per period, m, shape (N,).
+        wheel_distance: ``L``, m.
+        pose0: starting ``(x, y, theta)`` in odom, m, m, rad.
+        method: ``"midpoint"``, ``"arc"`` or ``"euler"`` (see module docstring).
+
+    Returns:
+        (N, 3) poses ``(x, y, theta)`` after each period, theta continuous.
+    """
+    dl = np.asarray(dl, dtype=float).reshape(-1)
+    dr = np.asarray(dr, dtype=float).reshape(-1)
+    if dl.shape != dr.shape:
+        raise ValueError(f"dl and dr must have the same length, got {dl.shape} and {dr.shape}")
+    x0, y0, th0 = (float(p) for p in pose0)
+    d = 0.5 * (dl + dr)
+    dth = (dr - dl) / wheel_distance
+    theta = np.cumsum(np.concatenate(([th0], dth)))
+    dx, dy, *_ = _increments(theta[:-1], d, dth, method)
+    x = np.cumsum(np.concatenate(([x0], dx)))[1:]
+    y = np.cumsum(np.concatenate(([y0], dy)))[1:]
+    return np.column_stack([x, y, theta[1:]])
+
+
+class _DeadReckoner:
+    """State, covariance and the core step shared by the wheel and twist integrators."""
+
+    def __init__(
+        self,
+        params: DiffDriveParams,
+        method: str,
+        noise: OdometryNoise | None,
+        state: OdometryState | None,
+    ) -> None:
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        self.params = params
+        self.method = method
+        self.noise = noise if noise is not None else OdometryNoise()
+        self._state = state.copy() if state is not None else OdometryState()
+
+    # -- state -------------------------------------------------------------------------------
+    @property
+    def state(self) -> OdometryState:
+        """The current state (a live reference; use :meth:`get_state` for a snapshot)."""
+        return self._state
+
+    def get_state(self) -> OdometryState:
+        return self._state.copy()
+
+    def set_state(self, state: OdometryState) -> None:
+        self._state = state.copy()
+
+    def reset(self) -> None:
+        self._state = OdometryState()
+
+    # -- core --------------------------------------------------------------------------------
+    def _propagate_cov(self, cov, dl, dr, d, dth, inc) -> NDArray[np.float64]:
+        """One covariance step; ``inc`` are the pieces returned by ``_increments`` (scalars)."""
+        _, _, c, s, ds, dphi_ddth, cos_phi, sin_phi = inc
+        L = self.params.wheel_distance
+        F = np.array([[1.0, 0.0, -c * sin_phi], [0.0, 1.0, c * cos_phi], [0.0, 0.0, 1.0]])
+        # Jacobian w.r.t. (d, dtheta)
+        dc_ddth = d * ds
+        Gu = np.array(
+            [
+                [s * cos_phi, dc_ddth * cos_phi - c * sin_phi * dphi_ddth],
+                [s * sin_phi, dc_ddth * sin_phi + c * cos_phi * dphi_ddth],
+                [0.0, 1.0],
+            ]
+        )
+        M = np.array([[0.5, 0.5], [-1.0 / L, 1.0 / L]])  # (d, dth) from (dl, dr)
+        q_wheels = np.diag([self.noise.k_wheel * abs(dl), self.noise.k_wheel * abs(dr)])
+        Q = M @ q_wheels @ M.T
+        Q[1, 1] += self.noise.k_turn * abs(dth)
+        out = F @ cov @ F.T + Gu @ Q @ Gu.T
+        return 0.5 * (out + out.T)
+
+    def _step(self, dl: float, dr: float, t: float | None) -> None:
+        st = self._state
+        p = self.params
+        L = p.wheel_distance
+        d = 0.5 * (dl + dr)
+        dth = (dr - dl) / L
+        inc = _increments(
+            np.array([st.theta]), np.array([d]), np.array([dth]), self.method
+        )
+        scal = tuple(float(np.asarray(v).reshape(-1)[0]) for v in inc)
+        st.cov = self._propagate_cov(st.cov, dl, dr, d, dth, scal)
+        # x += dx, same float operations as the cumulative sums of update_batch
+        st.x = float(np.cumsum(np.array([st.x, scal[0]]))[1])
+        st.y = float(np.cumsum(np.array([st.y, scal[1]]))[1])
+        st.theta = float(np.cumsum(np.array([st.theta, dth]))[1])
+        T = p.encode_sampling_time
+        st.v = d / T
+        st.w = dth / T
+        st.vl = dl / T
+        st.vr = dr / T
+        st.distance += abs(d)
+        st.t = t
+        st.updates += 1
+
+
+class WheelOdometry(_DeadReckoner):
+    """Dead reckoning from encoder ticks per period (seed 000), with a growing covariance.
+
+    Args:
+        params: chassis geometry (``wheel_distance`` m, ``speed_ratio`` m/tick,
+            ``encode_sampling_time`` s).
+        method: ``"midpoint"`` (seed 000, default), ``"arc"`` (exact arc) or ``"euler"``.
+        noise: error model for the covariance.
+        state: starting state (default: origin, zero covariance).
+
+    Example:
+        >>> odo = WheelOdometry(DiffDriveParams(wheel_distance=0.2, speed_ratio=1e-4))
+        >>> st = odo.update(100, 100)   # both wheels 100 ticks: 1 cm straight ahead
+        >>> round(st.x, 6), st.y, st.theta
+        (0.01, 0.0, 0.0)
+    """
+
+    def __init__(
+        self,
+        params: DiffDriveParams,
+        method: str = "midpoint",
+        noise: OdometryNoise | None = None,
+        state: OdometryState | None = None,
+    ) -> None:
+        super().__init__(params, method, noise, state)
+
+    def update(self, left: int, right: int, t: float | None = None) -> OdometryState:
+        """Integrate one period of encoder ticks (left, right; signed ticks per period).
+
+        Args:
+            left, right: ticks counted in one ``encode_sampling_time`` period.
+            t: host time stamp of the frame, s (stored, not used for integration: the period
+                is the firmware's).
+
+        Returns:
+            The updated state (live reference).
+        """
+        sr = self.params.speed_ratio
+        self._step(float(left) * sr, float(right) * sr, t)
+        return self._state
+
+    def update_batch(
+        self, left: ArrayLike, right: ArrayLike, t: ArrayLike | None = None
+    ) -> NDArray[np.float64]:
+        """Integrate N periods of ticks; returns the (N, 3) poses ``(x, y, theta)`` after each.
+
+        Identical (bit for bit) to N calls of :meth:`update`; the final state, including the
+        covariance, is updated too.
+        """
+        sr = self.params.speed_ratio
+        lt = np.asarray(left, dtype=float).reshape(-1)
+        rt = np.asarray(right, dtype=float).reshape(-1)
+        if lt.shape != rt.shape:
+            raise ValueError(
+                f"left and right must have the same length, got {lt.shape} and {rt.shape}"
+            )
+        n = lt.size
+        if n == 0:
+            return np.zeros((0, 3))
+        st = self._state
+        dl = lt * sr
+        dr = rt * sr
+        L = self.params.wheel_distance
+        d = 0.5 * (dl + dr)
+        dth = (dr - dl) / L
+        theta = np.cumsum(np.concatenate(([st.theta], dth)))
+        inc = _increments(theta[:-1], d, dth, self.method)
+        x = np.cumsum(np.concatenate(([st.x], inc[0])))[1:]
+        y = np.cumsum(np.concatenate(([st.y], inc[1])))[1:]
+        cov = st.cov
+        arrays = [np.broadcast_to(np.asarray(a, dtype=float), (n,)) for a in inc]
+        for k in range(n):
+            scal = tuple(float(a[k]) for a in arrays)
+            cov = self._propagate_cov(cov, dl[k], dr[k], d[k], dth[k], scal)
+        T = self.params.encode_sampling_time
+        st.cov = cov
+        st.x, st.y, st.theta = float(x[-1]), float(y[-1]), float(theta[-1])
+        st.v, st.w = float(d[-1] / T), float(dth[-1] / T)
+        st.vl, st.vr = float(dl[-1] / T), float(dr[-1] / T)
+        for dk in d:
+            st.distance += abs(float(dk))
+        if t is not None:
+            st.t = float(np.asarray(t, dtype=float).reshape(-1)[-1])
+        else:
+            st.t = None
+        st.updates += n
+        return np.column_stack([x, y, theta[1:]])
+
+
+class TwistOdometry(_DeadReckoner):
+    """Integration of body-twist feedback (seed 004's ``cmd_vel_feedback`` at a fixed dt).
+
+    Seed 004 integrates with the heading at the start of the step (``method="euler"``, the
+    default here); ``"midpoint"`` and ``"arc"`` are available. The seed's fudge factors
+    (x * 1.2468, yaw * 1.125) are deliberately absent: calibrate ``wheel_distance`` instead.
+
+    Args:
+        wheel_distance: ``b``, m; used only to map the twist onto wheel travel for the
+            covariance model.
+        dt: default integration step, s (seed 004: 0.02).
+        method, noise, state: as in :class:`WheelOdometry`.
+    """
+
+    def __init__(
+        self,
+        wheel_distance: float,
+        dt: float = 0.02,
+        method: str = "euler",
+        noise: OdometryNoise | None = None,
+        state: OdometryState | None = None,
+    ) -> None:
+        params = DiffDriveParams(wheel_distance=wheel_distance, speed_ratio=1.0,
+                                 encode_sampling_time=dt)
+        super().__init__(params, method, noise, state)
+        self.dt = dt
+
+    def update_twist(
+        self, v: float, w: float, dt: float | None = None, t: float | None = None
+    ) -> OdometryState:
+        """Integrate forward speed ``v`` (m/s) and yaw rate ``w`` (rad/s) over ``dt`` s."""
+        dt = self.dt if dt is None else float(dt)
+        if not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"dt must be finite and > 0 s, got {dt!r}")
+        half = 0.5 * self.params.wheel_distance * w
+        dl = (v - half) * dt
+        dr = (v + half) * dt
+        self._step(dl, dr, t)
+        st = self._state
+        st.v, st.w = float(v), float(w)
+        st.vl, st.vr = v - half, v + half
+        return st
