@@ -55,6 +55,7 @@ from fusion._jit import njit
 __all__ = [
     "DEFAULT_KI",
     "DEFAULT_KP",
+    "PRESETS",
     "Mahony",
     "MahonyCounters",
     "MahonyParams",
@@ -63,15 +64,26 @@ __all__ = [
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
 
-# Defaults of the 6-axis filter, chosen on the BROAD trials (benchmarks/attitude_broad.py).
-DEFAULT_KP = 0.5
-DEFAULT_KI = 0.002
+# Defaults of the 6-axis filter, chosen by benchmarks/tune_mahony6.py on the ten bundled BROAD
+# trials (mean inclination RMSE 1.53 deg; Ki = 0.0005 costs 0.001 deg against Ki = 0 and keeps
+# the bias estimate learning while moving). Rest detection is on: it alone brings the mean from
+# 1.81 deg (best plain Kp/Ki) to 1.53 deg. Acceleration rejection (skip) made BROAD worse
+# (2.4-2.8 deg), so it stays off by default.
+DEFAULT_KP = 0.15
+DEFAULT_KI = 0.0005
+DEFAULT_REST_DETECTION = True
+# Defaults of the 9-axis filter: the BROAD authors' trial-agnostic best for the classic MARG
+# Mahony (Kp 0.74, Ki 0.0012), without the extensions, so it is the published algorithm.
+PRESETS = {
+    6: {"kp": DEFAULT_KP, "ki": DEFAULT_KI, "rest_detection": DEFAULT_REST_DETECTION},
+    9: {"kp": 0.74, "ki": 0.0012, "rest_detection": False},
+}
 
 # Layout of the packed arrays handed to the compiled core.
 # Parameters P:
 _P_KP, _P_KI, _P_G, _P_ACC_REJ, _P_REST_ON, _P_REST_GYR, _P_REST_ACC = range(7)
-_P_REST_T, _P_REST_TAU, _P_LP_TAU, _P_RAMP_KP, _P_RAMP_T = range(7, 12)
-_P_LEN = 12
+_P_REST_T, _P_REST_TAU, _P_LP_TAU, _P_RAMP_KP, _P_RAMP_T, _P_REST_MAX = range(7, 13)
+_P_LEN = 13
 # State S: quaternion, integral (= -bias), elapsed time, rest timer, low-passed gyro and accel,
 # low-pass initialised flag.
 _S_Q, _S_I, _S_ELAPSED, _S_REST_TIMER, _S_GLP, _S_ALP, _S_LP_INIT = 0, 4, 7, 8, 9, 12, 15
@@ -95,6 +107,11 @@ class MahonyParams:
             None disables it.
         rest_detection: refine the gyro-bias estimate while the sensor is still.
         rest_gyro_threshold: max deviation of the gyro from its low-pass mean at rest, rad/s.
+        rest_max_rate: max magnitude of the low-pass gyro mean at rest, rad/s. A steady
+            rotation at constant specific force (a robot spinning in place at a constant rate)
+            looks like rest to an IMU alone; this bound keeps such rates (above it) from being
+            learnt as bias. Slower steady turns are indistinguishable from bias: feed rest
+            information from the wheels (the EKF's zero-velocity update) where it exists.
         rest_accel_threshold: max deviation of the accelerometer from its low-pass mean, m/s^2.
         rest_min_duration: how long the thresholds must hold before the bias is refined, s.
         rest_bias_time_constant: time constant of the bias refinement at rest, s.
@@ -109,9 +126,10 @@ class MahonyParams:
     sample_period: float | None = None
     gravity: float = STANDARD_GRAVITY
     accel_rejection: float | None = None
-    rest_detection: bool = False
+    rest_detection: bool = DEFAULT_REST_DETECTION
     rest_gyro_threshold: float = math.radians(2.0)
     rest_accel_threshold: float = 0.5
+    rest_max_rate: float = math.radians(5.0)
     rest_min_duration: float = 1.5
     rest_bias_time_constant: float = 3.0
     rest_lowpass_time_constant: float = 0.5
@@ -127,6 +145,7 @@ class MahonyParams:
             "gravity",
             "rest_gyro_threshold",
             "rest_accel_threshold",
+            "rest_max_rate",
             "rest_bias_time_constant",
             "rest_lowpass_time_constant",
         ]
@@ -151,6 +170,7 @@ class MahonyParams:
         p[_P_REST_T], p[_P_REST_TAU] = self.rest_min_duration, self.rest_bias_time_constant
         p[_P_LP_TAU] = self.rest_lowpass_time_constant
         p[_P_RAMP_KP], p[_P_RAMP_T] = self.ramp_kp, self.ramp_time
+        p[_P_REST_MAX] = self.rest_max_rate
         return p
 
 
@@ -226,7 +246,9 @@ def _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
         S[14] += alpha * (az - S[14])
         dg = math.sqrt((gx - S[9]) ** 2 + (gy - S[10]) ** 2 + (gz - S[11]) ** 2)
         da = math.sqrt((ax - S[12]) ** 2 + (ay - S[13]) ** 2 + (az - S[14]) ** 2)
-        if dg < P[_P_REST_GYR] and da < P[_P_REST_ACC] and abs(anorm - P[_P_G]) < P[_P_REST_ACC]:
+        glp = math.sqrt(S[9] * S[9] + S[10] * S[10] + S[11] * S[11])
+        still = dg < P[_P_REST_GYR] and da < P[_P_REST_ACC] and glp < P[_P_REST_MAX]
+        if still and abs(anorm - P[_P_G]) < P[_P_REST_ACC]:
             S[_S_REST_TIMER] += dt
         else:
             S[_S_REST_TIMER] = 0.0
@@ -310,9 +332,16 @@ def _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
     S[_S_ELAPSED] = elapsed + dt
 
 
+# One float64 buffer holds state, parameters and counters, so the compiled entry points take a
+# single array (each argument costs time in a streaming call).
+_B_S, _B_P, _B_C = 0, _S_LEN, _S_LEN + _P_LEN
+_B_LEN = _S_LEN + _P_LEN + _C_LEN
+
+
 @njit
-def _run_batch(S, P, C, gyro, acc, mag, use_mag, dt, out):
+def _run_batch(B, gyro, acc, mag, use_mag, dt, out):
     """Run ``_step`` over N rows; ``dt`` has N entries or 1 (constant); writes (N, 4) ``out``."""
+    S, P, C = B[_B_S:_B_P], B[_B_P:_B_C], B[_B_C:]
     n = gyro.shape[0]
     const_dt = dt.shape[0] == 1
     for i in range(n):
@@ -329,9 +358,35 @@ def _run_batch(S, P, C, gyro, acc, mag, use_mag, dt, out):
 
 
 @njit
-def _run_one(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
-    """Streaming entry: one sample through the same ``_step`` as the batch loop."""
-    _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt)
+def _run_one(B, g, a, m, use_mag, dt):
+    """Streaming entry: one sample (three (3,) arrays) through the same ``_step``."""
+    _step(B[_B_S:_B_P], B[_B_P:_B_C], B[_B_C:], g[0], g[1], g[2], a[0], a[1], a[2],
+          m[0], m[1], m[2], use_mag, dt)
+
+
+def _streaming_entry():
+    """``_run_one`` compiled for its one signature, called without numba's type dispatch.
+
+    Dispatch costs about 1 us per call, as much as the filter step itself; the compiled entry
+    point of the one signature we use skips it (callers guarantee the types). Falls back to the
+    dispatcher, or to the plain Python function when numba is absent.
+    """
+    try:
+        from numba import types
+
+        vec = types.float64[:]  # any stride: rows and columns of bigger arrays too
+        sig = (types.float64[::1], vec, vec, vec, types.boolean, types.float64)
+        _run_one.compile(sig)
+        return _run_one.overloads[sig].entry_point
+    except Exception:  # numba missing (plain function) or an internal API change
+        return _run_one
+
+
+_run_one_fast = None
+_F64 = np.dtype(np.float64)
+_NDARRAY = np.ndarray
+_SHAPE3 = (3,)
+_NO_MAG = np.zeros(3)
 
 
 # --------------------------------------------------------------------------------------------
@@ -359,8 +414,10 @@ class Mahony:
     """Mahony attitude filter: 6-axis (gyro + accelerometer) or 9-axis (+ magnetometer).
 
     Args:
-        kp, ki: gains (see :class:`MahonyParams`); defaults are the 6-axis values tuned on BROAD.
-        axes: 6 or 9. With 9 a magnetometer is expected (rows without one use the 6-axis
+        kp, ki: gains (see :class:`MahonyParams`).
+        axes: 6 or 9. Settings not given come from the preset of that filter (``PRESETS``):
+            6-axis Kp 0.15, Ki 0.0005, rest detection on (tuned on BROAD); 9-axis Kp 0.74,
+            Ki 0.0012, no extensions (the classic MARG filter as published for BROAD). With 9 a magnetometer is expected (rows without one use the 6-axis
             correction, counted in :attr:`counters`).
         sample_period: default ``dt`` in s for updates that give none.
         initial_quaternion: known initial attitude ``[w, x, y, z]`` body -> world ENU. Without
@@ -392,7 +449,8 @@ class Mahony:
             raise ValueError(f"axes must be 6 or 9, got {axes!r}")
         if params is None:
             given = {"kp": kp, "ki": ki, "sample_period": sample_period}
-            params = MahonyParams(**{k: v for k, v in given.items() if v is not None}, **options)
+            settings = {**PRESETS[axes], **{k: v for k, v in given.items() if v is not None}}
+            params = MahonyParams(**{**settings, **options})
         elif kp is not None or ki is not None or sample_period is not None or options:
             raise ValueError("give either params or individual settings, not both")
         self.axes = axes
@@ -416,12 +474,21 @@ class Mahony:
         if not isinstance(params, MahonyParams):
             raise ValueError(f"params must be a MahonyParams, got {type(params).__name__}")
         self._params = params
-        self._P = params.packed()
+        self._default_dt = params.sample_period
+        if hasattr(self, "_B"):
+            self._P[:] = params.packed()
+
+    def _new_buffer(self) -> None:
+        self._B = np.zeros(_B_LEN)
+        self._S = self._B[_B_S:_B_P]
+        self._P = self._B[_B_P:_B_C]
+        self._C = self._B[_B_C:]
+        self._q = self._B[0:4]
+        self._P[:] = self._params.packed()
 
     def reset(self) -> None:
         """Forget everything: back to the state before the first sample."""
-        self._S = np.zeros(_S_LEN)
-        self._C = np.zeros(_C_LEN, dtype=np.int64)
+        self._new_buffer()
         self._initialised = False
         self._last_t: float | None = None
         if self._initial is not None:
@@ -445,20 +512,20 @@ class Mahony:
 
     def set_state(self, state: MahonyState) -> None:
         """Restore a state from :meth:`get_state` (or a hand-made one)."""
-        S = np.zeros(_S_LEN)
+        self._new_buffer()
+        S = self._S
         if state.quaternion is not None:
-            S[:4] = quat.normalize(np.asarray(state.quaternion, dtype=float).reshape(4))
+            q = np.asarray(state.quaternion, dtype=float).reshape(4)
+            # Re-normalising a unit quaternion could change its last bit: only fix real drift.
+            S[:4] = q if abs(np.dot(q, q) - 1.0) < 1e-12 else quat.normalize(q)
         S[4:7] = np.asarray(state.integral, dtype=float).reshape(3)
         S[_S_ELAPSED], S[_S_REST_TIMER] = state.elapsed, state.rest_timer
         S[9:12] = np.asarray(state.gyro_lowpass, dtype=float).reshape(3)
         S[12:15] = np.asarray(state.accel_lowpass, dtype=float).reshape(3)
         S[_S_LP_INIT] = 1.0 if state.lowpass_ready else 0.0
-        self._S = S
         c = state.counters
-        self._C = np.array(
-            [c.gyro_skipped, c.accel_skipped, c.mag_skipped, c.accel_rejected, c.rest_samples],
-            dtype=np.int64,
-        )
+        self._C[:] = [c.gyro_skipped, c.accel_skipped, c.mag_skipped, c.accel_rejected,
+                      c.rest_samples]
         self._initialised = state.quaternion is not None
         self._last_t = state.last_timestamp
 
@@ -532,19 +599,25 @@ class Mahony:
                 and the previous timestamp, else ``params.sample_period``.
             timestamp: sample time, s (optional; see ``dt``).
         """
-        gx, gy, gz = _three("gyro", gyro)
-        ax, ay, az = _three("accel", accel)
-        use_mag = self.axes == 9 and mag is not None
-        mx, my, mz = _three("mag", mag) if use_mag else (0.0, 0.0, 0.0)
-        dt = self._resolve_dt(dt, timestamp)
-        if not self._initialised:
-            a = np.array((ax, ay, az))
-            m = np.array((mx, my, mz)) if use_mag else None
-            if not self._initialise(a, m):
-                self._C[_C_ACC_SKIP] += 1
-                return quat.IDENTITY.copy()
-        _run_one(self._S, self._P, self._C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt)
-        return self._S[:4].copy()
+        # Inline fast path for float64 (3,) arrays: this is the hot loop of live use.
+        g = gyro if (type(gyro) is _NDARRAY and gyro.dtype is _F64 and gyro.shape == _SHAPE3
+                     ) else _vec3("gyro", gyro)
+        a = accel if (type(accel) is _NDARRAY and accel.dtype is _F64 and accel.shape == _SHAPE3
+                      ) else _vec3("accel", accel)
+        use_mag = mag is not None and self.axes == 9
+        m = _vec3("mag", mag) if use_mag else _NO_MAG
+        if dt is None and timestamp is None and self._default_dt is not None:
+            dt = self._default_dt  # already validated
+        else:
+            dt = self._resolve_dt(dt, timestamp)
+        if not self._initialised and not self._initialise(a, m if use_mag else None):
+            self._C[_C_ACC_SKIP] += 1
+            return quat.IDENTITY.copy()
+        global _run_one_fast
+        if _run_one_fast is None:
+            _run_one_fast = _streaming_entry()
+        _run_one_fast(self._B, g, a, m, use_mag, dt)
+        return self._q.copy()
 
     def _resolve_dt(self, dt: float | None, timestamp: float | None) -> float:
         if timestamp is not None:
@@ -609,8 +682,7 @@ class Mahony:
                 return out
         d = dts if dts.shape[0] == 1 else dts[start:]
         _run_batch(
-            self._S, self._P, self._C, g[start:], a[start:], m[start:] if use_mag else m,
-            use_mag, d, out[start:],
+            self._B, g[start:], a[start:], m[start:] if use_mag else m, use_mag, d, out[start:]
         )
         return out
 
@@ -658,11 +730,11 @@ class Mahony:
             raise ValueError(f"{message} {i} (dt = {dts[i]!r} s)")
 
 
-def _three(name: str, v: ArrayLike) -> tuple[float, float, float]:
-    try:
-        x, y, z = v  # fast path for sequences and (3,) arrays
-        return float(x), float(y), float(z)
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"{name} must have 3 components, got shape {np.shape(v)}"
-        ) from None
+def _vec3(name: str, v: ArrayLike) -> NDArray[np.float64]:
+    """``v`` as a float64 (3,) array; the common case costs one type check."""
+    if type(v) is np.ndarray and v.dtype is _F64 and v.shape == (3,):
+        return v
+    arr = np.asarray(v, dtype=np.float64)
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must have 3 components, got shape {arr.shape}")
+    return arr
