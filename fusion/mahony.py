@@ -417,8 +417,9 @@ class Mahony:
         kp, ki: gains (see :class:`MahonyParams`).
         axes: 6 or 9. Settings not given come from the preset of that filter (``PRESETS``):
             6-axis Kp 0.15, Ki 0.0005, rest detection on (tuned on BROAD); 9-axis Kp 0.74,
-            Ki 0.0012, no extensions (the classic MARG filter as published for BROAD). With 9 a magnetometer is expected (rows without one use the 6-axis
-            correction, counted in :attr:`counters`).
+            Ki 0.0012, no extensions (the classic MARG filter as published for BROAD).
+            With 9 a magnetometer is expected (rows without one use the 6-axis correction,
+            counted in :attr:`counters`).
         sample_period: default ``dt`` in s for updates that give none.
         initial_quaternion: known initial attitude ``[w, x, y, z]`` body -> world ENU. Without
             it the first valid sample initialises roll and pitch from the accelerometer (and
