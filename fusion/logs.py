@@ -102,10 +102,11 @@ def read_broad(path: str | Path) -> BroadTrial:
     suffix = path.suffix.lower()
     if suffix == ".mat":
         from scipy.io import loadmat
+        from scipy.io.matlab import MatReadError
 
         try:
             raw = loadmat(path, variable_names=_BROAD_KEYS)
-        except (ValueError, TypeError, OSError) as exc:
+        except (MatReadError, ValueError, TypeError, OSError) as exc:
             if isinstance(exc, FileNotFoundError):
                 raise
             raise LogFormatError(f"{path}: not a readable MATLAB file ({exc})") from exc

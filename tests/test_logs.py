@@ -1,0 +1,91 @@
+"""Log readers on the bundled BROAD trial and on hand-written CSV files."""
+
+import numpy as np
+import pytest
+
+from fusion.logs import LogFormatError, read_broad, read_imu_csv, write_attitude_csv
+
+TRIAL = "01_undisturbed_slow_rotation_A.mat"
+
+
+@pytest.fixture(scope="module")
+def trial(datasets_dir):
+    return read_broad(datasets_dir / "broad" / TRIAL)
+
+
+def test_broad_mat_contents(trial):
+    n = len(trial)
+    # The dataset rounds it to 286 Hz in its description; the file stores 1 / 3.5 ms.
+    assert n == 56940 and trial.rate == pytest.approx(1 / 0.0035)
+    assert trial.gyro.shape == trial.accel.shape == trial.mag.shape == (n, 3)
+    assert trial.quat_ref.shape == (n, 4) and trial.movement.dtype == bool
+    assert np.allclose(np.diff(trial.t), 0.0035)
+    # At rest at the start, the accelerometer measures about 1 g.
+    assert np.linalg.norm(trial.accel[:100].mean(0)) == pytest.approx(9.81, abs=0.1)
+    good = np.all(np.isfinite(trial.quat_ref), axis=1)
+    assert np.allclose(np.linalg.norm(trial.quat_ref[good], axis=1), 1.0, atol=1e-6)
+
+
+def test_broad_hdf5_reads_the_same(trial, tmp_path):
+    h5py = pytest.importorskip("h5py")
+    from scipy.io import loadmat
+
+    raw = loadmat(trial.source)
+    path = tmp_path / "trial.hdf5"
+    with h5py.File(path, "w") as f:
+        for key in ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "opt_pos", "movement",
+                    "sampling_rate"):
+            f[key] = raw[key]
+    other = read_broad(path)
+    for attr in ("gyro", "accel", "mag", "quat_ref", "pos_ref", "movement"):
+        assert np.array_equal(getattr(other, attr), getattr(trial, attr), equal_nan=True)
+    assert other.rate == trial.rate
+
+
+def test_broad_errors_name_the_file(tmp_path):
+    bad = tmp_path / "x.mat"
+    bad.write_bytes(b"not matlab")
+    with pytest.raises(LogFormatError, match=r"x\.mat"):
+        read_broad(bad)
+    with pytest.raises(LogFormatError, match="unknown"):
+        read_broad(tmp_path / "x.txt")
+
+
+def write(tmp_path, text, name="imu.csv"):
+    p = tmp_path / name
+    p.write_text(text)
+    return p
+
+
+def test_imu_csv_with_and_without_magnetometer(tmp_path):
+    log = read_imu_csv(write(tmp_path, "t,gx,gy,gz,ax,ay,az\n0,0.1,0.2,0.3,0,0,9.8\n"
+                                       "0.01,0.1,0.2,0.3,0,0,9.8\n"))
+    assert log.t.tolist() == [0.0, 0.01] and log.mag is None
+    assert log.gyro[1].tolist() == [0.1, 0.2, 0.3]
+    log = read_imu_csv(write(tmp_path, "t,gx,gy,gz,ax,ay,az,mx,my,mz\n"
+                                       "0,0,0,0,0,0,9.8,20,0,-40\n"))
+    assert log.mag.tolist() == [[20.0, 0.0, -40.0]]
+
+
+@pytest.mark.parametrize(
+    "text, where",
+    [
+        ("time,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,1\n", ":1:"),
+        ("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,1\n0.1,0,0,0,0,0\n", ":3: expected 7 fields"),
+        ("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,1\n0.1,0,0,x,0,0,1\n", ":3: column 'gz'"),
+        ("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,1\n0.1,0,0,0,0,0,1\n0.1,0,0,0,0,0,1\n", ":4: timestamp"),
+    ],
+)
+def test_imu_csv_errors_name_file_and_line(tmp_path, text, where):
+    path = write(tmp_path, text)
+    with pytest.raises(LogFormatError) as info:
+        read_imu_csv(path)
+    assert str(path) in str(info.value) and where in str(info.value)
+
+
+def test_attitude_csv_is_replaced_atomically(tmp_path):
+    out = tmp_path / "att.csv"
+    write_attitude_csv(out, [0.0, 0.1], [[1, 0, 0, 0], [0, 1, 0, 0]])
+    lines = out.read_text().splitlines()
+    assert lines[0] == "t,qw,qx,qy,qz,roll,pitch,yaw"
+    assert len(lines) == 3 and not list(tmp_path.glob("*.partial"))
