@@ -1,0 +1,162 @@
+"""``fusion imu``: stream MPU6050 samples and the Mahony attitude to the terminal or a CSV.
+
+Examples::
+
+    fusion imu --bus 1 --rate 100 --calibrate -o imu.csv     # a real chip on /dev/i2c-1
+    fusion imu --sim --count 500                              # the simulated chip
+
+Columns: ``t`` (s, host clock; simulated seconds with ``--sim``), ``gx gy gz`` (rad/s),
+``ax ay az`` (m/s^2), ``temp`` (deg C, empty for FIFO samples), ``qw qx qy qz`` (body ->
+world ENU), ``roll pitch yaw`` (deg, ZYX). Status lines go to standard error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+__all__ = ["register", "run"]
+
+_COLUMNS = "t,gx,gy,gz,ax,ay,az,temp,qw,qx,qy,qz,roll,pitch,yaw"
+_SIM_STILL_S = 5.0  # the simulated robot stays still this long, then turns
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "imu",
+        help="stream MPU6050 samples and the Mahony attitude",
+        description=__doc__.split("\n\n", 1)[0] + " Units: rad/s, m/s^2, deg C, deg (angles).",
+    )
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--bus", type=int, metavar="N", help="I2C bus number (/dev/i2c-N)")
+    src.add_argument("--sim", action="store_true",
+                     help="simulated chip: still for 5 s, then turning at 10 deg/s about z; "
+                          "runs in simulated time unless --realtime")
+    p.add_argument("--address", type=lambda s: int(s, 0), default=0x68,
+                   help="I2C address (0x68 with AD0 low, 0x69 high; default 0x68)")
+    p.add_argument("--rate", type=float, default=100.0, metavar="HZ",
+                   help="sample rate, Hz (default 100)")
+    p.add_argument("--gyro-range", type=int, default=500, choices=(250, 500, 1000, 2000),
+                   help="gyro full scale, deg/s (default 500)")
+    p.add_argument("--accel-range", type=int, default=4, choices=(2, 4, 8, 16),
+                   help="accelerometer full scale, g (default 4)")
+    p.add_argument("--dlpf", type=int, default=3, choices=range(7), metavar="0-6",
+                   help="DLPF_CFG (default 3: 44 Hz accel / 42 Hz gyro bandwidth)")
+    p.add_argument("--calibrate", action="store_true",
+                   help="measure the gyro bias first (keep the sensor still)")
+    p.add_argument("--calibrate-seconds", type=float, default=3.0, metavar="S",
+                   help="duration of the --calibrate rest measurement (default 3 s)")
+    p.add_argument("--calibration", type=Path, metavar="FILE",
+                   help="apply a calibration JSON file (fusion.calibration.ImuCalibration)")
+    p.add_argument("--save-calibration", type=Path, metavar="FILE",
+                   help="write the calibration in force (after --calibrate) to FILE")
+    p.add_argument("--no-fifo", action="store_true",
+                   help="poll DATA_RDY and burst-read each sample instead of using the FIFO")
+    p.add_argument("--count", type=int, metavar="N", help="stop after N samples")
+    p.add_argument("--realtime", action="store_true", help="with --sim: pace to the wall clock")
+    p.add_argument("-o", "--output", type=Path, metavar="CSV", help="write to CSV, not stdout")
+    p.set_defaults(func=run)
+
+
+def _sim_motion(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    g = 9.80665
+    w = np.zeros((len(t), 3))
+    w[:, 2] = np.radians(10.0) * (t >= _SIM_STILL_S)
+    return w, np.tile([0.0, 0.0, g], (len(t), 1))
+
+
+def _open(args: argparse.Namespace) -> Any:
+    from drivers.mpu6050 import MPU6050
+    from fusion.calibration import ImuCalibration
+
+    calibration = ImuCalibration.load(args.calibration) if args.calibration else None
+    kw = dict(gyro_range_dps=args.gyro_range, accel_range_g=args.accel_range, dlpf=args.dlpf,
+              sample_rate_hz=args.rate, calibration=calibration)
+    if args.sim:
+        from drivers.sim.mpu6050 import SimClock, SimulatedMPU6050, SystemClock
+
+        clock = SystemClock() if args.realtime else SimClock()
+        sim = SimulatedMPU6050(_sim_motion, address=args.address, clock=clock,
+                               gyro_bias_dps=(0.8, -0.5, 0.3), gyro_noise_dps=0.05,
+                               accel_noise_g=0.003, seed=1)
+        return MPU6050(sim, args.address, clock=clock, **kw)
+    return MPU6050(args.bus, args.address, **kw)
+
+
+def _calibrate(imu: Any, seconds: float, out: TextIO) -> None:
+    from fusion.calibration import ImuCalibration, gyro_bias_at_rest
+
+    n = max(20, round(seconds * imu.sample_rate_hz))
+    print(f"calibrating: keep the sensor still for {n / imu.sample_rate_hz:.1f} s", file=out)
+    rows = [imu.read(calibrated=False, wait=True) for _ in range(n)]
+    gyro = np.array([s.gyro for s in rows])
+    accel = np.array([s.accel for s in rows])
+    bias = gyro_bias_at_rest(gyro, accel, imu.sample_rate_hz)
+    old = imu.calibration or ImuCalibration()
+    imu.calibration = old.with_gyro_bias(bias)
+    deg = ", ".join(f"{v:+.3f}" for v in np.degrees(bias))
+    print(f"gyro bias ({deg}) deg/s", file=out)
+
+
+def run(args: argparse.Namespace) -> int:
+    from fusion.mahony import Mahony
+
+    if args.count is not None and args.count < 1:
+        raise ValueError(f"--count must be >= 1; got {args.count}")
+    if args.realtime and not args.sim:
+        raise ValueError("--realtime only applies to --sim")
+    status = sys.stderr
+    imu = _open(args)
+    try:
+        if args.calibrate:
+            _calibrate(imu, args.calibrate_seconds, status)
+        if args.save_calibration:
+            if imu.calibration is None:
+                raise ValueError("--save-calibration needs --calibrate or --calibration")
+            imu.calibration.save(args.save_calibration)
+            print(f"calibration written to {args.save_calibration}", file=status)
+        sink = args.output.open("w", encoding="utf-8") if args.output else sys.stdout
+        try:
+            _stream(imu, args, Mahony(sample_period=1.0 / imu.sample_rate_hz), sink, status)
+        finally:
+            if args.output:
+                sink.close()
+    finally:
+        imu.close()
+    return 0
+
+
+def _stream(imu: Any, args: argparse.Namespace, mahony: Any, sink: TextIO,
+            status: TextIO) -> None:
+    print(_COLUMNS, file=sink)
+    written = 0
+    use_fifo = not args.no_fifo
+    if use_fifo:
+        imu.enable_fifo()
+    poll = min(0.05, 40.0 / imu.sample_rate_hz)  # well inside the 85-frame FIFO
+    while args.count is None or written < args.count:
+        if use_fifo:
+            imu.clock.sleep(poll)
+            got = imu.read_fifo()
+            if got.overflow or got.lost:
+                print(f"FIFO: {got.lost} samples lost (overflow={got.overflow}); "
+                      "read more often", file=status)
+            batch = got.samples
+        else:
+            batch = [imu.read(wait=True)]
+        for s in batch:
+            q = mahony.update(s.gyro, s.accel, timestamp=s.t)
+            rpy = np.degrees(mahony.euler)
+            temp = "" if s.temperature is None else f"{s.temperature:.2f}"
+            print(f"{s.t:.6f},{s.gyro[0]:.6f},{s.gyro[1]:.6f},{s.gyro[2]:.6f},"
+                  f"{s.accel[0]:.5f},{s.accel[1]:.5f},{s.accel[2]:.5f},{temp},"
+                  f"{q[0]:.6f},{q[1]:.6f},{q[2]:.6f},{q[3]:.6f},"
+                  f"{rpy[0]:.3f},{rpy[1]:.3f},{rpy[2]:.3f}", file=sink)
+            written += 1
+            if args.count is not None and written >= args.count:
+                break
+        sink.flush()
