@@ -202,8 +202,9 @@ class SimulatedMPU6050:
 
     Counters: ``transactions`` (one per method call; an ``i2c_rdwr`` of several messages is
     one combined transaction), ``calls`` (per method name), ``bytes_read``,
-    ``bytes_written``, ``samples_produced`` (since power-on), ``fifo_frames_written`` and
-    ``fifo_bytes_dropped`` (since the last FIFO reset).
+    ``bytes_written``, ``wire_time_s`` (the transfers' duration at ``i2c_hz``: 9 bits a byte
+    including address and register bytes, plus start/stop), ``samples_produced`` (since
+    power-on), ``fifo_frames_written`` and ``fifo_bytes_dropped`` (since the last FIFO reset).
     """
 
     def __init__(
@@ -256,6 +257,7 @@ class SimulatedMPU6050:
         self.calls: Counter[str] = Counter()
         self.bytes_read = 0
         self.bytes_written = 0
+        self.wire_time_s = 0.0
         self.samples_produced = 0
         self.closed = False
         self._power_on()
@@ -450,8 +452,10 @@ class SimulatedMPU6050:
         # sample state first (what the chip latches when the transfer starts)
         if addr == self.address and not self.absent:
             self._update()
-        if advance is not None and self.i2c_hz > 0:
-            advance((9 * wire_bytes + 2) / self.i2c_hz)
+        duration = (9 * wire_bytes + 2) / self.i2c_hz if self.i2c_hz > 0 else 0.0
+        self.wire_time_s += duration
+        if advance is not None:
+            advance(duration)
         if addr != self.address or self.absent:
             raise OSError(_errno.EREMOTEIO, f"{os.strerror(_errno.EREMOTEIO)} (no ACK from "
                           f"address {addr:#04x})")
