@@ -23,6 +23,7 @@ _EXPORTS = {
     "TwistOdometry": "fusion.odometry",
     "OdometryState": "fusion.odometry",
     "OdometryNoise": "fusion.odometry",
+    "FusedOdometry": "fusion.fused",
 }
 
 __all__ = ["__version__", *_EXPORTS]
