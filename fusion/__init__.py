@@ -24,6 +24,7 @@ _EXPORTS = {
     "OdometryState": "fusion.odometry",
     "OdometryNoise": "fusion.odometry",
     "FusedOdometry": "fusion.fused",
+    "ImuCalibration": "fusion.calibration",
 }
 
 __all__ = ["__version__", *_EXPORTS]
