@@ -9,6 +9,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from drivers.mpu6050 import MPU6050, MPU6050Error, SensorStuckError
 from drivers.sim.mpu6050 import ArrayTrace, SimulatedMPU6050, static_trace
@@ -354,3 +356,21 @@ def test_data_ready_polling():
 def test_bus_number_that_does_not_exist():
     with pytest.raises(MPU6050Error, match=r"cannot open I2C bus 250 \(/dev/i2c-250\)"):
         MPU6050(250)
+
+
+# --------------------------------------------------------------------------- decoding
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.integers(-32768, 32767), min_size=7, max_size=7))
+def test_decoding_of_any_register_contents(values):
+    # registers 0x3B..0x48 hold accel x, y, z, temp, gyro x, y, z as big-endian int16
+    raw14 = b"".join(v.to_bytes(2, "big", signed=True) for v in values)
+    sim = SimulatedMPU6050()
+    imu, _ = make(sim, gyro_range_dps=500, accel_range_g=4, stuck_samples=0)
+    sim.stick(raw14)
+    raw = imu.read_raw()
+    assert raw.accel == tuple(values[0:3]) and raw.temperature == values[3]
+    assert raw.gyro == tuple(values[4:7])
+    s = imu.read()
+    assert np.allclose(s.accel, np.array(values[0:3]) / 8192.0 * G)
+    assert np.allclose(s.gyro, np.radians(np.array(values[4:7]) / 65.5))
+    assert s.temperature == pytest.approx(values[3] / 340.0 + 36.53)

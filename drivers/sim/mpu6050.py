@@ -553,14 +553,14 @@ class SimulatedMPU6050:
         self._nack_errno = int(errno)
 
     def stick(self, raw14: bytes | None = None) -> None:
-        """Freeze the data registers 0x3B..0x48 at ``raw14`` (default: their current bytes);
-        ``stick(None)`` after ``unstick()`` resumes. The FIFO keeps receiving real samples."""
+        """Freeze the data registers 0x3B..0x48 at ``raw14`` (default: their current bytes),
+        from now until ``unstick()``. The FIFO keeps receiving real samples."""
         self._update()
-        self._stuck = bytes(raw14) if raw14 is not None else bytes(
-            self.regs[_DATA_FIRST : _DATA_LAST + 1]
-        )
-        if len(self._stuck) != 14:
+        data = bytes(self.regs[_DATA_FIRST : _DATA_LAST + 1]) if raw14 is None else bytes(raw14)
+        if len(data) != 14:
             raise ValueError("stick: need the 14 bytes of registers 0x3B..0x48")
+        self._stuck = data
+        self.regs[_DATA_FIRST : _DATA_LAST + 1] = data
 
     def unstick(self) -> None:
         """Let the data registers follow the samples again."""
