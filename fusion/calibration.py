@@ -37,6 +37,7 @@ __all__ = [
     "ImuCalibration",
     "SensorMovingError",
     "calibrate",
+    "calibrate_recordings",
     "check_at_rest",
     "fit_accel_poses",
     "gyro_bias_at_rest",
@@ -360,3 +361,23 @@ def pose_means(accel: ArrayLike, segments: Sequence[slice]) -> NDArray[np.float6
     a = _rows("accel", accel)
     return np.array([a[s].mean(axis=0) for s in segments])
 
+
+
+def calibrate_recordings(
+    rest: Any, poses: Any | None = None, *, gravity: float = STANDARD_GRAVITY
+) -> ImuCalibration:
+    """Calibration from raw recordings (``fusion.mpu6050_csv.RawImuRecording``): the gyro
+    bias from ``rest`` (refused if it moved), the accelerometer offset/scale from the still
+    poses found in ``poses`` by ``static_segments``. The file names, the number of poses and
+    the pose norms before/after (g) go into ``info``."""
+    info: dict[str, Any] = {"rest_file": Path(rest.path).name}
+    means = None
+    if poses is not None:
+        segments = static_segments(poses.gyro_si(), poses.accel_si(gravity), poses.fs_hz,
+                                   gravity=gravity)
+        means = pose_means(poses.accel_si(gravity), segments)
+        info["poses_file"] = Path(poses.path).name
+        info["pose_times_s"] = [[s.start / poses.fs_hz, s.stop / poses.fs_hz] for s in segments]
+    cal = calibrate(rest.gyro_si(), rest.accel_si(gravity), rest.fs_hz, means, gravity=gravity,
+                    info=info)
+    return cal

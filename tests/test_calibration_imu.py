@@ -25,6 +25,7 @@ from fusion.calibration import (
     ImuCalibration,
     SensorMovingError,
     calibrate,
+    calibrate_recordings,
     check_at_rest,
     fit_accel_poses,
     gyro_bias_at_rest,
@@ -174,17 +175,18 @@ def test_fit_refuses_too_few_or_degenerate_poses():
 
 
 # --------------------------------------------------------------------------- file, driver
-def test_save_load_round_trip_and_bad_file(tmp_path, fit, static):
+def test_save_load_round_trip_and_bad_file(tmp_path, fit, static, poses_rec):
     _, f = fit
-    cal = calibrate(static.gyro_si(), static.accel_si(), static.fs_hz,
-                    pose_means=None, info={"source": "imu_static_test.csv"})
-    cal = ImuCalibration(cal.gyro_bias, f.offset, f.scale, cal.info)
+    cal = calibrate_recordings(static, poses_rec)
+    assert np.allclose(cal.accel_offset, f.offset) and np.allclose(cal.accel_scale, f.scale)
+    assert cal.info["poses"] == 9 and cal.info["pose_norm_error_max_g"] < 0.001
     p = tmp_path / "imu.json"
     cal.save(p)
     back = ImuCalibration.load(p)
     assert np.array_equal(back.gyro_bias, cal.gyro_bias)
     assert np.array_equal(back.accel_scale, cal.accel_scale)
-    assert back.info["source"] == "imu_static_test.csv"
+    assert back.info["rest_file"] == "imu_static_test.csv"
+    assert back.info["poses_file"] == "example_data_calibration.csv"
     p.write_text('{"format": "diffbot-fusion imu calibration", "version": 1, "gyro_bias": [1]}')
     with pytest.raises(ValueError, match=r"imu\.json: missing key 'accel_offset'"):
         ImuCalibration.load(p)
@@ -223,3 +225,36 @@ def test_calibration_refuses_when_the_simulated_sensor_turns():
     rows = [imu.read(wait=True) for _ in range(300)]
     with pytest.raises(SensorMovingError, match="Keep the sensor still"):
         calibrate(np.array([s.gyro for s in rows]), np.array([s.accel for s in rows]), 100.0)
+
+
+def test_real_recording_replayed_through_sim_and_driver(static, fit):
+    """The static recording drives the simulated chip (ArrayTrace of its SI values); the driver
+    reads it through the FIFO at the recording's settings (DLPF 0, 100 Hz, +-2 g, +-250 deg/s),
+    the gyro bias comes out as from the CSV, and the pose calibration applied by the driver
+    brings the norm to 1 g."""
+    from drivers.sim.mpu6050 import ArrayTrace
+
+    n = 30 * 100  # 30 s
+    trace = ArrayTrace(static.t[:n], static.gyro_si()[:n], static.accel_si()[:n])
+    sim = SimulatedMPU6050(trace)
+    imu = MPU6050(sim, clock=sim.clock, dlpf=0, sample_rate_hz=100, gyro_range_dps=250,
+                  accel_range_g=2)
+    imu.enable_fifo()
+    samples = []
+    while sim.clock.now < 29.0:
+        sim.clock.sleep(0.3)
+        samples += imu.read_fifo().samples
+    gyro = np.array([s.gyro for s in samples])
+    accel = np.array([s.accel for s in samples])
+    bias = gyro_bias_at_rest(gyro, accel, imu.sample_rate_hz)
+    assert np.allclose(np.degrees(bias), [-3.268, 1.118, -0.504], atol=0.01)
+    _, f = fit
+    imu.calibration = ImuCalibration(bias, f.offset, f.scale)
+    sim.clock.sleep(0.3)
+    corrected = imu.read_fifo().samples
+    assert len(corrected) >= 29
+    norms = np.linalg.norm([s.accel for s in corrected], axis=1) / G
+    # 30 samples, per-sample norm noise 0.0046 g: the mean is within 0.0046 * 3 / sqrt(30)
+    # of the recording's corrected mean 1.0009 g
+    assert abs(norms.mean() - 1.0009) < 0.0025
+    assert np.all(np.abs(np.degrees([s.gyro for s in corrected]).mean(axis=0)) < 0.1)
