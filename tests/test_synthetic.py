@@ -1,0 +1,180 @@
+"""Synthetic runs: exact geometry against analytic paths, sensor models against their specs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fusion.kinematics import DiffDriveParams
+from fusion.odometry import WheelOdometry
+from fusion.synthetic import (
+    GRAVITY,
+    EncoderModel,
+    ImuModel,
+    Segment,
+    SlipPatch,
+    arc,
+    degraded_mission,
+    figure_eight,
+    random_mission,
+    simulate,
+    spin,
+    square,
+    stop,
+    straight,
+)
+
+ROBOT = DiffDriveParams(wheel_distance=0.3, speed_ratio=1e-4, encode_sampling_time=0.04)
+FAST = {"max_accel": 1e9, "max_angular_accel": 1e9}  # steps instead of ramps
+
+
+def test_same_seed_same_run_and_other_seed_differs():
+    segs = random_mission(40.0, seed=3)
+    imu = ImuModel(gyro_bias_walk=1e-4, vibration=0.5, jitter=1e-4)
+    enc = EncoderModel(drop_probability=0.05, jitter=1e-3)
+    a = simulate(segs, ROBOT, imu, enc, seed=7)
+    b = simulate(segs, ROBOT, imu, enc, seed=7)
+    c = simulate(segs, ROBOT, imu, enc, seed=8)
+    for name in ("imu_t", "gyro", "accel", "wheel_t", "ticks", "truth"):
+        np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+    assert not np.array_equal(a.gyro, c.gyro)
+    assert random_mission(40.0, seed=3) == segs
+    assert random_mission(40.0, seed=4) != segs
+
+
+def test_square_truth_closes_and_hits_the_corners():
+    run = simulate(square(side=2.0, direction="ccw"), ROBOT, seed=0)
+    # Ramps lose at the start of a leg exactly what they gain at its end: corners are exact.
+    np.testing.assert_allclose(run.truth[-1], [0.0, 0.0, 0.0], atol=1e-4)
+    for corner in ([2.0, 0.0], [2.0, 2.0], [0.0, 2.0]):
+        d = np.min(np.hypot(*(run.truth[:, :2] - corner).T))
+        assert d < 2e-3
+    assert run.distance == pytest.approx(8.0, rel=1e-6)
+    cw = simulate(square(side=2.0, direction="cw"), ROBOT, seed=0)
+    assert np.min(cw.truth[:, 1]) == pytest.approx(-2.0, abs=2e-3)
+
+
+def test_constant_twist_is_an_exact_circle():
+    # v = 0.5 m/s, w = 0.5 rad/s: radius 1 m about (0, 1), one full turn in 4 pi s.
+    run = simulate([Segment(0.5, 0.5, 4 * math.pi)], ROBOT, seed=0, **FAST)
+    r = np.hypot(run.truth[:, 0], run.truth[:, 1] - 1.0)
+    np.testing.assert_allclose(r, 1.0, atol=1e-9)
+    expected_yaw = np.pi - np.mod(np.pi - 0.5 * run.truth_t, 2 * np.pi)
+    np.testing.assert_allclose(np.angle(np.exp(1j * (run.truth[:, 2] - expected_yaw))), 0,
+                               atol=1e-9)
+
+
+def test_figure_eight_returns_to_start():
+    run = simulate(figure_eight(radius=1.0, laps=1), ROBOT, seed=0)
+    np.testing.assert_allclose(run.truth[-1, :2], [0, 0], atol=5e-3)
+    assert run.distance == pytest.approx(4 * math.pi, rel=1e-3)
+
+
+def test_encoder_counts_follow_the_true_geometry():
+    enc = EncoderModel(separation_error=0.03, left_scale_error=-0.01, right_scale_error=0.02)
+    L = 0.3 * 1.03
+    # 2 m straight: each wheel counts 2 m / its own metres per tick
+    run = simulate(stop(1) + straight(2.0, 0.4) + stop(1), ROBOT, encoders=enc, seed=1)
+    left, right = run.ticks.sum(axis=0)
+    assert abs(left - 2.0 / (1e-4 * 0.99)) <= 1
+    assert abs(right - 2.0 / (1e-4 * 1.02)) <= 1
+    # a full spin: wheels travel -/+ pi*L_true
+    run = simulate(stop(1) + spin(2 * math.pi, 0.8) + stop(1), ROBOT, encoders=enc, seed=1)
+    left, right = run.ticks.sum(axis=0)
+    assert abs(left + math.pi * L / (1e-4 * 0.99)) <= 1
+    assert abs(right - math.pi * L / (1e-4 * 1.02)) <= 1
+    assert run.true_wheel_distance == pytest.approx(L)
+    # ticks are per period of encode_sampling_time, stamped at the end of the period
+    np.testing.assert_allclose(np.diff(run.wheel_t), 0.04, atol=1e-9)
+
+
+def test_exact_geometry_dead_reckoning_matches_truth():
+    # Independent integration (fusion.odometry, seed 000's midpoint rule) of the simulated
+    # ticks lands on the truth: the only errors left are quantisation and the midpoint rule.
+    run = simulate(square(side=3.0), ROBOT, seed=2)
+    pose = WheelOdometry(ROBOT).update_batch(run.ticks[:, 0], run.ticks[:, 1])[-1]
+    np.testing.assert_allclose(pose[:2], run.truth[-1, :2], atol=5e-3)
+    assert math.remainder(pose[2] - run.truth[-1, 2], 2 * math.pi) == pytest.approx(0, abs=2e-3)
+
+
+def test_slip_patch_over_counts_one_wheel():
+    base = stop(1) + straight(4.0, 0.4) + stop(1)
+    patch = SlipPatch(3.0, 4.0, wheel="left", ratio=0.3)
+    clean = simulate(base, ROBOT, seed=0)
+    slip = simulate(base, ROBOT, encoders=EncoderModel(slip_patches=(patch,)), seed=0)
+    extra = slip.ticks.sum(axis=0) - clean.ticks.sum(axis=0)
+    # 1 s at 0.4 m/s, 30 % extra on the left: 0.12 m = 1200 ticks; right unchanged
+    assert abs(extra[0] - 1200) <= 2
+    assert abs(extra[1]) <= 1
+    np.testing.assert_array_equal(slip.truth, clean.truth)
+
+
+def test_dropped_frames_and_jitter_keep_order():
+    enc = EncoderModel(drop_probability=0.1, jitter=0.004)
+    run = simulate(random_mission(60, seed=1), ROBOT, encoders=enc, seed=3)
+    n_all = run.ticks.shape[0] + run.info["frames_dropped"]
+    assert 0.07 < run.info["frames_dropped"] / n_all < 0.13
+    assert np.all(np.diff(run.wheel_t) >= 0)
+
+
+def test_gyro_model_noise_bias_and_scale():
+    dens = math.radians(0.005)
+    imu = ImuModel(rate=200.0, gyro_noise_density=dens, gyro_bias=(0.01, -0.02, 0.03),
+                   gyro_scale=(0.0, 0.0, 0.02))
+    run = simulate(stop(20) + spin(4 * math.pi, 1.0) + stop(1), ROBOT, imu=imu, seed=4, **FAST)
+    rest = run.imu_t < 19.9
+    sigma = dens * math.sqrt(200.0)
+    n = rest.sum()
+    np.testing.assert_allclose(run.gyro[rest].mean(axis=0), [0.01, -0.02, 0.03],
+                               atol=5 * sigma / math.sqrt(n))
+    np.testing.assert_allclose(run.gyro[rest].std(axis=0), sigma, rtol=0.05)
+    spinning = (run.imu_t > 20.5) & (run.imu_t < 20 + 4 * math.pi - 0.5)
+    assert run.gyro[spinning, 2].mean() == pytest.approx(1.02 * 1.0 + 0.03, abs=1e-3)
+
+
+def test_gyro_bias_random_walk_has_the_stated_growth():
+    walk = 1e-3
+    imu = ImuModel(gyro_bias_walk=walk, gyro_noise_density=0.0)
+    runs = [simulate(stop(100), ROBOT, imu=imu, seed=s) for s in range(30)]
+    change = np.array([r.gyro_bias[-1] - r.gyro_bias[0] for r in runs]).ravel()
+    # sigma after 100 s = walk*sqrt(100); 90 samples: the sample std within 25 %
+    assert np.std(change) == pytest.approx(walk * 10, rel=0.25)
+
+
+def test_accelerometer_sees_gravity_and_centripetal_force():
+    imu = ImuModel(accel_noise_density=0.0)
+    run = simulate([*stop(1), Segment(0.5, 1.0, 5.0)], ROBOT, imu=imu, seed=0, **FAST)
+    rest = run.imu_t < 0.9
+    np.testing.assert_allclose(run.accel[rest], [[0, 0, GRAVITY]] * rest.sum(), atol=1e-12)
+    turning = (run.imu_t > 1.5) & (run.imu_t < 5.5)
+    np.testing.assert_allclose(run.accel[turning, 1], 0.5 * 1.0, atol=1e-9)  # v*w
+
+
+def test_degraded_mission_is_what_it_says():
+    run = degraded_mission(seed=1, duration=60)
+    assert run.true_wheel_distance == pytest.approx(0.3 * 1.03)
+    assert run.true_right_ratio / run.true_left_ratio == pytest.approx(1.0025 / 0.9975)
+    assert run.gyro_bias[0, 2] == pytest.approx(math.radians(0.5))
+    assert run.truth_v[:100].max() == 0  # starts at rest
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        lambda: Segment(0.1, 0.0, 0.0),
+        lambda: straight(0.0),
+        lambda: arc(-1.0, 1.0),
+        lambda: spin(1.0, 0.0),
+        lambda: SlipPatch(2.0, 1.0),
+        lambda: SlipPatch(1.0, 2.0, wheel="front"),
+        lambda: ImuModel(rate=0),
+        lambda: EncoderModel(drop_probability=1.0),
+        lambda: square(direction="up"),
+        lambda: simulate([], ROBOT),
+    ],
+)
+def test_bad_parameters_raise_value_error(bad):
+    with pytest.raises(ValueError):
+        bad()
