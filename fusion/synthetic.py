@@ -37,8 +37,8 @@ from numpy.typing import NDArray
 from fusion.kinematics import DiffDriveParams
 
 __all__ = [
-    "GRAVITY",
     "EXAMPLE_ROBOT",
+    "GRAVITY",
     "EncoderModel",
     "ImuModel",
     "Segment",
