@@ -31,6 +31,11 @@ What is modelled:
 * a transaction counter, and optionally a simulated clock advanced by the time each transfer
   takes on the wire, so tests are deterministic.
 
+Not modelled: the DLPF's effect on the signal (bandwidth and delay), the accelerometer's own
+1 kHz rate when the gyro runs at 8 kHz, cycle mode and PWR_MGMT_2 standby bits, the auxiliary
+I2C master and slave FIFO sources' data, the DMP, the INT pin, and register-read latency after
+a DEVICE_RESET (the chip answers at once).
+
 Time is in seconds on the clock passed in (``SimClock`` by default), rates in rad/s, specific
 force in m/s^2.
 """
