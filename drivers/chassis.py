@@ -245,7 +245,7 @@ class WheelFrameParser:
         bound = math.ceil(margin * wheel_speed_max * encode_sampling_time / speed_ratio)
         return cls(max_ticks=min(max(bound, 1), TICKS_MAX), **kwargs)
 
-    # -- checks ----------------------------------------------------------------------------------
+    # -- checks --
     def _good_starts(self, a: NDArray[np.uint8]) -> NDArray[np.int64]:
         """Sorted starts of all windows in ``a`` that are valid and clean (rules 1 and 2)."""
         n = a.size
@@ -428,6 +428,10 @@ class WheelFrameParser:
         """
         off, left, right = self._run(b"", final=True)
         return [WheelFrame(int(l), int(r), int(o)) for o, l, r in zip(off, left, right)]
+
+    def flush_arrays(self) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """:meth:`flush` returning ``(offsets, left, right)`` arrays like :meth:`feed_arrays`."""
+        return self._run(b"", final=True)
 
     def finish(self) -> list[WheelFrame]:
         """End of stream: :meth:`flush`, then count the leftover bytes as skipped."""

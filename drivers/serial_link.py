@@ -1,0 +1,358 @@
+"""Serial transport for the miiboo chassis (DATA-uart2), on pyserial.
+
+:class:`ChassisLink` opens the port with ``serial.serial_for_url`` (a device path such as
+``/dev/ttyUSB0`` or a stable udev symlink, ``socket://host:port``, ``loop://``), runs one reader
+thread that feeds :class:`drivers.chassis.WheelFrameParser`, and delivers every accepted frame
+as a :class:`fusion.samples.WheelTicks` stamped on the host clock (``time.monotonic`` by
+default, s). The stamp is the estimated arrival time of the frame's last byte: the read's
+return time minus the transmission time (10 bits per byte at ``baudrate``) of the bytes that
+came after it in the same read, but never earlier than the previous read's return.
+
+Robustness (a robot runs for hours):
+
+- **Liveness**: no frame for ``silence_periods`` sampling periods raises a ``"silent"`` event;
+  the next frame raises ``"alive"``.
+- **Stale commands**: when no wheel target has been sent for ``command_timeout`` s and the last
+  target was not zero, the link sends a stop frame (0, 0) and raises ``"command_stale"``; the
+  firmware would otherwise keep driving at the last target for ever.
+- **Reconnect**: when the port vanishes (USB unplugged: the read fails) the link raises
+  ``"disconnected"``, retries every ``reconnect_interval`` s, raises ``"connected"`` when the
+  port is back, and resumes (a fresh parser; the current target is re-sent if not stale).
+- **Clean close**: :meth:`ChassisLink.close` stops the thread, sends a stop frame if asked,
+  and closes the port. The link is a context manager.
+
+Events are :class:`LinkEvent` objects, delivered to ``on_event`` (called in the reader thread)
+and kept in :attr:`ChassisLink.events` (a bounded deque).
+"""
+
+from __future__ import annotations
+
+import collections
+import contextlib
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import serial
+
+from drivers.chassis import WheelFrameParser, encode_wheel_frame
+from fusion.samples import WheelTicks
+
+__all__ = ["ChassisLink", "LinkEvent"]
+
+
+@dataclass(frozen=True, slots=True)
+class LinkEvent:
+    """Something that happened on the link.
+
+    Attributes:
+        t: host time, s (the link's clock).
+        kind: ``"connected"``, ``"disconnected"``, ``"open_failed"``, ``"silent"``, ``"alive"``,
+            ``"command_stale"``, ``"write_failed"``, ``"closed"``.
+        message: human-readable detail naming the port.
+    """
+
+    t: float
+    kind: str
+    message: str
+
+
+class ChassisLink:
+    """Reader thread + command writer for the DATA-uart2 serial port.
+
+    Args:
+        url: anything ``serial.serial_for_url`` accepts (device path, ``socket://``, ``loop://``).
+        baudrate: 115200 on the miiboo board.
+        period: firmware sampling period ``encode_sampling_time``, s.
+        silence_periods: frames missing for this many periods -> ``"silent"``.
+        command_timeout: s without a new wheel target before a non-zero target is stopped
+            (``None``: never).
+        reconnect_interval: s between attempts to reopen a vanished port.
+        parser_factory: builds the frame parser (e.g. with a bound from the robot's geometry).
+        on_frame: callback ``f(WheelTicks)`` in the reader thread (keep it short).
+        on_event: callback ``f(LinkEvent)`` in the reader thread.
+        clock: the host clock, s.
+        queue_size: frames kept for :meth:`get` (the oldest are dropped and counted beyond).
+    """
+
+    def __init__(
+        self,
+        url: str,
+        *,
+        baudrate: int = 115200,
+        period: float = 0.04,
+        silence_periods: float = 5.0,
+        command_timeout: float | None = 0.5,
+        reconnect_interval: float = 0.2,
+        parser_factory: Callable[[], WheelFrameParser] = WheelFrameParser,
+        on_frame: Callable[[WheelTicks], None] | None = None,
+        on_event: Callable[[LinkEvent], None] | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        queue_size: int = 100_000,
+    ) -> None:
+        if period <= 0 or silence_periods <= 0 or reconnect_interval <= 0:
+            raise ValueError("period, silence_periods and reconnect_interval must be > 0")
+        if command_timeout is not None and command_timeout <= 0:
+            raise ValueError(f"command_timeout must be > 0 s or None, got {command_timeout!r}")
+        self.url = url
+        self.baudrate = int(baudrate)
+        self.period = float(period)
+        self.silence_periods = float(silence_periods)
+        self.command_timeout = command_timeout
+        self.reconnect_interval = float(reconnect_interval)
+        self._parser_factory = parser_factory
+        self.parser = parser_factory()
+        self._on_frame = on_frame
+        self._on_event = on_event
+        self._clock = clock
+        self._frames: queue.Queue[WheelTicks] = queue.Queue(maxsize=queue_size)
+        self.events: collections.deque[LinkEvent] = collections.deque(maxlen=1000)
+        self.frames_dropped = 0
+        self.frames_received = 0
+        self.reconnects = 0
+        self._port: serial.SerialBase | None = None
+        self._lock = threading.Lock()  # guards _port for writes
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._connected = threading.Event()
+        self._target = (0, 0)
+        self._target_time: float | None = None
+        self._stale_sent = False
+        self._last_frame_time: float | None = None
+        self._last_byte_time: float | None = None
+        self._silent = False
+        self._bytes_fed = 0
+        self._ever_connected = False
+        self._prev_read_time: float | None = None
+
+    # -- lifecycle --
+    def start(self, wait: float | None = 2.0) -> ChassisLink:
+        """Start the reader thread; wait up to ``wait`` s for the port to open.
+
+        Raises:
+            OSError: the port could not be opened within ``wait`` s (the thread keeps trying).
+        """
+        if self._thread is not None:
+            raise RuntimeError("ChassisLink already started")
+        self._stop.clear()
+        self._thread = threading.Thread(target=self._run, name=f"ChassisLink({self.url})",
+                                        daemon=True)
+        self._thread.start()
+        if wait is not None and not self._connected.wait(wait):
+            last = next((e for e in reversed(self.events) if e.kind == "open_failed"), None)
+            detail = f": {last.message}" if last else ""
+            raise OSError(f"chassis port {self.url} did not open within {wait} s{detail}")
+        return self
+
+    def close(self, stop: bool = True) -> None:
+        """Stop the reader, send a stop frame (if ``stop`` and connected), close the port."""
+        if stop:
+            self._write(encode_wheel_frame(0, 0))
+        self._stop.set()
+        port = self._port
+        if port is not None:
+            with contextlib.suppress(Exception):
+                port.cancel_read()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        with self._lock:
+            if self._port is not None:
+                with contextlib.suppress(Exception):
+                    self._port.close()
+                self._port = None
+        self._connected.clear()
+        self._emit("closed", f"{self.url} closed")
+
+    def __enter__(self) -> ChassisLink:
+        if self._thread is None:
+            self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    # -- status --
+    @property
+    def connected(self) -> bool:
+        """True while the port is open."""
+        return self._connected.is_set()
+
+    @property
+    def alive(self) -> bool:
+        """True when a frame arrived within the last ``silence_periods`` periods."""
+        t = self._last_frame_time
+        return t is not None and self._clock() - t <= self.silence_periods * self.period
+
+    @property
+    def last_frame_time(self) -> float | None:
+        return self._last_frame_time
+
+    # -- commands --
+    def send_ticks(self, left: int, right: int) -> bool:
+        """Send target ticks per period (left, right). Returns False if the port is down
+        (the target is kept and sent when the port comes back, unless it is stale by then).
+
+        Raises:
+            ValueError: a target outside the 24-bit wire range.
+        """
+        frame = encode_wheel_frame(left, right)
+        self._target = (int(left), int(right))
+        self._target_time = self._clock()
+        self._stale_sent = False
+        return self._write(frame)
+
+    def stop(self) -> bool:
+        """Send zero targets (the firmware brakes on a zero target)."""
+        return self.send_ticks(0, 0)
+
+    def _write(self, frame: bytes) -> bool:
+        with self._lock:
+            port = self._port
+            if port is None:
+                return False
+            try:
+                port.write(frame)
+                port.flush()
+            except (serial.SerialException, OSError) as exc:
+                self._emit("write_failed", f"write to {self.url} failed: {exc}")
+                return False
+        return True
+
+    # -- frames --
+    def get(self, timeout: float | None = None) -> WheelTicks | None:
+        """Next received frame (oldest first), or None after ``timeout`` s."""
+        try:
+            return self._frames.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def drain(self) -> list[WheelTicks]:
+        """All frames received and not yet taken."""
+        out = []
+        while True:
+            try:
+                out.append(self._frames.get_nowait())
+            except queue.Empty:
+                return out
+
+    # -- reader thread --
+    def _emit(self, kind: str, message: str) -> None:
+        ev = LinkEvent(self._clock(), kind, message)
+        self.events.append(ev)
+        if self._on_event is not None:
+            self._on_event(ev)
+
+    def _open(self) -> bool:
+        try:
+            port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=self.period)
+        except (serial.SerialException, OSError, ValueError) as exc:
+            self._emit("open_failed", f"cannot open chassis port {self.url}: {exc}")
+            return False
+        with self._lock:
+            self._port = port
+        self.parser = self._parser_factory()
+        self._bytes_fed = 0
+        if self._ever_connected:
+            self.reconnects += 1
+        self._ever_connected = True
+        self._connected.set()
+        self._emit("connected", f"chassis port {self.url} open")
+        # resume the current target if it is still fresh
+        if self._target != (0, 0) and not self._command_is_stale(self._clock()):
+            self._write(encode_wheel_frame(*self._target))
+        return True
+
+    def _drop_port(self, reason: str) -> None:
+        with self._lock:
+            port, self._port = self._port, None
+        if port is not None:
+            with contextlib.suppress(Exception):
+                port.close()
+        self._connected.clear()
+        self._emit("disconnected", f"chassis port {self.url} lost: {reason}")
+
+    def _command_is_stale(self, now: float) -> bool:
+        return (
+            self.command_timeout is not None
+            and self._target_time is not None
+            and now - self._target_time > self.command_timeout
+        )
+
+    def _deliver(self, frames_off, left, right, t_read: float) -> None:
+        byte_time = 10.0 / self.baudrate  # 8N1: 10 bit times per byte
+        floor = self._prev_read_time  # bytes of this read arrived after the previous read
+        for off, lft, rgt in zip(frames_off, left, right):
+            after = self._bytes_fed - (int(off) + 11)
+            t = t_read - after * byte_time
+            if floor is not None and t < floor:
+                t = floor
+            sample = WheelTicks(t, int(lft), int(rgt))
+            self.frames_received += 1
+            self._last_frame_time = sample.t
+            if self._frames.full():
+                with contextlib.suppress(queue.Empty):
+                    self._frames.get_nowait()
+                    self.frames_dropped += 1
+            self._frames.put_nowait(sample)
+            if self._on_frame is not None:
+                self._on_frame(sample)
+        if frames_off.size and self._silent:
+            self._silent = False
+            self._emit("alive", f"frames from {self.url} again")
+
+    def _housekeeping(self, now: float) -> None:
+        # liveness
+        ref = self._last_frame_time
+        if ref is not None and not self._silent and now - ref > self.silence_periods * self.period:
+            self._silent = True
+            self._emit("silent", f"no frame from {self.url} for {now - ref:.3f} s")
+        # a lone deferred frame on a quiet line
+        if (
+            self.parser.pending
+            and self._last_byte_time is not None
+            and now - self._last_byte_time > 2 * self.period
+        ):
+            off, lft, rgt = self.parser.flush_arrays()
+            self._deliver(off, lft, rgt, self._last_byte_time)
+        # stale command
+        if (
+            not self._stale_sent
+            and self._target != (0, 0)
+            and self._command_is_stale(now)
+        ):
+            self._stale_sent = True
+            self._target = (0, 0)
+            self._write(encode_wheel_frame(0, 0))
+            self._emit(
+                "command_stale",
+                f"no wheel target for {self.command_timeout} s: sent stop to {self.url}",
+            )
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            port = self._port
+            if port is None:
+                if not self._open():
+                    self._stop.wait(self.reconnect_interval)
+                continue
+            try:
+                data = port.read(1)
+                if data and port.in_waiting:
+                    data += port.read(port.in_waiting)
+            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+                # TypeError/AttributeError: pyserial racing a concurrent close()
+                if self._stop.is_set():
+                    break
+                self._drop_port(str(exc))
+                continue
+            now = self._clock()
+            if data:
+                self._last_byte_time = now
+                self._bytes_fed += len(data)
+                off, lft, rgt = self.parser.feed_arrays(data)
+                self._deliver(off, lft, rgt, now)
+            self._housekeeping(now)
+            self._prev_read_time = now

@@ -1,0 +1,192 @@
+"""ChassisLink over real pseudo-terminal pairs (os.openpty); pyserial is not mocked."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import select
+import time
+import tty
+
+import pytest
+
+from drivers.chassis import WheelFrameParser, encode_wheel_frame
+from drivers.serial_link import ChassisLink
+
+TIMEOUT = 5.0  # generous I/O waits; tests assert behaviour, not speed
+
+
+class Pty:
+    """A pty pair whose slave is reached through a symlink that can be re-pointed (as udev
+    symlinks do when a USB adapter comes back)."""
+
+    def __init__(self, link_path: str):
+        self.link_path = link_path
+        self.master = -1
+        self.slave = -1
+        self.open()
+
+    def open(self) -> None:
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)  # no echo, no line discipline before pyserial configures it
+        tmp = self.link_path + ".tmp"
+        os.symlink(os.ttyname(self.slave), tmp)
+        os.replace(tmp, self.link_path)
+
+    def vanish(self) -> None:
+        os.unlink(self.link_path)
+        os.close(self.master)
+        os.close(self.slave)
+
+    def write(self, data: bytes) -> None:
+        os.write(self.master, data)
+
+    def read_until(self, n: int, timeout: float = TIMEOUT) -> bytes:
+        out = b""
+        end = time.monotonic() + timeout
+        while len(out) < n and time.monotonic() < end:
+            r, _, _ = select.select([self.master], [], [], 0.05)
+            if r:
+                out += os.read(self.master, 4096)
+        return out
+
+    def close(self) -> None:
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        if os.path.lexists(self.link_path):
+            os.unlink(self.link_path)
+
+
+@pytest.fixture
+def pty_pair(tmp_path):
+    p = Pty(str(tmp_path / "ttyCHASSIS"))
+    yield p
+    p.close()
+
+
+def wait_for(pred, timeout=TIMEOUT):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.01)
+    return False
+
+
+def kinds(link):
+    return [e.kind for e in link.events]
+
+
+def test_frames_are_received_in_order_and_stamped(pty_pair):
+    with ChassisLink(pty_pair.link_path, command_timeout=None) as link:
+        values = [(i, -2 * i) for i in range(50)] + [(255, 65535)]
+        t0 = time.monotonic()
+        stream = b"\x00\x13" + b"".join(encode_wheel_frame(a, b) for a, b in values)
+        pty_pair.write(stream[:7])
+        time.sleep(0.02)
+        pty_pair.write(stream[7:])
+        got = []
+        assert wait_for(lambda: got.extend(link.drain()) or len(got) >= len(values))
+        t1 = time.monotonic()
+        assert [(w.left, w.right) for w in got] == values
+        # stamps: never before the read that preceded the bytes (at most one read timeout,
+        # i.e. one period, before t0), never after their delivery
+        assert all(t0 - link.period - 0.01 <= w.t <= t1 for w in got)
+        assert all(a.t <= b.t for a, b in itertools.pairwise(got))
+        assert link.parser.stats.bytes_skipped == 2
+        assert link.alive
+
+
+def test_send_ticks_writes_the_frame(pty_pair):
+    with ChassisLink(pty_pair.link_path, command_timeout=None) as link:
+        assert link.send_ticks(120, -80)
+        assert pty_pair.read_until(11) == encode_wheel_frame(120, -80)
+        with pytest.raises(ValueError, match="24-bit"):
+            link.send_ticks(1 << 24, 0)
+    # closing sends a stop frame
+    assert pty_pair.read_until(11) == encode_wheel_frame(0, 0)
+
+
+def test_stale_command_is_stopped(pty_pair):
+    link = ChassisLink(pty_pair.link_path, command_timeout=0.3).start()
+    try:
+        link.send_ticks(50, 50)
+        assert pty_pair.read_until(11) == encode_wheel_frame(50, 50)
+        # no new target: after 0.3 s the link sends a stop by itself
+        assert pty_pair.read_until(11) == encode_wheel_frame(0, 0)
+        assert "command_stale" in kinds(link)
+        n = len(kinds(link))
+        time.sleep(0.5)
+        assert kinds(link)[n:].count("command_stale") == 0  # once, not repeatedly
+    finally:
+        link.close(stop=False)
+
+
+def test_silence_and_alive_events(pty_pair):
+    with ChassisLink(pty_pair.link_path, period=0.02, silence_periods=5,
+                     command_timeout=None) as link:
+        pty_pair.write(encode_wheel_frame(1, 1))
+        assert link.get(TIMEOUT) is not None
+        assert wait_for(lambda: "silent" in kinds(link))
+        assert not link.alive
+        pty_pair.write(encode_wheel_frame(2, 2))
+        assert wait_for(lambda: "alive" in kinds(link))
+        assert link.get(TIMEOUT).left == 2
+
+
+def test_reconnect_when_the_port_vanishes_and_returns(pty_pair):
+    with ChassisLink(pty_pair.link_path, reconnect_interval=0.05,
+                     command_timeout=None) as link:
+        pty_pair.write(encode_wheel_frame(1, 2))
+        assert link.get(TIMEOUT).right == 2
+        pty_pair.vanish()
+        assert wait_for(lambda: "disconnected" in kinds(link))
+        assert not link.connected
+        assert link.send_ticks(10, 10) is False  # kept, sent on reconnect
+        time.sleep(0.2)
+        assert "open_failed" in kinds(link)
+        pty_pair.open()
+        assert wait_for(lambda: link.connected)
+        assert link.reconnects == 1
+        # the fresh target is re-sent to the new port, and frames flow again
+        assert pty_pair.read_until(11) == encode_wheel_frame(10, 10)
+        pty_pair.write(encode_wheel_frame(3, 4))
+        got = link.get(TIMEOUT)
+        assert (got.left, got.right) == (3, 4)
+        assert kinds(link).count("connected") == 2
+
+
+def test_deferred_frame_is_flushed_on_a_quiet_line(pty_pair):
+    # a frame whose checksum byte is 0xFF must wait for what follows (rule 3 of the parser);
+    # on a quiet line the link decides it after two periods
+    frame = encode_wheel_frame(255, -1)
+    assert frame[10] == 0xFF
+    with ChassisLink(pty_pair.link_path, period=0.02, command_timeout=None) as link:
+        pty_pair.write(frame)
+        got = link.get(TIMEOUT)
+        assert got is not None and (got.left, got.right) == (255, -1)
+        assert link.parser.stats.deferred == 1
+
+
+def test_loop_url_and_parser_factory():
+    # loop:// echoes what is written: the same frame format both ways
+    with ChassisLink("loop://", command_timeout=None,
+                     parser_factory=lambda: WheelFrameParser(max_ticks=1000)) as link:
+        link.send_ticks(999, -999)
+        link.send_ticks(1001, 0)  # implausible for this parser
+        link.send_ticks(5, 6)
+        got = [link.get(TIMEOUT) for _ in range(2)]
+        assert [(g.left, g.right) for g in got] == [(999, -999), (5, 6)]
+        assert wait_for(lambda: link.parser.stats.implausible == 1)
+
+
+def test_open_failure_names_the_port(tmp_path):
+    missing = str(tmp_path / "no_such_tty")
+    link = ChassisLink(missing)
+    with pytest.raises(OSError, match="no_such_tty"):
+        link.start(wait=0.3)
+    link.close(stop=False)
+    assert not link.connected
