@@ -135,12 +135,14 @@ class FifoRead:
         lost: number of samples estimated lost to an overflow or a failed read (from the
             time since the last delivered sample and the sample rate; +-1).
         transactions: I2C transactions this call issued.
+        raw: the frames as read, (len(samples), 6) int16 counts: accel x, y, z, gyro x, y, z.
     """
 
     samples: list[ImuSample]
     overflow: bool = False
     lost: int = 0
     transactions: int = 0
+    raw: NDArray[np.int16] = field(default_factory=lambda: np.zeros((0, 6), dtype=np.int16))
 
 
 @dataclass(frozen=True)
@@ -737,7 +739,8 @@ class MPU6050:
             shift = min(max(times[0] - follow, -0.05 * step), 0.05 * step)
             times = times - times[0] + follow + shift
         self._fifo_last_t = float(times[-1])
-        raw = np.frombuffer(data, dtype=">i2").reshape(n, 6).astype(float)
+        counts = np.frombuffer(data, dtype=">i2").reshape(n, 6).astype(np.int16)
+        raw = counts.astype(float)
         accel, gyro = self._to_si(raw[:, :3], raw[:, 3:], calibrated)
         samples = []
         for i in range(n):
@@ -745,7 +748,7 @@ class MPU6050:
             self._check_stuck(data[i * _FRAME : (i + 1) * _FRAME], t, per_sample=True)
             samples.append(ImuSample(t, gyro[i], accel[i]))
         self._fifo_index += n
-        return FifoRead(samples, transactions=self.stats.transactions - before)
+        return FifoRead(samples, transactions=self.stats.transactions - before, raw=counts)
 
     def _recover(self, *, overflow: bool, before: int) -> FifoRead:
         t = self.clock.monotonic()

@@ -5,18 +5,22 @@ Format: ``key,value`` metadata lines (``Fs,100`` gives the sample rate in Hz; ot
 header ``ax,ay,az,gx,gy,gz``, then one row of signed 16-bit register values per sample.
 
 Conversions to SI happen here, at the edge, with the sensitivities of the ranges the recording
-was made at (default +-2 g = 16384 LSB/g and +-250 deg/s = 131 LSB/(deg/s)).
+was made at: the ``accel_lsb_per_g`` and ``gyro_lsb_per_dps`` metadata lines when present (this
+library's recorder, ``fusion imu --raw``, writes them), else +-2 g = 16384 LSB/g and +-250 deg/s
+= 131 LSB/(deg/s) as in the bundled recordings.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["RawImuRecording", "read_mpu6050_csv"]
+__all__ = ["RawImuRecording", "format_header", "format_row", "read_mpu6050_csv"]
 
 STANDARD_GRAVITY = 9.80665  # m/s^2
 _HEADER = ["ax", "ay", "az", "gx", "gy", "gz"]
@@ -69,10 +73,28 @@ class RawImuRecording:
         return np.radians(self.gyro_dps())
 
 
+def format_header(fs_hz: float, accel_lsb_per_g: float, gyro_lsb_per_dps: float) -> str:
+    """The metadata lines and column header of a recording (newline-terminated)."""
+    return (f"Fs,{fs_hz:g}\naccel_lsb_per_g,{accel_lsb_per_g:g}\n"
+            f"gyro_lsb_per_dps,{gyro_lsb_per_dps:g}\n{','.join(_HEADER)}\n")
+
+
+def format_row(accel: Sequence[int], gyro: Sequence[int]) -> str:
+    """One sample row: accel x, y, z then gyro x, y, z int16 counts (newline-terminated)."""
+    return ",".join(str(int(v)) for v in (*accel, *gyro)) + "\n"
+
+
 def read_mpu6050_csv(
-    path: str | Path, *, accel_lsb_per_g: float = 16384.0, gyro_lsb_per_dps: float = 131.0
+    path: str | Path,
+    *,
+    accel_lsb_per_g: float | None = None,
+    gyro_lsb_per_dps: float | None = None,
 ) -> RawImuRecording:
-    """Read a raw MPU6050 CSV recording; ``ValueError`` names the file and line of bad input."""
+    """Read a raw MPU6050 CSV recording; ``ValueError`` names the file and line of bad input.
+
+    Sensitivities: the arguments if given, else the file's metadata, else 16384 LSB/g and
+    131 LSB/(deg/s).
+    """
     path = Path(path)
     metadata: dict[str, str] = {}
     rows: list[list[int]] = []
@@ -119,8 +141,21 @@ def read_mpu6050_csv(
         raise ValueError(f"{path}: Fs must be a number of Hz; got {fs_text!r}") from None
     if not fs > 0:
         raise ValueError(f"{path}: Fs must be > 0 Hz; got {fs_text!r}")
+    lsb = []
+    for key, given, default in (("accel_lsb_per_g", accel_lsb_per_g, 16384.0),
+                                ("gyro_lsb_per_dps", gyro_lsb_per_dps, 131.0)):
+        text = metadata.get(key)
+        if given is not None:
+            lsb.append(float(given))
+        elif text is None:
+            lsb.append(default)
+        else:
+            try:
+                value = float(text)
+            except ValueError:
+                value = math.nan
+            if not value > 0:
+                raise ValueError(f"{path}: {key} must be a positive number; got {text!r}")
+            lsb.append(value)
     data = np.asarray(rows, dtype=np.int64)
-    return RawImuRecording(
-        path, fs, data[:, :3], data[:, 3:], float(accel_lsb_per_g), float(gyro_lsb_per_dps),
-        metadata,
-    )
+    return RawImuRecording(path, fs, data[:, :3], data[:, 3:], lsb[0], lsb[1], metadata)

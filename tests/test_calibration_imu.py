@@ -84,6 +84,19 @@ def test_reader_errors_name_file_and_line(tmp_path, body, match):
         read_mpu6050_csv(p)
 
 
+def test_reader_takes_sensitivities_from_metadata(tmp_path):
+    p = tmp_path / "r.csv"
+    p.write_text("Fs,200\naccel_lsb_per_g,8192\ngyro_lsb_per_dps,65.5\nax,ay,az,gx,gy,gz\n"
+                 "0,0,8192,655,0,0\n")
+    r = read_mpu6050_csv(p)
+    assert r.fs_hz == 200.0 and np.allclose(r.accel_g(), [[0, 0, 1.0]])
+    assert np.allclose(r.gyro_dps(), [[10.0, 0, 0]])
+    assert np.allclose(read_mpu6050_csv(p, accel_lsb_per_g=16384).accel_g(), [[0, 0, 0.5]])
+    p.write_text("Fs,200\naccel_lsb_per_g,zero\nax,ay,az,gx,gy,gz\n0,0,1,0,0,0\n")
+    with pytest.raises(ValueError, match="accel_lsb_per_g must be a positive number"):
+        read_mpu6050_csv(p)
+
+
 # --------------------------------------------------------------------------- gyro bias
 def test_gyro_bias_on_real_static_recording(static):
     bias = np.degrees(gyro_bias_at_rest(static.gyro_si(), static.accel_si(), static.fs_hz))

@@ -44,3 +44,38 @@ def test_missing_bus_is_a_clear_error(capsys):
     rc = main(["imu", "--bus", "250", "--count", "1"])
     assert rc == 2
     assert "/dev/i2c-250" in capsys.readouterr().err
+
+
+def test_raw_recording_then_imu_calibrate(tmp_path, capsys):
+    rest, cal = tmp_path / "rest.csv", tmp_path / "cal.json"
+    assert main(["imu", "--sim", "--raw", "--count", "400", "-o", str(rest)]) == 0
+    lines = rest.read_text().splitlines()
+    # metadata for the CLI's default ranges: +-4 g = 8192 LSB/g, +-500 deg/s = 65.5 LSB/(deg/s)
+    assert lines[:4] == ["Fs,100", "accel_lsb_per_g,8192", "gyro_lsb_per_dps,65.5",
+                         "ax,ay,az,gx,gy,gz"]
+    assert len(lines) == 4 + 400
+    az = np.array([int(ln.split(",")[2]) for ln in lines[4:]])
+    assert abs(az.mean() - 8192) < 5  # 1 g at rest
+    assert main(["imu-calibrate", str(rest), "-o", str(cal)]) == 0
+    bias = np.degrees(json.loads(cal.read_text())["gyro_bias"])
+    assert np.allclose(bias, [0.8, -0.5, 0.3], atol=0.03)  # the simulator's bias
+
+
+def test_imu_calibrate_on_the_bundled_recordings(tmp_path, capsys, datasets_dir):
+    raw = datasets_dir / "mpu6050_raw"
+    out = tmp_path / "cal.json"
+    rc = main(["imu-calibrate", str(raw / "imu_static_test.csv"), "--poses",
+               str(raw / "example_data_calibration.csv"), "-o", str(out)])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "gyro bias (-3.268, +1.118, -0.504) deg/s" in text and "9 still poses" in text
+    d = json.loads(out.read_text())
+    assert np.allclose(np.array(d["accel_offset"]) / 9.80665, [0.0427, -0.0220, -0.1158],
+                       atol=0.0005)
+
+
+def test_imu_calibrate_bad_file(tmp_path, capsys):
+    bad = tmp_path / "bad.csv"
+    bad.write_text("Fs,100\nax,ay,az,gx,gy,gz\n1,2,3\n")
+    assert main(["imu-calibrate", str(bad), "-o", str(tmp_path / "c.json")]) == 2
+    assert "bad.csv:3: expected 6 values" in capsys.readouterr().err

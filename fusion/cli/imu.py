@@ -4,10 +4,20 @@ Examples::
 
     fusion imu --bus 1 --rate 100 --calibrate -o imu.csv     # a real chip on /dev/i2c-1
     fusion imu --sim --count 500                              # the simulated chip
+    fusion imu --bus 1 --raw --count 3000 -o rest.csv         # raw counts, to calibrate from
+    fusion imu-calibrate rest.csv --poses poses.csv -o imu_cal.json
+    fusion imu --bus 1 --calibration imu_cal.json             # apply it
 
 Columns: ``t`` (s, host clock; simulated seconds with ``--sim``), ``gx gy gz`` (rad/s),
 ``ax ay az`` (m/s^2), ``temp`` (deg C, empty for FIFO samples), ``qw qx qy qz`` (body ->
-world ENU), ``roll pitch yaw`` (deg, ZYX). Status lines go to standard error.
+world ENU), ``roll pitch yaw`` (deg, ZYX). With ``--raw``: the raw recording format of
+``fusion.mpu6050_csv`` (``Fs`` and sensitivity lines, then ``ax,ay,az,gx,gy,gz`` int16
+counts). Status lines go to standard error.
+
+``fusion imu-calibrate REST.csv [--poses POSES.csv] -o FILE``: gyro bias from a recording at
+rest (refused if the sensor moved) and, with ``--poses``, accelerometer offset/scale from a
+recording holding the sensor still in several poses (each axis up and down, a few seconds
+each); writes the calibration JSON that ``--calibration`` applies.
 """
 
 from __future__ import annotations
@@ -19,7 +29,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
-__all__ = ["register", "run"]
+__all__ = ["register", "run", "run_calibrate"]
 
 _COLUMNS = "t,gx,gy,gz,ax,ay,az,temp,qw,qx,qy,qz,roll,pitch,yaw"
 _SIM_STILL_S = 5.0  # the simulated robot stays still this long, then turns
@@ -56,10 +66,44 @@ def register(subparsers: Any) -> None:
                    help="write the calibration in force (after --calibrate) to FILE")
     p.add_argument("--no-fifo", action="store_true",
                    help="poll DATA_RDY and burst-read each sample instead of using the FIFO")
+    p.add_argument("--raw", action="store_true",
+                   help="write raw int16 counts in the recording format (no attitude)")
     p.add_argument("--count", type=int, metavar="N", help="stop after N samples")
     p.add_argument("--realtime", action="store_true", help="with --sim: pace to the wall clock")
     p.add_argument("-o", "--output", type=Path, metavar="CSV", help="write to CSV, not stdout")
     p.set_defaults(func=run)
+
+    c = subparsers.add_parser(
+        "imu-calibrate",
+        help="IMU calibration file from raw MPU6050 recordings",
+        description="Gyro bias from a raw recording at rest and accelerometer offset/scale "
+                    "from a raw recording of still poses (format of fusion imu --raw and "
+                    "datasets/mpu6050_raw); writes JSON in SI units.",
+    )
+    c.add_argument("rest", type=Path, help="raw CSV recorded with the sensor still")
+    c.add_argument("--poses", type=Path, help="raw CSV of still poses (each axis up and down)")
+    c.add_argument("-o", "--output", type=Path, required=True, help="calibration JSON to write")
+    c.set_defaults(func=run_calibrate)
+
+
+def run_calibrate(args: argparse.Namespace) -> int:
+    from fusion.calibration import calibrate_recordings
+    from fusion.mpu6050_csv import read_mpu6050_csv
+
+    rest = read_mpu6050_csv(args.rest)
+    poses = read_mpu6050_csv(args.poses) if args.poses else None
+    cal = calibrate_recordings(rest, poses)
+    cal.save(args.output)
+    bias = ", ".join(f"{v:+.3f}" for v in np.degrees(cal.gyro_bias))
+    print(f"gyro bias ({bias}) deg/s from {len(rest)} samples")
+    if poses is not None:
+        g = 9.80665
+        print(f"{cal.info['poses']} still poses; accel offset "
+              f"({', '.join(f'{v:+.4f}' for v in cal.accel_offset / g)}) g, scale "
+              f"({', '.join(f'{v:.4f}' for v in cal.accel_scale)}); worst pose norm error "
+              f"{cal.info['pose_norm_error_max_g'] * 1000:.2f} mg after correction")
+    print(f"written to {args.output}")
+    return 0
 
 
 def _sim_motion(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +176,12 @@ def run(args: argparse.Namespace) -> int:
 
 def _stream(imu: Any, args: argparse.Namespace, mahony: Any, sink: TextIO,
             status: TextIO) -> None:
-    print(_COLUMNS, file=sink)
+    if args.raw:
+        from fusion.mpu6050_csv import format_header
+
+        sink.write(format_header(imu.sample_rate_hz, imu.accel_lsb_per_g, imu.gyro_lsb_per_dps))
+    else:
+        print(_COLUMNS, file=sink)
     written = 0
     use_fifo = not args.no_fifo
     if use_fifo:
@@ -146,9 +195,24 @@ def _stream(imu: Any, args: argparse.Namespace, mahony: Any, sink: TextIO,
                 print(f"FIFO: {got.lost} samples lost (overflow={got.overflow}); "
                       "read more often", file=status)
             batch = got.samples
+            raw = [(r[:3], r[3:]) for r in got.raw]
         else:
-            batch = [imu.read(wait=True)]
-        for s in batch:
+            if args.raw:
+                imu.wait_data_ready()
+                r = imu.read_raw()
+                raw = [(r.accel, r.gyro)]
+                batch = [None]
+            else:
+                batch = [imu.read(wait=True)]
+        for i, s in enumerate(batch):
+            if args.raw:
+                from fusion.mpu6050_csv import format_row
+
+                sink.write(format_row(*raw[i]))
+                written += 1
+                if args.count is not None and written >= args.count:
+                    break
+                continue
             q = mahony.update(s.gyro, s.accel, timestamp=s.t)
             rpy = np.degrees(mahony.euler)
             temp = "" if s.temperature is None else f"{s.temperature:.2f}"
