@@ -670,7 +670,8 @@ class MPU6050:
         """Put accel + gyro x, y, z (12-byte frames) into the FIFO, reset it and start.
 
         Samples are then collected with ``read_fifo()``. At 1 kHz the 1024-byte FIFO holds
-        85 frames (85 ms); read at least that often.
+        85 frames (85 ms), and at 400 kHz each frame takes 0.27 ms to read, during which new
+        ones arrive: read at least every 60 ms (benchmarks/mpu6050_transactions.py).
         """
         self._write_byte(FIFO_EN, 0x78)  # XG, YG, ZG, ACCEL
         self._fifo_reset()
@@ -685,7 +686,7 @@ class MPU6050:
     def _fifo_reset(self) -> None:
         t = self.clock.monotonic()
         self._write_byte(USER_CTRL, 0x44)  # FIFO_EN | FIFO_RESET in one write
-        # Frame 0 lands somewhere in the next sample period: bracket its time.
+        # Frame 0 lands within the next sample period: the reset is observation K = 0.
         self._fifo_clock = _FifoClock(t, 1.0 / self.sample_rate_hz)
         self._fifo_index = 0
         self._fifo_last_t = -math.inf
