@@ -28,14 +28,20 @@ def data(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
 
 
 def rate(fn: Callable[[], int], seconds: float) -> float:
-    """Samples per second of ``fn`` (returns how many samples it processed), best of runs."""
+    """Samples per CPU second of ``fn`` (returns how many samples it processed), best of runs.
+
+    CPU time of this process (not wall time), so other load on the machine disturbs the
+    figures less; the best of repeated runs filters the rest.
+    """
     fn()  # warm-up (JIT compilation, caches)
     best = 0.0
     deadline = time.perf_counter() + seconds
     while time.perf_counter() < deadline:
-        t0 = time.perf_counter()
+        t0 = time.process_time()
         n = fn()
-        best = max(best, n / (time.perf_counter() - t0))
+        elapsed = time.process_time() - t0
+        if elapsed > 0:
+            best = max(best, n / elapsed)
     return best
 
 

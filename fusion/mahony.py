@@ -358,35 +358,42 @@ def _run_batch(B, gyro, acc, mag, use_mag, dt, out):
 
 
 @njit
-def _run_one(B, g, a, m, use_mag, dt):
-    """Streaming entry: one sample (three (3,) arrays) through the same ``_step``."""
+def _run_one6(B, g, a, dt):
+    """Streaming entry without magnetometer: one sample through the same ``_step``."""
     _step(B[_B_S:_B_P], B[_B_P:_B_C], B[_B_C:], g[0], g[1], g[2], a[0], a[1], a[2],
-          m[0], m[1], m[2], use_mag, dt)
+          0.0, 0.0, 0.0, False, dt)
 
 
-def _streaming_entry():
-    """``_run_one`` compiled for its one signature, called without numba's type dispatch.
+@njit
+def _run_one9(B, g, a, m, dt):
+    """Streaming entry with magnetometer."""
+    _step(B[_B_S:_B_P], B[_B_P:_B_C], B[_B_C:], g[0], g[1], g[2], a[0], a[1], a[2],
+          m[0], m[1], m[2], True, dt)
+
+
+def _entry_point(dispatcher, n_vectors: int):
+    """``dispatcher`` compiled for its one signature, callable without numba's type dispatch.
 
     Dispatch costs about 1 us per call, as much as the filter step itself; the compiled entry
-    point of the one signature we use skips it (callers guarantee the types). Falls back to the
-    dispatcher, or to the plain Python function when numba is absent.
+    point of the one signature we use skips it (callers guarantee the types: float64 arrays of
+    shape (3,)). Falls back to the dispatcher, or to the plain Python function without numba.
     """
     try:
         from numba import types
 
         vec = types.float64[:]  # any stride: rows and columns of bigger arrays too
-        sig = (types.float64[::1], vec, vec, vec, types.boolean, types.float64)
-        _run_one.compile(sig)
-        return _run_one.overloads[sig].entry_point
+        sig = (types.float64[::1], *(vec,) * n_vectors, types.float64)
+        dispatcher.compile(sig)
+        return dispatcher.overloads[sig].entry_point
     except Exception:  # numba missing (plain function) or an internal API change
-        return _run_one
+        return dispatcher
 
 
-_run_one_fast = None
+_run_one6_fast = None
+_run_one9_fast = None
 _F64 = np.dtype(np.float64)
 _NDARRAY = np.ndarray
 _SHAPE3 = (3,)
-_NO_MAG = np.zeros(3)
 
 
 # --------------------------------------------------------------------------------------------
@@ -605,19 +612,26 @@ class Mahony:
                      ) else _vec3("gyro", gyro)
         a = accel if (type(accel) is _NDARRAY and accel.dtype is _F64 and accel.shape == _SHAPE3
                       ) else _vec3("accel", accel)
-        use_mag = mag is not None and self.axes == 9
-        m = _vec3("mag", mag) if use_mag else _NO_MAG
         if dt is None and timestamp is None and self._default_dt is not None:
             dt = self._default_dt  # already validated
         else:
             dt = self._resolve_dt(dt, timestamp)
-        if not self._initialised and not self._initialise(a, m if use_mag else None):
-            self._C[_C_ACC_SKIP] += 1
-            return quat.IDENTITY.copy()
-        global _run_one_fast
-        if _run_one_fast is None:
-            _run_one_fast = _streaming_entry()
-        _run_one_fast(self._B, g, a, m, use_mag, dt)
+        global _run_one6_fast, _run_one9_fast
+        if mag is None or self.axes == 6:
+            if not self._initialised and not self._initialise(a, None):
+                self._C[_C_ACC_SKIP] += 1
+                return quat.IDENTITY.copy()
+            if _run_one6_fast is None:
+                _run_one6_fast = _entry_point(_run_one6, 2)
+            _run_one6_fast(self._B, g, a, dt)
+        else:
+            m = _vec3("mag", mag)
+            if not self._initialised and not self._initialise(a, m):
+                self._C[_C_ACC_SKIP] += 1
+                return quat.IDENTITY.copy()
+            if _run_one9_fast is None:
+                _run_one9_fast = _entry_point(_run_one9, 3)
+            _run_one9_fast(self._B, g, a, m, dt)
         return self._q.copy()
 
     def _resolve_dt(self, dt: float | None, timestamp: float | None) -> float:
