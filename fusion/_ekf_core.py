@@ -1,0 +1,386 @@
+"""Compiled core of the planar EKF (private; see :mod:`fusion.ekf` for the model and units).
+
+Plain loops over 6x6 matrices in the numba subset: numba compiles them (``fast`` extra), or
+they run interpreted with identical IEEE results. One function, :func:`step_core`, handles one
+input event (time bookkeeping, prediction, update); the streaming methods and the batch loop
+of :class:`fusion.ekf.PlanarEKF` both call it, so they agree exactly.
+
+State ``x = [x, y, yaw, v, w, b, k, c]``. Parameter vector ``par`` and bookkeeping vector ``aux``
+use the index constants below.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fusion._jit import njit
+
+__all__ = ["AUX_SIZE", "PAR_SIZE", "batch_core", "predict_core", "step_core", "update_core"]
+
+NX = 8
+# par indices
+P_SPEED_RATIO = 0
+P_WHEEL_DISTANCE = 1
+P_PERIOD = 2
+P_Q_V = 3
+P_Q_W = 4
+P_Q_B = 5
+P_GYRO_VAR = 6
+P_TICK_STD = 7
+P_SCALE_STD = 8
+P_SEP_STD = 9
+P_ZUPT_V_STD = 10
+P_ZUPT_W_STD = 11
+P_GATE = 12
+P_SLIP_INFLATION = 13
+P_ZUPT_FRAMES = 14
+P_LATE_TOLERANCE = 15
+P_MAX_DT = 16
+P_WHEEL_W_STD = 17
+P_Q_K = 18
+P_Q_C = 19
+P_STILL_SCALE = 20
+PAR_SIZE = 21
+# aux indices
+A_T = 0
+A_ZERO_COUNT = 1
+A_LATE_DROPPED = 2
+A_LATE_APPLIED = 3
+A_SLIPS = 4
+A_ZUPTS = 5
+A_LAST_D2 = 6
+A_UPDATES = 7
+A_ERROR = 8
+AUX_SIZE = 9
+# event kinds
+EV_GYRO = 0
+EV_WHEELS = 1
+EV_YAW = 2
+
+
+@njit
+def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c):
+    """Propagate ``x`` and ``P`` (in place) by ``dt`` s with the constant-twist model.
+
+    ``yaw += w*dt``; ``x += v*dt*cos(yaw + w*dt/2)``, ``y += v*dt*sin(...)``; v, w, b are
+    random walks with intensities ``q_v`` ((m/s)^2/s), ``q_w`` ((rad/s)^2/s), ``q_b``
+    ((rad/s)^2/s); the wheel calibration states k (1) and c (rad/m) walk with ``q_k``, ``q_c``
+    (per s). ``P <- F P F^T + Q`` with ``F`` the Jacobian at the prior state.
+    """
+    yaw = x[2]
+    v = x[3]
+    w = x[4]
+    phi = yaw + 0.5 * w * dt
+    c = math.cos(phi)
+    s = math.sin(phi)
+    x[0] += v * dt * c
+    x[1] += v * dt * s
+    x[2] += w * dt
+    # F = I + the non-zero off-diagonal terms below
+    f02 = -v * dt * s
+    f03 = dt * c
+    f04 = -0.5 * v * dt * dt * s
+    f12 = v * dt * c
+    f13 = dt * s
+    f14 = 0.5 * v * dt * dt * c
+    f24 = dt
+    # A = F P (only rows 0, 1, 2 differ from P)
+    A = P.copy()
+    for j in range(NX):
+        A[0, j] = P[0, j] + f02 * P[2, j] + f03 * P[3, j] + f04 * P[4, j]
+        A[1, j] = P[1, j] + f12 * P[2, j] + f13 * P[3, j] + f14 * P[4, j]
+        A[2, j] = P[2, j] + f24 * P[4, j]
+    # P = A F^T (only columns 0, 1, 2 differ from A)
+    for i in range(NX):
+        P[i, 0] = A[i, 0] + f02 * A[i, 2] + f03 * A[i, 3] + f04 * A[i, 4]
+        P[i, 1] = A[i, 1] + f12 * A[i, 2] + f13 * A[i, 3] + f14 * A[i, 4]
+        P[i, 2] = A[i, 2] + f24 * A[i, 4]
+        for j in range(3, NX):
+            P[i, j] = A[i, j]
+    P[3, 3] += q_v * dt
+    P[4, 4] += q_w * dt
+    P[5, 5] += q_b * dt
+    P[6, 6] += q_k * dt
+    P[7, 7] += q_c * dt
+
+
+@njit
+def _cholesky_solve_rows(S, B, m, out):
+    """Solve ``S X = B`` for X (m x n) with S symmetric positive definite (m x m).
+
+    Returns False when S is not positive definite.
+    """
+    L = np.zeros((m, m))
+    for i in range(m):
+        for j in range(i + 1):
+            acc = S[i, j]
+            for k in range(j):
+                acc -= L[i, k] * L[j, k]
+            if i == j:
+                if not acc > 0.0:
+                    return False
+                L[i, i] = math.sqrt(acc)
+            else:
+                L[i, j] = acc / L[j, j]
+    n = B.shape[1]
+    for col in range(n):
+        # forward: L y = b
+        for i in range(m):
+            acc = B[i, col]
+            for k in range(i):
+                acc -= L[i, k] * out[k, col]
+            out[i, col] = acc / L[i, i]
+        # backward: L^T x = y
+        for i in range(m - 1, -1, -1):
+            acc = out[i, col]
+            for k in range(i + 1, m):
+                acc -= L[k, i] * out[k, col]
+            out[i, col] = acc / L[i, i]
+    return True
+
+
+@njit
+def update_core(x, P, y, H, R, gate_index, gate, inflation, work_S):
+    """Kalman update (in place) with innovation ``y`` (m,), Jacobian ``H`` (m, 8), noise ``R``.
+
+    Joseph form ``P = (I-KH) P (I-KH)^T + K R K^T``, gain by a Cholesky solve of ``S``.
+    Gating: the squared Mahalanobis distance of component ``gate_index`` of the innovation
+    (``-1``: of the whole vector) is compared with ``gate``; above it, ``R`` is multiplied by
+    ``inflation`` before the update (``inflation <= 0``: the update is skipped).
+
+    Returns ``(d2, status)`` with status 0 = applied, 1 = applied down-weighted,
+    2 = skipped by the gate, 3 = skipped because S was not positive definite.
+    """
+    m = y.shape[0]
+    PHt = np.zeros((NX, m))
+    for i in range(NX):
+        for j in range(m):
+            acc = 0.0
+            for k in range(NX):
+                acc += P[i, k] * H[j, k]
+            PHt[i, j] = acc
+    S = work_S
+    for i in range(m):
+        for j in range(m):
+            acc = R[i, j]
+            for k in range(NX):
+                acc += H[i, k] * PHt[k, j]
+            S[i, j] = acc
+    # Mahalanobis distance for the gate
+    if gate_index >= 0:
+        d2 = y[gate_index] * y[gate_index] / S[gate_index, gate_index]
+    else:
+        yy = np.zeros((m, 1))
+        for i in range(m):
+            yy[i, 0] = y[i]
+        sol = np.zeros((m, 1))
+        if not _cholesky_solve_rows(S, yy, m, sol):
+            return math.inf, 3
+        d2 = 0.0
+        for i in range(m):
+            d2 += y[i] * sol[i, 0]
+    status = 0
+    Reff = R.copy()
+    if d2 > gate:
+        if inflation <= 0.0:
+            return d2, 2
+        status = 1
+        for i in range(m):
+            for j in range(m):
+                Reff[i, j] = R[i, j] * inflation
+                S[i, j] += R[i, j] * (inflation - 1.0)
+    # K^T = S^-1 (P H^T)^T
+    Bt = np.zeros((m, NX))
+    for i in range(m):
+        for j in range(NX):
+            Bt[i, j] = PHt[j, i]
+    Kt = np.zeros((m, NX))
+    if not _cholesky_solve_rows(S, Bt, m, Kt):
+        return d2, 3
+    for i in range(NX):
+        acc = 0.0
+        for j in range(m):
+            acc += Kt[j, i] * y[j]
+        x[i] += acc
+    # Joseph form
+    IKH = np.zeros((NX, NX))
+    for i in range(NX):
+        for j in range(NX):
+            acc = 1.0 if i == j else 0.0
+            for k in range(m):
+                acc -= Kt[k, i] * H[k, j]
+            IKH[i, j] = acc
+    A = np.zeros((NX, NX))
+    for i in range(NX):
+        for j in range(NX):
+            acc = 0.0
+            for k in range(NX):
+                acc += IKH[i, k] * P[k, j]
+            A[i, j] = acc
+    KR = np.zeros((NX, m))
+    for i in range(NX):
+        for j in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += Kt[k, i] * Reff[k, j]
+            KR[i, j] = acc
+    for i in range(NX):
+        for j in range(i, NX):
+            acc = 0.0
+            for k in range(NX):
+                acc += A[i, k] * IKH[j, k]
+            for k in range(m):
+                acc += KR[i, k] * Kt[k, j]
+            P[i, j] = acc
+    for i in range(NX):
+        for j in range(i):
+            P[i, j] = P[j, i]
+    return d2, status
+
+
+@njit
+def wrap_angle_scalar(a):
+    """Wrap ``a`` (rad) to (-pi, pi]."""
+    u = math.pi - a
+    m = u - 2.0 * math.pi * math.floor(u / (2.0 * math.pi))
+    return math.pi - m
+
+
+@njit
+def _advance(x, P, aux, par, t):
+    """Bring the filter to time ``t``; returns False when the input is too late to use."""
+    t_now = aux[A_T]
+    if math.isnan(t_now):
+        aux[A_T] = t
+        return True
+    dt = t - t_now
+    if dt < 0.0:
+        if -dt <= par[P_LATE_TOLERANCE]:
+            aux[A_LATE_APPLIED] += 1.0
+            return True
+        aux[A_LATE_DROPPED] += 1.0
+        return False
+    max_dt = par[P_MAX_DT]
+    q_v = par[P_Q_V]
+    q_w = par[P_Q_W]
+    if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
+        # standing still: v and w stay (almost) where the ZUPT put them
+        q_v *= par[P_STILL_SCALE]
+        q_w *= par[P_STILL_SCALE]
+    while dt > 0.0:
+        h = dt if dt <= max_dt else max_dt
+        predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C])
+        dt -= h
+    aux[A_T] = t
+    return True
+
+
+@njit
+def step_core(x, P, aux, par, kind, t, a, b):
+    """Process one input event at effective time ``t`` (s); returns the update status.
+
+    kind 0 (gyro): ``a`` = yaw rate about the world z axis, rad/s.
+    kind 1 (wheels): ``a``, ``b`` = left, right ticks in one period; ``t`` is the period's
+    midpoint (stamp - period/2 - latency), the instant whose speed the period's mean equals.
+    kind 2 (absolute yaw): ``a`` = yaw, rad; ``b`` = its standard deviation, rad.
+
+    Status: 0 applied, 1 applied down-weighted (slip), 2 gated out, 3 S not positive definite,
+    4 zero-velocity update, 5 dropped as too late, 6 invalid input.
+    """
+    if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)):
+        aux[A_ERROR] += 1.0
+        return 6
+    if not _advance(x, P, aux, par, t):
+        return 5
+    S = np.zeros((2, 2))
+    if kind == 0:
+        y = np.array([a - (x[4] + x[5])])
+        if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
+            # motion onset while standing still: a gyro reading the still model cannot
+            # explain ends the stationary phase and gives w its freedom back (otherwise the
+            # first turn would leak into the bias)
+            s_g = P[4, 4] + 2.0 * P[4, 5] + P[5, 5] + par[P_GYRO_VAR]
+            if y[0] * y[0] / s_g > par[P_GATE]:
+                aux[A_ZERO_COUNT] = 0.0
+                P[4, 4] += par[P_Q_W] * par[P_PERIOD]
+        H = np.zeros((1, NX))
+        H[0, 4] = 1.0
+        H[0, 5] = 1.0
+        R = np.full((1, 1), par[P_GYRO_VAR])
+        d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, S)
+    elif kind == 1:
+        T = par[P_PERIOD]
+        sr = par[P_SPEED_RATIO]
+        L = par[P_WHEEL_DISTANCE]
+        H = np.zeros((2, NX))
+        H[0, 3] = 1.0
+        H[1, 4] = 1.0
+        R = np.zeros((2, 2))
+        if a == 0.0 and b == 0.0:
+            aux[A_ZERO_COUNT] += 1.0
+        else:
+            aux[A_ZERO_COUNT] = 0.0
+        if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
+            y = np.array([-x[3], -x[4]])
+            R[0, 0] = par[P_ZUPT_V_STD] ** 2
+            R[1, 1] = par[P_ZUPT_W_STD] ** 2
+            d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, S)
+            if status == 0:
+                status = 4
+                aux[A_ZUPTS] += 1.0
+        else:
+            dl = a * sr
+            dr = b * sr
+            v_m = 0.5 * (dl + dr) / T
+            w_m = (dr - dl) / (L * T)
+            tick = par[P_TICK_STD] * sr
+            ks = par[P_SCALE_STD]
+            var_l = tick * tick + (ks * dl) ** 2
+            var_r = tick * tick + (ks * dr) ** 2
+            # (v, w) = M (dl, dr) / T with M = [[1/2, 1/2], [-1/L, 1/L]]
+            R[0, 0] = 0.25 * (var_l + var_r) / (T * T)
+            R[0, 1] = 0.5 * (var_r - var_l) / (L * T * T)
+            R[1, 0] = R[0, 1]
+            R[1, 1] = (var_l + var_r) / (L * L * T * T)
+            R[1, 1] += (par[P_SEP_STD] * w_m) ** 2 + par[P_WHEEL_W_STD] ** 2
+            # wheel model: v_m = v + c*w*L^2/4, w_m = (1 + k)*w + c*v
+            L2 = 0.25 * L * L
+            H[0, 4] = x[7] * L2
+            H[0, 7] = x[4] * L2
+            H[1, 3] = x[7]
+            H[1, 4] = 1.0 + x[6]
+            H[1, 6] = x[4]
+            H[1, 7] = x[3]
+            y = np.array([v_m - (x[3] + x[7] * x[4] * L2),
+                          w_m - ((1.0 + x[6]) * x[4] + x[7] * x[3])])
+            d2, status = update_core(x, P, y, H, R, 1, par[P_GATE], par[P_SLIP_INFLATION], S)
+            if status == 1 or status == 2:
+                aux[A_SLIPS] += 1.0
+    elif kind == 2:
+        y = np.array([wrap_angle_scalar(a - x[2])])
+        H = np.zeros((1, NX))
+        H[0, 2] = 1.0
+        R = np.full((1, 1), b * b)
+        d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, S)
+    else:
+        aux[A_ERROR] += 1.0
+        return 6
+    aux[A_LAST_D2] = d2
+    aux[A_UPDATES] += 1.0
+    return status
+
+
+@njit
+def batch_core(x, P, aux, par, kinds, ts, aa, bb, out, status):
+    """Run :func:`step_core` over N events; ``out[k, :8]`` = state after event k,
+    ``out[k, 8:16]`` the diagonal of P, ``out[k, 16:19]`` = P[x,y], P[x,yaw], P[y,yaw]."""
+    for k in range(kinds.shape[0]):
+        status[k] = step_core(x, P, aux, par, kinds[k], ts[k], aa[k], bb[k])
+        for i in range(NX):
+            out[k, i] = x[i]
+            out[k, NX + i] = P[i, i]
+        out[k, 2 * NX] = P[0, 1]
+        out[k, 2 * NX + 1] = P[0, 2]
+        out[k, 2 * NX + 2] = P[1, 2]

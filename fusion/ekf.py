@@ -1,0 +1,671 @@
+"""Planar EKF fusing wheel odometry with the gyro's yaw rate, with a gyro-bias state.
+
+Frames and units (REP-103/105): the pose is ``base_footprint`` in ``odom``; x, y in m, yaw in
+rad (CCW from the odom x axis; kept continuous inside, wrapped to (-pi, pi] on output),
+v forward speed m/s, w yaw rate rad/s, b the gyro's bias about the vertical axis, rad/s.
+
+State ``x = [x, y, yaw, v, w, b, k, c]``, covariance ``P`` (8x8). ``k`` (dimensionless) and
+``c`` (rad/m) describe how the wheels' yaw rate departs from the truth:
+``w_wheels = (1 + k)*w + c*v``. A wheel-separation error shows up as ``k``
+(``k ~ L_true/L_nominal - 1``), a left/right radius mismatch as ``c``
+(``c ~ (e_right - e_left)/L`` with ``e`` each wheel's relative distance error). The gyro makes
+both observable (turning reveals ``k``, driving straight reveals ``c``) once its bias is pinned
+by zero-velocity updates; a common distance scale (``speed_ratio`` wrong on both wheels alike)
+is not observable from a gyro and stays as it is configured. The class is a
+:class:`filterpy.kalman.ExtendedKalmanFilter`: ``x``, ``P``, ``y``, ``S``, ``K`` keep filterpy's
+meaning and filterpy's own ``update(z, HJacobian, Hx, R, residual=...)`` can fuse any extra
+measurement (a beacon, a scan match) into the same state. The built-in sensors use a compiled
+core (:mod:`fusion._ekf_core`, numba when installed) that computes exactly filterpy's
+update equations (Joseph form) with a Cholesky solve instead of ``inv(S)``; a test checks it
+against filterpy's ``predict``/``update`` step by step.
+
+Model:
+
+- Prediction over ``dt`` (constant twist): ``yaw += w*dt``,
+  ``x += v*dt*cos(yaw + w*dt/2)``, ``y += v*dt*sin(yaw + w*dt/2)``; v, w and b are random
+  walks (``q_v``, ``q_w``, ``q_b``). Long gaps are split into steps of at most ``max_dt``.
+- Gyro update: ``z = w + b`` where z is the rate about the *world* vertical. On a level robot
+  that is ``gyro[2]``; on a tilted one :func:`vertical_rate` projects the body rate with the
+  Mahony attitude quaternion.
+- Wheel update: one DATA-uart2 frame's ticks give the period's mean speed ``v = (dl+dr)/(2T)``
+  and yaw rate ``w = (dr-dl)/(L T)`` (seed 000's names: ``speed_ratio`` m/tick,
+  ``wheel_distance`` L, ``encode_sampling_time`` T), modelled as ``v + c*w*L^2/4`` and
+  ``(1 + k)*w + c*v``. The noise comes from tick quantisation and a per-frame wheel scale
+  noise, plus white noise on w. The yaw-rate innovation is
+  chi-square gated (1 dof): above the gate the frame is a slip and its noise is inflated
+  (down-weighted) so the gyro carries the heading.
+- Zero-velocity update (ZUPT): after ``zupt_frames`` consecutive frames with zero ticks on both
+  wheels, ``v = 0`` and ``w = 0`` are fused with a tight noise; the gyro then reads its own bias,
+  which is how ``b`` becomes observable.
+- Optional absolute yaw (a compass, a map match), residual wrapped to (-pi, pi].
+
+Why the wheels are a measurement and not the prediction input: a prediction driven by wheel
+increments makes the heading follow the wheels (3 % separation error, slip) and leaves no place
+to reject a slipping frame. Here the heading integrates the gyro-corrected rate state and each
+wheel frame can be weighed, gated or replaced by a ZUPT.
+
+Time policy (multi-rate, out of order), stated once:
+
+- Every input carries a host time stamp. The filter predicts from its current time to the
+  input's *effective* time, then updates. A wheel frame's effective time is
+  ``stamp - encode_sampling_time/2 - wheel_latency``: the frame reports the mean over the period
+  ending at its stamp, which equals the speed at the period's midpoint.
+- An input older than the filter's time by at most ``late_tolerance`` s is fused at the current
+  time (no re-prediction); an older one is dropped and counted in :attr:`PlanarEKF.stats`.
+- Offline, :meth:`PlanarEKF.process_batch` and :func:`merge_events` sort all inputs by effective
+  time first (stable: wheels before gyro at equal times), so replay never sees late inputs.
+  Live, feed inputs through a :class:`ReorderBuffer` whose window is at least the largest
+  transport delay plus half a period.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+from numpy.typing import ArrayLike, NDArray
+
+from fusion import _ekf_core as core
+from fusion.kinematics import DiffDriveParams
+
+__all__ = [
+    "STATE_NAMES",
+    "EkfNoise",
+    "FusedTrack",
+    "PlanarEKF",
+    "ReorderBuffer",
+    "fuse",
+    "merge_events",
+    "odometry_covariances",
+    "pose_covariances",
+    "vertical_rate",
+]
+
+STATE_NAMES = ("x", "y", "yaw", "v", "w", "gyro_bias_z", "wheel_rate_scale", "wheel_rate_per_speed")
+_UNOBSERVED = 99999.0  # seed 000's value for unobserved components in nav_msgs/Odometry
+
+
+@dataclass(frozen=True)
+class EkfNoise:
+    """Noise and tuning of :class:`PlanarEKF` (SI units).
+
+    Attributes:
+        gyro_std: white noise of one gyro sample, rad/s (MPU6050: 0.005 deg/s/sqrt(Hz) at
+            100 Hz gives 8.7e-4).
+        accel_psd: forward-speed random walk, (m/s)^2/s (how fast v may change).
+        angular_accel_psd: yaw-rate random walk, (rad/s)^2/s.
+        bias_psd: gyro-bias random walk, (rad/s)^2/s (square of the bias walk in rad/s/sqrt(s)).
+        tick_std: encoder quantisation noise per period, ticks.
+        scale_std: relative white noise of each wheel's travel in one frame (floor texture,
+            tyre deformation).
+        separation_std: relative white noise of the wheel yaw rate (per frame).
+        wheel_w_std: extra white noise on the wheel yaw rate, rad/s.
+        calib_k_std, calib_c_std: prior standard deviations of the wheel calibration states
+            ``k`` (1) and ``c`` (rad/m).
+        calib_k_psd, calib_c_psd: their random walks, 1/s and (rad/m)^2/s.
+        zupt_v_std, zupt_w_std: noise of the zero-velocity pseudo-measurement, m/s and rad/s.
+        zupt_frames: consecutive all-zero wheel frames before a ZUPT; from then on the robot is
+            taken as standing still until a wheel moves or the gyro sees a rotation.
+        still_scale: factor on the v and w random walks while standing still (small: the
+            gyro samples between ZUPTs then all inform the bias).
+        slip_gate: chi-square threshold (1 dof) of the wheel/gyro yaw-rate disagreement
+            (10.83 = 0.1 % false alarms).
+        slip_inflation: factor on the wheel noise of a gated frame (0: drop the frame).
+        late_tolerance: inputs at most this much older than the filter time are fused at the
+            filter time, s; older ones are dropped.
+        max_dt: longest single prediction step, s.
+        wheel_latency: transport delay from the end of a period to its host stamp, s.
+        initial_bias_std: prior standard deviation of the gyro bias, rad/s.
+        initial_speed_std: prior standard deviation of v (m/s) and w (rad/s).
+    """
+
+    gyro_std: float = math.radians(0.005) * 10.0
+    accel_psd: float = 0.002
+    angular_accel_psd: float = 0.2
+    bias_psd: float = (1e-4) ** 2
+    tick_std: float = 0.5
+    scale_std: float = 0.005
+    separation_std: float = 0.005
+    wheel_w_std: float = 0.002
+    calib_k_std: float = 0.05
+    calib_c_std: float = 0.05
+    calib_k_psd: float = 1e-9
+    calib_c_psd: float = 1e-9
+    zupt_v_std: float = 1e-3
+    zupt_w_std: float = 1e-4
+    zupt_frames: int = 2
+    still_scale: float = 1e-4
+    slip_gate: float = 10.83
+    slip_inflation: float = 1e4
+    late_tolerance: float = 0.05
+    max_dt: float = 0.05
+    wheel_latency: float = 0.0
+    initial_bias_std: float = math.radians(2.0)
+    initial_speed_std: float = 0.05
+
+    def __post_init__(self) -> None:
+        for name, value in asdict(self).items():
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"EkfNoise.{name} must be finite and >= 0, got {value!r}")
+        if self.gyro_std <= 0 or self.max_dt <= 0 or self.zupt_frames < 1:
+            raise ValueError("EkfNoise gyro_std and max_dt must be > 0 and zupt_frames >= 1")
+        if self.zupt_v_std <= 0 or self.zupt_w_std <= 0:
+            raise ValueError("EkfNoise zupt_v_std and zupt_w_std must be > 0")
+
+
+def vertical_rate(gyro: ArrayLike, quaternion: ArrayLike | None = None) -> NDArray[np.float64]:
+    """Rate about the world vertical (rad/s) from body-frame gyro rates (..., 3).
+
+    With ``quaternion`` (scalar first, body -> world ENU, e.g. from
+    :class:`fusion.mahony.Mahony`) the body rate is rotated into the world frame and its z
+    component returned; without it the robot is taken as level and ``gyro[..., 2]`` is returned.
+    """
+    g = np.asarray(gyro, dtype=float)
+    if g.shape[-1:] != (3,):
+        raise ValueError(f"gyro must have shape (..., 3), got {g.shape}")
+    if quaternion is None:
+        return g[..., 2].copy()
+    q = np.asarray(quaternion, dtype=float)
+    if q.shape[-1:] != (4,):
+        raise ValueError(f"quaternion must have shape (..., 4) [w, x, y, z], got {q.shape}")
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    n2 = w * w + x * x + y * y + z * z
+    # third row of the rotation matrix of a (normalised) quaternion
+    r20 = 2.0 * (x * z - w * y) / n2
+    r21 = 2.0 * (y * z + w * x) / n2
+    r22 = 1.0 - 2.0 * (x * x + y * y) / n2
+    return r20 * g[..., 0] + r21 * g[..., 1] + r22 * g[..., 2]
+
+
+def odometry_covariances(P: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """nav_msgs/Odometry covariances (36-element, row major) from the EKF covariance.
+
+    Pose order ``(x, y, z, rot_x, rot_y, rot_z)`` in odom: the (x, y, yaw) block of ``P``;
+    twist order ``(vx, vy, vz, wx, wy, wz)`` in base_footprint: v and w. Components the
+    planar filter does not estimate (z, roll, pitch, their rates and the lateral speed) get
+    seed 000's 99999 on the diagonal.
+    """
+    P = np.asarray(P, dtype=float)
+    if P.ndim != 2 or P.shape[0] != P.shape[1] or P.shape[0] < 5:
+        raise ValueError(f"P must be square with the state order x, y, yaw, v, w, got {P.shape}")
+    pose = np.diag([0.0, 0.0, _UNOBSERVED, _UNOBSERVED, _UNOBSERVED, 0.0])
+    idx = [0, 1, 5]
+    for a, i in zip(idx, (0, 1, 2), strict=True):
+        for b, j in zip(idx, (0, 1, 2), strict=True):
+            pose[a, b] = P[i, j]
+    twist = np.diag([0.0, _UNOBSERVED, _UNOBSERVED, _UNOBSERVED, _UNOBSERVED, 0.0])
+    twist[0, 0] = P[3, 3]
+    twist[0, 5] = twist[5, 0] = P[3, 4]
+    twist[5, 5] = P[4, 4]
+    return pose.reshape(36), twist.reshape(36)
+
+
+def pose_covariances(states: ArrayLike) -> NDArray[np.float64]:
+    """(N, 3, 3) covariances of ``(x, y, yaw)`` from the rows of :meth:`PlanarEKF.process_batch`
+    (m^2, m*rad, rad^2)."""
+    s = np.asarray(states, dtype=float)
+    if s.ndim != 2 or s.shape[1] < 19:
+        raise ValueError(f"states must be (N, 19) rows of process_batch, got {s.shape}")
+    P = np.empty((s.shape[0], 3, 3))
+    P[:, 0, 0], P[:, 1, 1], P[:, 2, 2] = s[:, 8], s[:, 9], s[:, 10]
+    P[:, 0, 1] = P[:, 1, 0] = s[:, 16]
+    P[:, 0, 2] = P[:, 2, 0] = s[:, 17]
+    P[:, 1, 2] = P[:, 2, 1] = s[:, 18]
+    return P
+
+
+def merge_events(
+    imu_t: ArrayLike | None,
+    gyro_z: ArrayLike | None,
+    wheel_t: ArrayLike | None,
+    ticks: ArrayLike | None,
+    period: float,
+    wheel_latency: float = 0.0,
+    yaw_t: ArrayLike | None = None,
+    yaw: ArrayLike | None = None,
+    yaw_std: ArrayLike | float = 0.01,
+):
+    """Merge gyro, wheel and absolute-yaw inputs into one time-ordered event list.
+
+    Args:
+        imu_t, gyro_z: gyro stamps (s) and vertical rates (rad/s), or None.
+        wheel_t, ticks: wheel frame stamps (s, end of period) and (M, 2) ticks, or None.
+        period: ``encode_sampling_time``, s.
+        wheel_latency: s, subtracted from wheel stamps with half a period.
+        yaw_t, yaw, yaw_std: absolute yaw stamps (s), values (rad), standard deviations (rad).
+
+    Returns:
+        ``(kinds, t_eff, a, b, stamp)`` arrays sorted by effective time (stable; at equal
+        times wheels come before gyro before yaw). ``stamp`` is each input's own stamp.
+    """
+    kinds, ts, aa, bb, st = [], [], [], [], []
+    if wheel_t is not None:
+        wt = np.asarray(wheel_t, dtype=float).reshape(-1)
+        tk = np.asarray(ticks, dtype=float).reshape(-1, 2)
+        if tk.shape[0] != wt.size:
+            raise ValueError(f"{wt.size} wheel stamps but {tk.shape[0]} tick rows")
+        kinds.append(np.full(wt.size, core.EV_WHEELS))
+        ts.append(wt - 0.5 * period - wheel_latency)
+        aa.append(tk[:, 0])
+        bb.append(tk[:, 1])
+        st.append(wt)
+    if imu_t is not None:
+        it = np.asarray(imu_t, dtype=float).reshape(-1)
+        gz = np.asarray(gyro_z, dtype=float).reshape(-1)
+        if gz.size != it.size:
+            raise ValueError(f"{it.size} IMU stamps but {gz.size} gyro rates")
+        kinds.append(np.full(it.size, core.EV_GYRO))
+        ts.append(it)
+        aa.append(gz)
+        bb.append(np.zeros(it.size))
+        st.append(it)
+    if yaw_t is not None:
+        yt = np.asarray(yaw_t, dtype=float).reshape(-1)
+        kinds.append(np.full(yt.size, core.EV_YAW))
+        ts.append(yt)
+        aa.append(np.broadcast_to(np.asarray(yaw, dtype=float), yt.shape))
+        bb.append(np.broadcast_to(np.asarray(yaw_std, dtype=float), yt.shape))
+        st.append(yt)
+    if not kinds:
+        return (np.zeros(0, np.int64), *(np.zeros(0) for _ in range(4)))
+    k = np.concatenate(kinds).astype(np.int64)
+    t = np.concatenate(ts)
+    order = np.lexsort((k, t))
+    return (k[order], t[order], np.concatenate(aa)[order], np.concatenate(bb)[order],
+            np.concatenate(st)[order])
+
+
+class ReorderBuffer:
+    """Release events in time order once they are older than the newest by ``window`` s.
+
+    For live use with several sources whose stamps interleave imperfectly: ``push`` events as
+    they arrive, feed what ``pop_ready`` returns to the filter, ``flush`` at the end.
+    """
+
+    def __init__(self, window: float) -> None:
+        if not window >= 0:
+            raise ValueError(f"window must be >= 0 s, got {window!r}")
+        self.window = float(window)
+        self._heap: list = []
+        self._newest = -math.inf
+        self._count = 0
+
+    def push(self, t: float, event) -> None:
+        heapq.heappush(self._heap, (float(t), self._count, event))
+        self._count += 1
+        self._newest = max(self._newest, float(t))
+
+    def pop_ready(self) -> list:
+        out = []
+        while self._heap and self._heap[0][0] <= self._newest - self.window:
+            t, _, ev = heapq.heappop(self._heap)
+            out.append((t, ev))
+        return out
+
+    def flush(self) -> list:
+        out = []
+        while self._heap:
+            t, _, ev = heapq.heappop(self._heap)
+            out.append((t, ev))
+        return out
+
+    def __len__(self) -> int:
+        return len(self._heap)
+
+
+class PlanarEKF(ExtendedKalmanFilter):
+    """Wheel + gyro EKF with a gyro-bias state (see the module docstring for the model).
+
+    Args:
+        robot: chassis parameters (``wheel_distance`` m, ``speed_ratio`` m/tick,
+            ``encode_sampling_time`` s).
+        noise: :class:`EkfNoise`.
+        x0: initial state ``[x, y, yaw, v, w, b]`` (default zeros).
+        P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c from ``noise``).
+        backend: ``"core"`` (compiled core) or ``"filterpy"`` (the same model on filterpy's
+            ``predict``/``update``; slower, kept as the reference).
+
+    Attributes:
+        t: filter time, s (None before the first input).
+        stats: counters: ``slips``, ``zupts``, ``late_dropped``, ``late_applied``,
+            ``invalid``, ``updates``.
+    """
+
+    def __init__(
+        self,
+        robot: DiffDriveParams,
+        noise: EkfNoise | None = None,
+        x0: ArrayLike | None = None,
+        P0: ArrayLike | None = None,
+        backend: str = "core",
+    ) -> None:
+        super().__init__(dim_x=8, dim_z=2)
+        if backend not in ("core", "filterpy"):
+            raise ValueError(f"backend must be 'core' or 'filterpy', got {backend!r}")
+        self.robot = robot
+        self.noise = noise if noise is not None else EkfNoise()
+        self.backend = backend
+        n = self.noise
+        self.x = np.zeros(8) if x0 is None else np.array(x0, dtype=float).reshape(8)
+        if P0 is None:
+            s = n.initial_speed_std
+            # the odom origin is the start pose; 1e-9 (m^2, rad^2) keeps P positive definite
+            self.P = np.diag([1e-9, 1e-9, 1e-9, s * s, s * s, n.initial_bias_std ** 2,
+                              n.calib_k_std ** 2, n.calib_c_std ** 2])
+        else:
+            self.P = np.array(P0, dtype=float).reshape(8, 8)
+        self._par = np.zeros(core.PAR_SIZE)
+        par = self._par
+        par[core.P_SPEED_RATIO] = robot.speed_ratio
+        par[core.P_WHEEL_DISTANCE] = robot.wheel_distance
+        par[core.P_PERIOD] = robot.encode_sampling_time
+        par[core.P_Q_V] = n.accel_psd
+        par[core.P_Q_W] = n.angular_accel_psd
+        par[core.P_Q_B] = n.bias_psd
+        par[core.P_GYRO_VAR] = n.gyro_std ** 2
+        par[core.P_TICK_STD] = n.tick_std
+        par[core.P_SCALE_STD] = n.scale_std
+        par[core.P_SEP_STD] = n.separation_std
+        par[core.P_ZUPT_V_STD] = n.zupt_v_std
+        par[core.P_ZUPT_W_STD] = n.zupt_w_std
+        par[core.P_GATE] = n.slip_gate
+        par[core.P_SLIP_INFLATION] = n.slip_inflation
+        par[core.P_ZUPT_FRAMES] = n.zupt_frames
+        par[core.P_LATE_TOLERANCE] = n.late_tolerance
+        par[core.P_MAX_DT] = n.max_dt
+        par[core.P_WHEEL_W_STD] = n.wheel_w_std
+        par[core.P_Q_K] = n.calib_k_psd
+        par[core.P_Q_C] = n.calib_c_psd
+        par[core.P_STILL_SCALE] = n.still_scale
+        self._aux = np.zeros(core.AUX_SIZE)
+        self._aux[core.A_T] = math.nan
+
+    # -- state -------------------------------------------------------------------------------
+    @property
+    def t(self) -> float | None:
+        t = self._aux[core.A_T]
+        return None if math.isnan(t) else float(t)
+
+    @property
+    def stats(self) -> dict[str, int]:
+        a = self._aux
+        return {
+            "slips": int(a[core.A_SLIPS]),
+            "zupts": int(a[core.A_ZUPTS]),
+            "late_dropped": int(a[core.A_LATE_DROPPED]),
+            "late_applied": int(a[core.A_LATE_APPLIED]),
+            "invalid": int(a[core.A_ERROR]),
+            "updates": int(a[core.A_UPDATES]),
+        }
+
+    @property
+    def pose(self) -> NDArray[np.float64]:
+        """``[x, y, yaw]`` (m, m, rad wrapped to (-pi, pi])."""
+        return np.array([self.x[0], self.x[1], core.wrap_angle_scalar(float(self.x[2]))])
+
+    @property
+    def gyro_bias(self) -> float:
+        """Estimated gyro bias about the vertical, rad/s."""
+        return float(self.x[5])
+
+    def get_state(self) -> dict:
+        """A snapshot (copies) that :meth:`set_state` restores exactly."""
+        return {"x": self.x.copy(), "P": self.P.copy(), "aux": self._aux.copy()}
+
+    def set_state(self, state: dict) -> None:
+        self.x = np.array(state["x"], dtype=float).reshape(8)
+        self.P = np.array(state["P"], dtype=float).reshape(8, 8)
+        self._aux = np.array(state["aux"], dtype=float).reshape(core.AUX_SIZE)
+
+    def covariances_ros(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(pose_covariance, twist_covariance)`` in nav_msgs/Odometry layout."""
+        return odometry_covariances(self.P)
+
+    # -- streaming inputs --------------------------------------------------------------------
+    def _step(self, kind: int, t: float, a: float, b: float) -> int:
+        if self.backend == "filterpy":
+            return self._step_filterpy(kind, float(t), float(a), float(b))
+        self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
+        self.P = np.ascontiguousarray(self.P, dtype=float)
+        return int(core.step_core(self.x, self.P, self._aux, self._par, kind, float(t),
+                                  float(a), float(b)))
+
+    def update_gyro(self, t: float, rate_z: float) -> int:
+        """Fuse a yaw rate about the world vertical (rad/s) stamped ``t`` (s).
+
+        Use :func:`vertical_rate` for a tilted robot. Returns the status code of
+        :func:`fusion._ekf_core.step_core` (0 applied, 5 dropped as too late, 6 invalid).
+        """
+        return self._step(core.EV_GYRO, t, rate_z, 0.0)
+
+    def update_wheels(self, t: float, left: int, right: int) -> int:
+        """Fuse one wheel frame: ``left``, ``right`` ticks counted in the period ending at
+        host time ``t`` (s). Returns the status (0 applied, 1 down-weighted as slip, 4 ZUPT,
+        5 too late)."""
+        t_eff = t - 0.5 * self.robot.encode_sampling_time - self.noise.wheel_latency
+        return self._step(core.EV_WHEELS, t_eff, left, right)
+
+    def update_yaw(self, t: float, yaw: float, std: float) -> int:
+        """Fuse an absolute yaw (rad, in odom) with standard deviation ``std`` (rad)."""
+        if not std > 0:
+            raise ValueError(f"yaw std must be > 0 rad, got {std!r}")
+        return self._step(core.EV_YAW, t, yaw, std)
+
+    def predict_to(self, t: float) -> None:
+        """Propagate to time ``t`` s without a measurement (ignored if ``t`` is not newer)."""
+        if self.t is None or t <= self.t:
+            return
+        if self.backend == "filterpy":
+            self._advance_filterpy(t)
+        else:
+            self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
+            self.P = np.ascontiguousarray(self.P, dtype=float)
+            core._advance(self.x, self.P, self._aux, self._par, float(t))
+
+    # -- batch -------------------------------------------------------------------------------
+    def process_batch(self, kinds, t_eff, a, b) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Run a merged event list (see :func:`merge_events`) through the filter.
+
+        Returns ``(states, status)``: ``states[k, :8]`` is ``[x, y, yaw, v, w, b, k, c]`` after
+        event k (yaw continuous), ``states[k, 8:16]`` the diagonal of P and ``states[k, 16:19]``
+        its pose cross terms ``P[x,y], P[x,yaw], P[y,yaw]`` (see :func:`pose_covariances`);
+        ``status[k]`` the update status. Exactly equal to calling the streaming methods one
+        event at a time.
+        """
+        kinds = np.ascontiguousarray(kinds, dtype=np.int64)
+        t_eff = np.ascontiguousarray(t_eff, dtype=float)
+        a = np.ascontiguousarray(a, dtype=float)
+        b = np.ascontiguousarray(b, dtype=float)
+        n = kinds.size
+        if not (t_eff.size == a.size == b.size == n):
+            raise ValueError("kinds, t_eff, a, b must have the same length")
+        out = np.empty((n, 19))
+        status = np.empty(n, dtype=np.int64)
+        if self.backend == "filterpy":
+            for k in range(n):
+                status[k] = self._step_filterpy(int(kinds[k]), t_eff[k], a[k], b[k])
+                out[k, :8] = self.x
+                out[k, 8:16] = np.diag(self.P)
+                out[k, 16:19] = self.P[0, 1], self.P[0, 2], self.P[1, 2]
+            return out, status
+        self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
+        self.P = np.ascontiguousarray(self.P, dtype=float)
+        core.batch_core(self.x, self.P, self._aux, self._par, kinds, t_eff, a, b, out, status)
+        return out, status
+
+    # -- the same model on filterpy's predict/update (reference backend) ---------------------
+    def predict_x(self, u=0) -> None:  # filterpy hook: nonlinear state propagation
+        dt = self._dt
+        yaw, v, w = self.x[2], self.x[3], self.x[4]
+        phi = yaw + 0.5 * w * dt
+        self.x = self.x + np.array([v * dt * math.cos(phi), v * dt * math.sin(phi), w * dt,
+                                    0.0, 0.0, 0.0, 0.0, 0.0])
+
+    def _predict_filterpy(self, dt: float, still: bool) -> None:
+        yaw, v, w = self.x[2], self.x[3], self.x[4]
+        phi = yaw + 0.5 * w * dt
+        c, s = math.cos(phi), math.sin(phi)
+        F = np.eye(8)
+        F[0, 2], F[0, 3], F[0, 4] = -v * dt * s, dt * c, -0.5 * v * dt * dt * s
+        F[1, 2], F[1, 3], F[1, 4] = v * dt * c, dt * s, 0.5 * v * dt * dt * c
+        F[2, 4] = dt
+        self.F = F
+        n = self.noise
+        f = n.still_scale if still else 1.0
+        self.Q = np.diag([0.0, 0.0, 0.0, f * n.accel_psd * dt, f * n.angular_accel_psd * dt,
+                          n.bias_psd * dt, n.calib_k_psd * dt, n.calib_c_psd * dt])
+        self._dt = dt
+        ExtendedKalmanFilter.predict(self)
+
+    def _advance_filterpy(self, t: float) -> bool:
+        aux = self._aux
+        if math.isnan(aux[core.A_T]):
+            aux[core.A_T] = t
+            return True
+        dt = t - aux[core.A_T]
+        if dt < 0:
+            if -dt <= self.noise.late_tolerance:
+                aux[core.A_LATE_APPLIED] += 1
+                return True
+            aux[core.A_LATE_DROPPED] += 1
+            return False
+        still = aux[core.A_ZERO_COUNT] >= self.noise.zupt_frames
+        while dt > 0:
+            h = min(dt, self.noise.max_dt)
+            self._predict_filterpy(h, still)
+            dt -= h
+        aux[core.A_T] = t
+        return True
+
+    def _step_filterpy(self, kind: int, t: float, a: float, b: float) -> int:
+        aux = self._aux
+        n = self.noise
+        if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)):
+            aux[core.A_ERROR] += 1
+            return 6
+        if not self._advance_filterpy(t):
+            return 5
+        status = 0
+        if kind == core.EV_GYRO:
+            H = np.array([[0, 0, 0, 0, 1.0, 1.0, 0, 0]])
+            if aux[core.A_ZERO_COUNT] >= n.zupt_frames:
+                s_g = float((H @ self.P @ H.T)[0, 0]) + n.gyro_std ** 2
+                if (a - self.x[4] - self.x[5]) ** 2 / s_g > n.slip_gate:
+                    aux[core.A_ZERO_COUNT] = 0
+                    self.P[4, 4] += n.angular_accel_psd * self.robot.encode_sampling_time
+            self.update(np.array([a]), lambda x: H, lambda x: H @ x,
+                        R=np.array([[n.gyro_std ** 2]]))
+        elif kind == core.EV_WHEELS:
+            H = np.zeros((2, 8))
+            H[0, 3] = H[1, 4] = 1.0
+            aux[core.A_ZERO_COUNT] = aux[core.A_ZERO_COUNT] + 1 if a == 0 and b == 0 else 0
+            if aux[core.A_ZERO_COUNT] >= n.zupt_frames:
+                R = np.diag([n.zupt_v_std ** 2, n.zupt_w_std ** 2])
+                self.update(np.zeros(2), lambda x: H, lambda x: H @ x, R=R)
+                status = 4
+                aux[core.A_ZUPTS] += 1
+            else:
+                p = self.robot
+                T, L = p.encode_sampling_time, p.wheel_distance
+                dl, dr = a * p.speed_ratio, b * p.speed_ratio
+                z = np.array([0.5 * (dl + dr) / T, (dr - dl) / (L * T)])
+                tick = n.tick_std * p.speed_ratio
+                var = np.diag([tick ** 2 + (n.scale_std * dl) ** 2,
+                               tick ** 2 + (n.scale_std * dr) ** 2])
+                M = np.array([[0.5, 0.5], [-1.0 / L, 1.0 / L]]) / T
+                R = M @ var @ M.T
+                R[1, 1] += (n.separation_std * z[1]) ** 2 + n.wheel_w_std ** 2
+                x = self.x
+                L2 = 0.25 * L * L
+                H[0, 4], H[0, 7] = x[7] * L2, x[4] * L2
+                H[1, 3], H[1, 4], H[1, 6], H[1, 7] = x[7], 1.0 + x[6], x[4], x[3]
+
+                def hx(x):
+                    return np.array([x[3] + x[7] * x[4] * L2, (1.0 + x[6]) * x[4] + x[7] * x[3]])
+
+                S = H @ self.P @ H.T + R
+                y = z - hx(self.x)
+                d2 = y[1] ** 2 / S[1, 1]
+                if d2 > n.slip_gate:
+                    aux[core.A_SLIPS] += 1
+                    if n.slip_inflation <= 0:
+                        aux[core.A_LAST_D2] = d2
+                        aux[core.A_UPDATES] += 1
+                        return 2
+                    R = R * n.slip_inflation
+                    status = 1
+                self.update(z, lambda x: H, hx, R=R)
+        elif kind == core.EV_YAW:
+            H = np.array([[0, 0, 1.0, 0, 0, 0, 0, 0]])
+
+            def wrapped(z, hx):
+                return np.array([core.wrap_angle_scalar(float(z[0] - hx[0]))])
+
+            self.update(np.array([a]), lambda x: H, lambda x: H @ x,
+                        R=np.array([[b * b]]), residual=wrapped)
+        else:
+            aux[core.A_ERROR] += 1
+            return 6
+        aux[core.A_UPDATES] += 1
+        return status
+
+
+@dataclass
+class FusedTrack:
+    """Filter output after every input event of :func:`fuse`.
+
+    Attributes:
+        t: (N,) host stamp of each event, s (a wheel frame's own stamp, not its effective time).
+        kind: (N,) 0 gyro, 1 wheels, 2 absolute yaw.
+        states: (N, 19) rows of :meth:`PlanarEKF.process_batch` (state, diag(P), pose cross
+            terms); yaw is continuous.
+        status: (N,) update status codes.
+        stats: the filter's counters at the end.
+    """
+
+    t: NDArray[np.float64]
+    kind: NDArray[np.int64]
+    states: NDArray[np.float64]
+    status: NDArray[np.int64]
+    stats: dict = field(default_factory=dict)
+
+    def output_rows(self) -> NDArray[np.bool_]:
+        """Mask of the rows to publish: every gyro event, or every wheel event without a gyro."""
+        gyro = self.kind == core.EV_GYRO
+        return gyro if gyro.any() else self.kind == core.EV_WHEELS
+
+
+def fuse(
+    robot: DiffDriveParams,
+    imu_t: ArrayLike | None = None,
+    gyro_z: ArrayLike | None = None,
+    wheel_t: ArrayLike | None = None,
+    ticks: ArrayLike | None = None,
+    noise: EkfNoise | None = None,
+    yaw_t: ArrayLike | None = None,
+    yaw: ArrayLike | None = None,
+    yaw_std: ArrayLike | float = 0.01,
+) -> tuple[FusedTrack, PlanarEKF]:
+    """Fuse recorded streams offline (merged by effective time, see the module docstring).
+
+    Args:
+        robot: chassis parameters.
+        imu_t, gyro_z: gyro stamps (s) and rates about the world vertical (rad/s; for a tilted
+            robot use :func:`vertical_rate`).
+        wheel_t, ticks: wheel frame stamps (s, end of each period) and (M, 2) ticks.
+        noise: filter tuning.
+        yaw_t, yaw, yaw_std: optional absolute yaw (s, rad, rad).
+
+    Returns:
+        ``(track, filter)``; the filter holds the final state.
+    """
+    ekf = PlanarEKF(robot, noise)
+    kinds, t_eff, a, b, stamp = merge_events(
+        imu_t, gyro_z, wheel_t, ticks, robot.encode_sampling_time, ekf.noise.wheel_latency,
+        yaw_t, yaw, yaw_std,
+    )
+    states, status = ekf.process_batch(kinds, t_eff, a, b)
+    return FusedTrack(stamp, kinds, states, status, ekf.stats), ekf

@@ -1,0 +1,242 @@
+"""Planar EKF: equal to filterpy's equations, streaming == batch, time policy, gating, ZUPT."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fusion import _ekf_core as core
+from fusion.ekf import (
+    EkfNoise,
+    PlanarEKF,
+    ReorderBuffer,
+    fuse,
+    merge_events,
+    odometry_covariances,
+    vertical_rate,
+)
+from fusion.synthetic import (
+    EXAMPLE_ROBOT,
+    EncoderModel,
+    ImuModel,
+    SlipPatch,
+    degraded_mission,
+    simulate,
+    spin,
+    stop,
+    straight,
+)
+
+ROBOT = EXAMPLE_ROBOT
+
+
+@pytest.fixture(scope="module")
+def short_run():
+    return degraded_mission(seed=5, duration=40.0)
+
+
+def _events(run, **kw):
+    return merge_events(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+                        ROBOT.encode_sampling_time, **kw)
+
+
+def test_core_equals_filterpy_predict_update(short_run):
+    # The compiled core (Cholesky solve) against filterpy's own ExtendedKalmanFilter.predict /
+    # update (inv(S), Joseph form) on the same model: gyro, wheel, slip-gated and ZUPT updates
+    # and absolute yaw, including a yaw measurement across the +-pi seam.
+    kinds, t, a, b, _ = _events(short_run, yaw_t=[10.0, 20.0, 30.0],
+                                yaw=[0.1, math.pi - 0.01, -math.pi + 0.02], yaw_std=0.05)
+    fast = PlanarEKF(ROBOT)
+    ref = PlanarEKF(ROBOT, backend="filterpy")
+    out_f, st_f = fast.process_batch(kinds, t, a, b)
+    out_r, st_r = ref.process_batch(kinds, t, a, b)
+    np.testing.assert_array_equal(st_f, st_r)
+    assert {0, 1, 4} <= set(st_f.tolist())
+    np.testing.assert_allclose(out_f[:, :8], out_r[:, :8], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(fast.P, ref.P, rtol=1e-7, atol=1e-15)
+    assert fast.stats == ref.stats
+
+
+def test_streaming_equals_batch_and_split_run(short_run):
+    kinds, t, a, b, stamp = _events(short_run)
+    batch = PlanarEKF(ROBOT)
+    out, _ = batch.process_batch(kinds, t, a, b)
+    stream = PlanarEKF(ROBOT)
+    half = len(kinds) // 2
+    for k in range(len(kinds)):
+        if k == half:
+            saved = stream.get_state()
+            stream = PlanarEKF(ROBOT)
+            stream.set_state(saved)
+        if kinds[k] == core.EV_GYRO:
+            stream.update_gyro(stamp[k], a[k])
+        else:
+            stream.update_wheels(stamp[k], int(a[k]), int(b[k]))
+    np.testing.assert_array_equal(stream.x, out[-1, :8])
+    np.testing.assert_array_equal(stream.x, batch.x)
+    np.testing.assert_array_equal(stream.P, batch.P)
+
+
+def test_zupt_makes_the_bias_observable():
+    # 10 s at rest, constant bias 0.5 deg/s, gyro noise 0.05 deg/s per sample at 100 Hz. With
+    # the robot known to stand still, the bias estimate is the mean of the ~990 gyro samples
+    # after the first ZUPT: sigma 0.05/sqrt(990) = 0.0016 deg/s.
+    bias = math.radians(0.5)
+    run = simulate(stop(10.0), ROBOT, imu=ImuModel(gyro_bias=(0, 0, bias)), seed=1)
+    _, ekf = fuse(ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+                  EkfNoise(bias_psd=0.0))
+    assert ekf.stats["zupts"] >= 240
+    sigma = math.degrees(math.sqrt(ekf.P[5, 5]))
+    assert 0.0016 <= sigma <= 0.0021
+    sample_mean = math.degrees(run.gyro[run.imu_t > 0.08, 2].mean())
+    assert math.degrees(ekf.gyro_bias) == pytest.approx(sample_mean, abs=0.001)
+    assert abs(math.degrees(ekf.gyro_bias - bias)) < 3 * sigma
+    # and the heading did not wander: the rate state was pinned to zero
+    assert abs(math.degrees(ekf.x[2])) < 0.02
+
+
+def test_motion_onset_does_not_leak_into_the_bias():
+    # After a rest the robot spins on the spot: the gyro sees the turn before the first
+    # non-zero wheel frame arrives. The bias must not swallow the onset.
+    bias = math.radians(0.5)
+    run = simulate(stop(5.0) + spin(math.pi, 1.0) + stop(2.0), ROBOT,
+                   imu=ImuModel(gyro_bias=(0, 0, bias)), seed=4)
+    track, ekf = fuse(ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+                      EkfNoise(bias_psd=0.0))
+    before = track.states[(track.t > 4.9) & (track.t < 5.0) & (track.kind == 0), 5].mean()
+    during = track.states[(track.t > 5.2) & (track.t < 5.5) & (track.kind == 0), 5]
+    assert np.max(np.abs(np.degrees(during - before))) < 0.003
+    assert math.remainder(ekf.x[2] - math.pi, 2 * math.pi) == pytest.approx(0, abs=0.01)
+
+
+def test_slip_frames_are_flagged_and_only_those():
+    patch = SlipPatch(6.0, 7.0, wheel="right", ratio=0.3)
+    run = simulate(stop(3) + straight(6.0, 0.5) + stop(2), ROBOT,
+                   encoders=EncoderModel(slip_patches=(patch,)), seed=2)
+    track, ekf = fuse(ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks)
+    wheel = track.kind == core.EV_WHEELS
+    flagged = track.t[wheel & (track.status == 1)]
+    # frames whose period lies inside the patch: ends at 6.04 .. 7.00 -> 25 frames
+    inside = (flagged > 6.0) & (flagged <= 7.04)
+    assert inside.sum() >= 24
+    assert (~inside).sum() == 0
+    # the slipping wheel did not turn the estimated heading (straight line)
+    assert abs(math.degrees(ekf.x[2])) < 0.2
+    # ... and the 6 m run keeps a small distance error despite 0.15 m of extra right ticks
+    assert abs(ekf.x[0] - run.truth[-1, 0]) < 0.03
+
+
+def test_late_inputs_policy():
+    ekf = PlanarEKF(ROBOT, EkfNoise(late_tolerance=0.02))
+    assert ekf.update_gyro(1.00, 0.0) == 0
+    assert ekf.update_gyro(1.01, 0.0) == 0
+    x_before = ekf.x.copy()
+    assert ekf.update_gyro(1.0, 0.0) == 0  # 10 ms late: fused at the filter time
+    assert ekf.stats["late_applied"] == 1
+    assert ekf.t == pytest.approx(1.01)
+    x_before = ekf.x.copy()
+    P_before = ekf.P.copy()
+    assert ekf.update_gyro(0.9, 0.3) == 5  # 110 ms late: dropped, nothing changes
+    assert ekf.stats["late_dropped"] == 1
+    np.testing.assert_array_equal(ekf.x, x_before)
+    np.testing.assert_array_equal(ekf.P, P_before)
+    assert ekf.update_gyro(float("nan"), 0.0) == 6
+    assert ekf.stats["invalid"] == 1
+
+
+def test_wheel_frames_are_fused_at_the_period_midpoint():
+    kinds, t_eff, _, _, stamp = merge_events([0.0, 0.03], [0.0, 0.0], [0.04], [[10, 10]], 0.04)
+    # the wheel frame stamped 0.04 covers 0.00-0.04, effective at 0.02: before the 0.03 gyro
+    np.testing.assert_array_equal(kinds, [0, 1, 0])
+    np.testing.assert_allclose(t_eff, [0.0, 0.02, 0.03])
+    np.testing.assert_allclose(stamp, [0.0, 0.04, 0.03])
+
+
+def test_reorder_buffer_releases_in_time_order():
+    buf = ReorderBuffer(window=0.05)
+    for t in (0.00, 0.02, 0.01, 0.05, 0.03, 0.10):
+        buf.push(t, f"e{t}")
+    ready = [t for t, _ in buf.pop_ready()]
+    assert ready == [0.00, 0.01, 0.02, 0.03, 0.05]
+    assert [t for t, _ in buf.flush()] == [0.10]
+    with pytest.raises(ValueError):
+        ReorderBuffer(-1)
+
+
+def test_absolute_yaw_residual_is_wrapped():
+    x0 = np.zeros(8)
+    x0[2] = math.radians(179.0)
+    P0 = np.diag([0, 0, math.radians(2.0) ** 2, 1e-4, 1e-4, 1e-6, 1e-4, 1e-4])
+    ekf = PlanarEKF(ROBOT, x0=x0, P0=P0)
+    ekf.update_yaw(0.0, math.radians(-179.0), math.radians(2.0))
+    # equal variances: the estimate moves halfway, to 180 deg, not to ~0 deg
+    assert math.degrees(ekf.x[2]) == pytest.approx(180.0, abs=1e-9)
+    assert ekf.P[2, 2] == pytest.approx(0.5 * math.radians(2.0) ** 2)
+    with pytest.raises(ValueError):
+        ekf.update_yaw(0.1, 0.0, 0.0)
+
+
+def test_vertical_rate_matches_scipy_rotation():
+    rng = np.random.default_rng(3)
+    q_xyzw = Rotation.random(50, random_state=rng).as_quat()
+    q = np.column_stack([q_xyzw[:, 3], q_xyzw[:, :3]])
+    g = rng.normal(size=(50, 3))
+    expected = Rotation.from_quat(q_xyzw).apply(g)[:, 2]
+    np.testing.assert_allclose(vertical_rate(g, q), expected, atol=1e-12)
+    np.testing.assert_array_equal(vertical_rate(g), g[:, 2])
+    with pytest.raises(ValueError):
+        vertical_rate(g[:, :2])
+
+
+def test_nav_msgs_odometry_covariance_layout():
+    A = np.arange(64, dtype=float).reshape(8, 8)
+    P = A @ A.T
+    pose, twist = odometry_covariances(P)
+    pose = pose.reshape(6, 6)
+    twist = twist.reshape(6, 6)
+    # pose order x, y, z, rot_x, rot_y, rot_z: the EKF's (x, y, yaw) = indices 0, 1, 2
+    assert pose[0, 0] == P[0, 0] and pose[0, 1] == P[0, 1] and pose[1, 1] == P[1, 1]
+    assert pose[0, 5] == P[0, 2] and pose[5, 1] == P[2, 1] and pose[5, 5] == P[2, 2]
+    assert pose[2, 2] == pose[3, 3] == pose[4, 4] == 99999.0
+    # twist order vx, vy, vz, wx, wy, wz: v = 3, w = 4
+    assert twist[0, 0] == P[3, 3] and twist[5, 5] == P[4, 4] and twist[0, 5] == P[3, 4]
+    assert twist[1, 1] == 99999.0
+    np.testing.assert_array_equal(pose, pose.T)
+
+
+def test_covariance_stays_symmetric_positive_definite_over_a_million_steps():
+    # A tight loop on the compiled step: a 100 s degraded mission (gyro 100 Hz, wheels 25 Hz,
+    # slips, ZUPTs) repeated end to end until 1e6 events, plus an absolute yaw every 10 s.
+    run = degraded_mission(seed=11, duration=100.0)
+    kinds, t, a, b, _ = _events(run, yaw_t=np.arange(5.0, 100.0, 10.0), yaw=0.0, yaw_std=0.3)
+    span = run.duration + 1.0
+    reps = math.ceil(1_000_000 / kinds.size)
+    ekf = PlanarEKF(ROBOT)
+    total = 0
+    for r in range(reps):
+        out, status = ekf.process_batch(kinds, t + r * span, a, b)
+        total += kinds.size
+        assert np.all(status != 3)  # never a non-positive-definite S
+        assert np.all(out[:, 8:16] > 0)  # every variance positive after every step
+        np.testing.assert_array_equal(ekf.P, ekf.P.T)
+        np.linalg.cholesky(ekf.P)  # raises if not positive definite
+        assert np.all(np.isfinite(out))
+    assert total >= 1_000_000
+    assert np.linalg.eigvalsh(ekf.P).min() > 0
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        lambda: EkfNoise(gyro_std=0.0),
+        lambda: EkfNoise(bias_psd=-1.0),
+        lambda: EkfNoise(zupt_frames=0),
+        lambda: PlanarEKF(ROBOT, backend="torch"),
+    ],
+)
+def test_bad_configuration_raises(bad):
+    with pytest.raises(ValueError):
+        bad()

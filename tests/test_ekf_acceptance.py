@@ -1,0 +1,108 @@
+"""Acceptance of the fused odometry on synthetic 300 s missions (issue 4, "must be true").
+
+Each mission (fusion.synthetic.degraded_mission): robot.toml's wheel_distance 3 % off the
+truth, 0.5 % left/right wheel-radius mismatch, gyro z bias 0.5 deg/s walking at
+2e-5 rad/s/sqrt(s), MPU6050 noise, three 1 s slip patches (one wheel over-counts by 30 %),
+starting at rest. Truth comes from the simulator's exact integration; the wheel-only baseline
+is the chassis odometry of fusion.odometry (seed 000's midpoint rule), an independent module.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fusion import _ekf_core as core
+from fusion.ekf import EkfNoise, fuse, pose_covariances
+from fusion.odometry import WheelOdometry
+from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.trajectory_metrics import (
+    final_position_error_percent,
+    nees,
+    nees_bounds,
+    nees_fraction_within,
+    pose_errors,
+    yaw_rmse,
+)
+
+SEEDS = range(8)
+# The filter's bias walk is set to the simulated one, as a user would from an Allan variance.
+NOISE = EkfNoise(bias_psd=(2e-5) ** 2)
+
+
+@pytest.fixture(scope="module")
+def missions():
+    out = []
+    for seed in SEEDS:
+        run = degraded_mission(seed=seed, duration=300.0)
+        track, ekf = fuse(EXAMPLE_ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+                          NOISE)
+        gyro = track.kind == core.EV_GYRO
+        out.append((run, track.t[gyro], track.states[gyro], ekf))
+    return out
+
+
+def test_fused_beats_wheel_only_on_every_seed(missions):
+    rows = []
+    for run, t, states, ekf in missions:
+        truth = run.truth_at(t)
+        fused_pct = final_position_error_percent(states[:, :2], truth, run.distance)
+        fused_yaw = math.degrees(yaw_rmse(states[:, 2], truth[:, 2]))
+        wheel = WheelOdometry(EXAMPLE_ROBOT).update_batch(run.ticks[:, 0], run.ticks[:, 1])
+        wheel_pct = final_position_error_percent(wheel[:, :2], run.truth, run.distance)
+        wheel_yaw = math.degrees(yaw_rmse(np.interp(run.truth_t, run.wheel_t, wheel[:, 2]),
+                                          run.truth[:, 2]))
+        rows.append((run.seed, run.distance, fused_pct, fused_yaw, wheel_pct, wheel_yaw,
+                     ekf.stats["slips"]))
+    for seed, dist, fused_pct, fused_yaw, _, wheel_yaw, slips in rows:
+        assert dist > 60, seed
+        assert slips >= 20, seed  # the slip patches were seen
+        assert fused_pct <= 0.5, (seed, fused_pct)
+        assert fused_yaw <= 1.5, (seed, fused_yaw)
+        assert wheel_yaw > 10.0, (seed, wheel_yaw)
+    # Wheel-only final error > 5 % of distance on 7 of the 8 seeds: on seed 0 the wandering
+    # wheel-only error happens to come back to 3.97 % at the end (its yaw RMSE is 21.9 deg).
+    assert sum(r[4] > 5.0 for r in rows) >= 7, [round(r[4], 2) for r in rows]
+    # Measured when written (seeds 0-7): fused 0.04-0.30 % of distance, yaw RMSE
+    # 0.13-0.55 deg; wheel-only 3.97 %, 6.7-25.1 %, yaw RMSE 21.9-56.4 deg.
+
+
+def test_gyro_bias_is_tracked(missions):
+    for run, t, states, _ in missions:
+        true_bias = np.interp(t, run.imu_t, run.gyro_bias[:, 2])
+        err = np.degrees(states[:, 5] - true_bias)
+        after_first_rest = t > 5.0
+        assert np.sqrt(np.mean(err[after_first_rest] ** 2)) < 0.02, run.seed
+
+
+def test_wheel_calibration_states_converge(missions):
+    # w_wheels = (1 + k) w + c v: the truth is k = L_true/L - 1 + mean scale (~ +3 %),
+    # c = (e_right - e_left)/L with e the relative distance error of each wheel's ticks.
+    for run, _, _, ekf in missions:
+        e_l = EXAMPLE_ROBOT.speed_ratio / run.true_left_ratio - 1
+        e_r = EXAMPLE_ROBOT.speed_ratio / run.true_right_ratio - 1
+        L = EXAMPLE_ROBOT.wheel_distance
+        k_true = run.true_wheel_distance / L * (1 + 0.5 * (e_l + e_r)) - 1
+        c_true = (e_r - e_l) / L
+        assert ekf.x[6] == pytest.approx(k_true, abs=0.003), run.seed
+        assert ekf.x[7] == pytest.approx(c_true, abs=0.003), run.seed
+
+
+def test_pose_nees_is_consistent_on_most_of_the_run(missions):
+    # Monte Carlo NEES of (x, y, yaw) averaged over the 8 runs, sampled every 0.1 s after the
+    # first second; 95 % two-sided bounds of chi2(3*8)/8 = [1.55, 4.93].
+    grid = np.arange(1.0, 299.0, 0.1)
+    values = []
+    for run, t, states, _ in missions:
+        idx = np.searchsorted(t, grid)
+        err = pose_errors(states[idx, :3], run.truth_at(t[idx]))
+        values.append(nees(err, pose_covariances(states[idx])))
+    mean = np.mean(values, axis=0)
+    lo, hi = nees_bounds(3, len(values))
+    assert (lo, hi) == pytest.approx((1.55, 4.93), abs=0.01)
+    frac = nees_fraction_within(mean, 3, len(values))
+    # measured when written: 0.92 inside, 0.04 below, 0.05 above
+    assert frac >= 0.85, frac
+    assert np.mean(mean > hi) < 0.1
