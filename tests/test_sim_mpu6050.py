@@ -210,3 +210,48 @@ def test_array_trace_validates():
         ArrayTrace(np.array([0.0, 0.0]), np.zeros((2, 3)), np.zeros((2, 3)))
     with pytest.raises(ValueError, match=r"\(3, 3\)"):
         ArrayTrace(np.arange(3.0), np.zeros((2, 3)), np.zeros((3, 3)))
+
+
+@pytest.mark.parametrize("dlpf,bw", [(6, 5.0), (4, 20.0)])
+def test_optional_dlpf_model_step_response(dlpf, bw):
+    # gyro z steps from 0 to 100 deg/s at t = 1 s; a first-order low-pass of bandwidth bw
+    # (register map: gyro 5 Hz for DLPF_CFG 6, 20 Hz for 4) answers 100 (1 - exp(-2 pi bw dt))
+    def step(t):
+        w = np.zeros((len(t), 3))
+        w[:, 2] = np.radians(100.0) * (t >= 1.0)
+        return w, np.tile([0.0, 0.0, G], (len(t), 1))
+
+    sim = SimulatedMPU6050(step, model_dlpf=True)
+    wake(sim, div=0, dlpf=dlpf)  # 1 kHz
+    t0 = sim.grid_start
+    sim.clock.sleep(0.9)
+    t, z = [], []
+    for _ in range(400):  # poll GYRO_ZOUT every 1 ms from 0.9 s to 1.3 s
+        sim.clock.sleep(0.001)
+        n = math.floor((sim.clock.now - t0) * 1000 + 1e-9)  # the newest sample's index
+        d = sim.read_i2c_block_data(ADDR, 0x47, 2)
+        t.append(t0 + n / 1000)
+        z.append(s16(d[0], d[1]) / 131.0)
+    t, z = np.array(t), np.array(z)
+    after = t - 1.0
+
+    def response(dt):  # continuous first-order step response, deg/s
+        return np.where(dt >= 0, 100.0 * (1 - np.exp(-2 * np.pi * bw * np.maximum(dt, 0))), 0)
+
+    # A one-pole run at 1 kHz has seen the step since its first tick at or after 1.0 s, so
+    # its output lies between the continuous response now and one tick (1 ms) later,
+    # to within the rounding to 1 LSB (1/131 deg/s).
+    lsb = 1 / 131
+    assert np.all(z >= response(after) - lsb)
+    assert np.all(z <= response(after + 0.001) + lsb)
+    assert 0.3 < after[-1] and z[-1] > 99.9  # settled after more than 9 time constants
+    assert z[(after > 0.005) & (after < 0.02)].max() < 95  # and it was a slow rise
+    assert z[after < -0.002].max() < 0.01  # nothing before the step
+
+
+def test_dlpf_model_off_by_default_follows_the_trace():
+    sim = SimulatedMPU6050(static_trace((0, 0, G), np.radians([0, 0, 50.0])))
+    wake(sim, div=0, dlpf=6)
+    sim.clock.sleep(0.002)
+    d = sim.read_i2c_block_data(ADDR, 0x47, 2)
+    assert s16(d[0], d[1]) == 50 * 131

@@ -13,8 +13,8 @@ What is modelled:
 * sampling: the gyroscope output rate is 8 kHz when DLPF_CFG is 0 or 7, else 1 kHz, and the
   sample rate is that rate / (1 + SMPLRT_DIV). At each sample instant the data registers
   0x3B..0x48 are updated atomically (a burst read sees one sample) and, when enabled, the
-  frame is pushed into the FIFO. The DLPF's filtering of the signal is *not* modelled (only
-  the rate it implies); the accelerometer is sampled at the same instants as the gyroscope;
+  frame is pushed into the FIFO. The DLPF's filtering is optional (``model_dlpf``); the
+  accelerometer is sampled at the same instants as the gyroscope;
 * range-dependent scaling (131 / 65.5 / 32.8 / 16.4 LSB/(deg/s), 16384 / 8192 / 4096 / 2048
   LSB/g), rounding to integers and saturation at the int16 limits; temperature
   raw = (T - 36.53) * 340;
@@ -31,7 +31,8 @@ What is modelled:
 * a transaction counter, and optionally a simulated clock advanced by the time each transfer
   takes on the wire, so tests are deterministic.
 
-Not modelled: the DLPF's effect on the signal (bandwidth and delay), the accelerometer's own
+Not modelled: the DLPF's effect on the signal unless ``model_dlpf=True`` (a one-pole
+approximation of its bandwidth), the accelerometer's own
 1 kHz rate when the gyro runs at 8 kHz, cycle mode and PWR_MGMT_2 standby bits, the auxiliary
 I2C master and slave FIFO sources' data, the DMP, the INT pin, and register-read latency after
 a DEVICE_RESET (the chip answers at once).
@@ -76,6 +77,9 @@ _READ_ONLY = {*range(_DATA_FIRST, _DATA_LAST + 1), _INT_STATUS, _FIFO_COUNTH, _F
               _WHO_AM_I, *range(0x49, 0x61)}
 
 _FIFO_SIZE = 1024
+# DLPF_CFG 0..6 bandwidths (register map, CONFIG table), Hz; 7 is reserved (not filtered here).
+_ACCEL_BW_HZ = (260.0, 184.0, 94.0, 44.0, 21.0, 10.0, 5.0, 0.0)
+_GYRO_BW_HZ = (256.0, 188.0, 98.0, 42.0, 20.0, 10.0, 5.0, 0.0)
 _GYRO_LSB_PER_DPS = (131.0, 65.5, 32.8, 16.4)
 _ACCEL_LSB_PER_G = (16384.0, 8192.0, 4096.0, 2048.0)
 
@@ -204,6 +208,11 @@ class SimulatedMPU6050:
         self_test_deviation: per-axis relative deviation of the self-test response from the
             factory trim, order (gx, gy, gz, ax, ay, az); the datasheet passes |dev| <= 14 %.
         seed: seed of the noise generator.
+        model_dlpf: pass the truth through a one-pole low-pass of the DLPF_CFG bandwidth
+            (accel 260/184/94/44/21/10/5 Hz, gyro 256/188/98/42/20/10/5 Hz), evaluated at
+            the gyro output rate and read at each sample; noise is added after it. An
+            approximation of the chip's filter (its delay is close, its shape is not
+            documented). Off by default: the outputs then follow the trace exactly.
 
     Counters: ``transactions`` (one per method call; an ``i2c_rdwr`` of several messages is
     one combined transaction), ``calls`` (per method name), ``bytes_read``,
@@ -230,6 +239,7 @@ class SimulatedMPU6050:
         accel_trim_codes: Sequence[int] = (18, 17, 19),
         self_test_deviation: Sequence[float] = (0.02, -0.03, 0.01, 0.04, -0.02, 0.0),
         seed: int = 0,
+        model_dlpf: bool = False,
     ) -> None:
         if not 0x08 <= address <= 0x77:
             raise ValueError(f"SimulatedMPU6050: address {address:#x} is not a 7-bit address")
@@ -251,6 +261,8 @@ class SimulatedMPU6050:
         self._accel_codes = codes[3:]
         self.self_test_deviation = np.asarray(self_test_deviation, dtype=float).reshape(6)
         self._rng = np.random.default_rng(seed)
+        self.model_dlpf = bool(model_dlpf)
+        self._lp_state: NDArray[np.float64] | None = None
 
         # fault injection state
         self._nack_remaining = 0
@@ -278,6 +290,7 @@ class SimulatedMPU6050:
         self.regs[_SELF_TEST_Z] = ((a[2] >> 2) << 5) | g[2]
         self.regs[_SELF_TEST_A] = ((a[0] & 3) << 4) | ((a[1] & 3) << 2) | (a[2] & 3)
         self.fifo = bytearray()
+        self._lp_state = None
         self.fifo_frames_written = 0
         self.fifo_bytes_dropped = 0
         self._last_fifo_byte = 0
@@ -286,6 +299,13 @@ class SimulatedMPU6050:
     def _reanchor(self, t: float) -> None:
         self._grid_t0 = t  # sample n happens at _grid_t0 + n / rate
         self._next_n = 1
+
+    @property
+    def grid_start(self) -> float:
+        """Time of sample 0 of the current sampling grid, s (set at wake-up and by writes to
+        SMPLRT_DIV or CONFIG): sample n is at ``grid_start + n / (sample_rate_hz * (1 +
+        clock_error))``, n >= 1."""
+        return self._grid_t0
 
     @property
     def asleep(self) -> bool:
@@ -323,9 +343,17 @@ class SimulatedMPU6050:
         # Only the newest frames can matter: the registers hold the last one and the FIFO
         # keeps at most 1024 bytes. Older ones only count as produced (and dropped).
         keep = min(count, _FIFO_SIZE // 2 + 1 if fifo_on else 1)
-        first = last_n - keep + 1
+        compute = keep
+        if self.model_dlpf:
+            # the filter needs its history: the skipped samples of the last 10 time
+            # constants of the slowest pole (older ones no longer matter; restart there)
+            settle = math.ceil(10.0 / (2.0 * math.pi * 5.0) / period)
+            compute = min(count, max(keep, settle))
+            if compute < count:
+                self._lp_state = None
+        first = last_n - compute + 1
         times = self._grid_t0 + np.arange(first, last_n + 1) * period
-        frames = self._sample(times)
+        frames = self._sample(times, period)[compute - keep :]
         if fifo_on:
             skipped = count - keep
             if skipped:  # their bytes are certain to be pushed out: account, don't store
@@ -345,12 +373,41 @@ class SimulatedMPU6050:
         self.samples_produced += count
         self._next_n = last_n + 1
 
-    def _sample(self, times: NDArray[np.float64]) -> list[bytes]:
+    def _truth(self, times: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         w, f = self.motion(times)
         w = np.asarray(w, dtype=float).reshape(len(times), 3)
         f = np.asarray(f, dtype=float).reshape(len(times), 3)
-        gyro_dps = np.degrees(w) + self.gyro_bias_dps
-        accel_g = f / STANDARD_GRAVITY + self.accel_bias_g
+        return np.degrees(w) + self.gyro_bias_dps, f / STANDARD_GRAVITY + self.accel_bias_g
+
+    def _filtered_truth(
+        self, times: NDArray[np.float64], period: float
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """The truth through a one-pole low-pass of the DLPF bandwidth, run at the gyro
+        output rate (1 + SMPLRT_DIV ticks per sample) and read at the sample instants."""
+        cfg = self.regs[_CONFIG] & 0x07
+        ticks = 1 + self.regs[_SMPLRT_DIV]
+        tick = period / ticks
+        t_all = (times[:, None] - tick * np.arange(ticks - 1, -1, -1)[None, :]).ravel()
+        gyro, accel = self._truth(t_all)
+        x = np.hstack([accel, gyro])
+        bw = np.array([_ACCEL_BW_HZ[cfg]] * 3 + [_GYRO_BW_HZ[cfg]] * 3)
+        from scipy.signal import lfilter
+
+        y = np.empty_like(x)
+        prev = x[0].copy() if self._lp_state is None else self._lp_state
+        for cols in (slice(0, 3), slice(3, 6)):  # y[k] = p y[k-1] + (1 - p) x[k]
+            p = math.exp(-2.0 * math.pi * bw[cols][0] * tick)
+            y[:, cols], _ = lfilter([1.0 - p], [1.0, -p], x[:, cols], axis=0,
+                                    zi=(p * prev[cols])[None, :])
+        self._lp_state = y[-1].copy()
+        out = y[ticks - 1 :: ticks]
+        return out[:, 3:], out[:, :3]
+
+    def _sample(self, times: NDArray[np.float64], period: float) -> list[bytes]:
+        if self.model_dlpf and (self.regs[_CONFIG] & 0x07) != 7:
+            gyro_dps, accel_g = self._filtered_truth(times, period)
+        else:
+            gyro_dps, accel_g = self._truth(times)
         if self.gyro_noise_dps:
             gyro_dps = gyro_dps + self._rng.normal(0.0, self.gyro_noise_dps, gyro_dps.shape)
         if self.accel_noise_g:

@@ -130,7 +130,7 @@ def _open(args: argparse.Namespace) -> Any:
         clock = SystemClock() if args.realtime else SimClock()
         sim = SimulatedMPU6050(_sim_motion(clock.monotonic()), address=args.address, clock=clock,
                                gyro_bias_dps=(0.8, -0.5, 0.3), gyro_noise_dps=0.05,
-                               accel_noise_g=0.003, seed=1)
+                               accel_noise_g=0.003, seed=1, model_dlpf=True)
         return MPU6050(sim, args.address, clock=clock, **kw)
     return MPU6050(args.bus, args.address, **kw)
 
