@@ -290,6 +290,8 @@ class MPU6050:
     Attributes:
         stats: transactions issued, retries and failures seen.
         stuck: True while the stuck condition holds (``on_stuck="flag"``).
+
+    One driver is not safe to share between threads: give it its own thread (or a lock).
     """
 
     def __init__(

@@ -39,7 +39,9 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "imu",
         help="stream MPU6050 samples and the Mahony attitude",
-        description=__doc__.split("\n\n", 1)[0] + " Units: rad/s, m/s^2, deg C, deg (angles).",
+        description="Stream MPU6050 samples and the Mahony attitude to the terminal or a CSV: "
+                    "t (s), gx gy gz (rad/s), ax ay az (m/s^2), temp (deg C), qw qx qy qz "
+                    "(body -> ENU), roll pitch yaw (deg). Status lines go to stderr.",
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--bus", type=int, metavar="N", help="I2C bus number (/dev/i2c-N)")
