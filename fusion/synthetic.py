@@ -360,6 +360,15 @@ class SyntheticRun:
         """Length of the run, s."""
         return float(self.truth_t[-1] - self.truth_t[0])
 
+    def write_logdir(self, path, truth: bool = True):
+        """Write the run as a log directory (``fusion.logdir``); returns its path."""
+        from fusion.logdir import write_logdir
+
+        return write_logdir(
+            path, self.robot, self.imu_t, self.gyro, self.accel, self.wheel_t, self.ticks,
+            self.truth_t if truth else None, self.truth if truth else None,
+        )
+
     def truth_at(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
         """Truth ``(x, y, yaw)`` linearly interpolated at times ``t`` (yaw unwrapped first)."""
         t = np.asarray(t, dtype=float)

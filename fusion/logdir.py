@@ -1,0 +1,392 @@
+"""The log directory: one recorded (or synthetic) run of a differential-drive robot.
+
+A directory holding (format documented in ``datasets/LOGDIR.md``):
+
+- ``imu.csv``: ``t,gx,gy,gz,ax,ay,az[,mx,my,mz]`` (s, rad/s, m/s^2, uT; IMU frame, which is
+  the body frame x forward, y left, z up unless ``robot.toml`` gives a mount rotation). Read by
+  :func:`fusion.logs.read_imu_csv`.
+- ``wheels.csv``: ``t,left,right``: host time stamp (s) of the end of each firmware period and
+  the signed encoder ticks counted in that period (integers, as on the DATA-uart2 wire).
+- ``truth.csv`` (optional): ``t,x,y,yaw`` ground truth of base_footprint in odom (s, m, m,
+  rad).
+- ``robot.toml``: ``[chassis]`` with seed 000's names (``wheel_distance`` m, ``speed_ratio``
+  m/tick, ``encode_sampling_time`` s, optional limits ``cmd_vel_linear_max`` m/s,
+  ``cmd_vel_angular_max`` rad/s, ``wheel_speed_max`` m/s); optional ``[frames]`` (``odom``,
+  ``base``, ``imu_mount_rpy`` = URDF roll, pitch, yaw in rad taking IMU-frame vectors into the
+  base frame); optional ``[ekf]`` with :class:`fusion.ekf.EkfNoise` field names.
+
+At least one of ``imu.csv`` and ``wheels.csv`` must exist. Every error names the file and,
+for CSV content, the line.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import sys
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from fusion import quaternion as quat
+from fusion.ekf import EkfNoise
+from fusion.kinematics import TICKS_MAX, DiffDriveParams
+from fusion.logs import LogFormatError, read_imu_csv
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+__all__ = [
+    "LogDir",
+    "RobotConfig",
+    "read_logdir",
+    "read_robot_toml",
+    "read_truth_csv",
+    "read_wheels_csv",
+    "write_logdir",
+    "write_robot_toml",
+]
+
+WHEELS_COLUMNS = ("t", "left", "right")
+TRUTH_COLUMNS = ("t", "x", "y", "yaw")
+_CHASSIS_KEYS = {f.name for f in fields(DiffDriveParams)}
+_FRAME_KEYS = {"odom", "base", "imu_mount_rpy"}
+_EKF_KEYS = {f.name for f in fields(EkfNoise)}
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    """The content of ``robot.toml``.
+
+    Attributes:
+        chassis: geometry and limits (seed 000's names).
+        odom_frame, base_frame: REP-105 frame names of the published odometry.
+        imu_mount_rpy: URDF roll, pitch, yaw (rad) of the IMU in the base frame.
+        ekf: filter tuning (defaults where ``[ekf]`` is absent).
+    """
+
+    chassis: DiffDriveParams
+    odom_frame: str = "odom"
+    base_frame: str = "base_footprint"
+    imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    ekf: EkfNoise = field(default_factory=EkfNoise)
+
+    def imu_to_base(self) -> NDArray[np.float64]:
+        """Quaternion ``[w, x, y, z]`` taking IMU-frame vectors into the base frame."""
+        return quat.from_euler(*self.imu_mount_rpy)
+
+
+@dataclass
+class LogDir:
+    """A loaded log directory (arrays in SI units, see the module docstring).
+
+    Attributes:
+        path: the directory.
+        robot: :class:`RobotConfig`.
+        imu_t, gyro, accel, mag: IMU stamps (s) and base-frame vectors (rad/s, m/s^2, uT;
+            rotated by ``imu_mount_rpy``), or None without ``imu.csv`` (``mag`` None without
+            magnetometer columns).
+        wheel_t, ticks: wheel frame stamps (s) and (M, 2) int64 ticks, or None.
+        truth_t, truth: ground truth stamps (s) and (K, 3) ``x, y, yaw``, or None.
+    """
+
+    path: Path
+    robot: RobotConfig
+    imu_t: NDArray[np.float64] | None = None
+    gyro: NDArray[np.float64] | None = None
+    accel: NDArray[np.float64] | None = None
+    mag: NDArray[np.float64] | None = None
+    wheel_t: NDArray[np.float64] | None = None
+    ticks: NDArray[np.int64] | None = None
+    truth_t: NDArray[np.float64] | None = None
+    truth: NDArray[np.float64] | None = None
+
+    @property
+    def time_span(self) -> tuple[float, float]:
+        """First and last stamp over all streams, s."""
+        ts = [a for a in (self.imu_t, self.wheel_t) if a is not None and a.size]
+        if not ts:
+            raise ValueError(f"{self.path}: the log has no samples")
+        return float(min(a[0] for a in ts)), float(max(a[-1] for a in ts))
+
+
+# -- robot.toml --------------------------------------------------------------------------------
+
+
+def _number(path: Path, table: str, key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise LogFormatError(f"{path}: [{table}] {key} must be a number, got {value!r}")
+    return float(value)
+
+
+def read_robot_toml(path: str | Path) -> RobotConfig:
+    """Read ``robot.toml`` (see the module docstring).
+
+    Raises:
+        LogFormatError: invalid TOML, a missing ``[chassis]`` key, an unknown key (typos are
+            not silently ignored) or a value out of range; the message names the file.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            doc = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise LogFormatError(f"{path}: invalid TOML: {exc}") from exc
+    unknown = set(doc) - {"chassis", "frames", "ekf"}
+    if unknown:
+        raise LogFormatError(f"{path}: unknown table(s) {sorted(unknown)}; "
+                             "allowed: chassis, frames, ekf")
+    chassis = doc.get("chassis")
+    if not isinstance(chassis, dict):
+        raise LogFormatError(f"{path}: missing [chassis] table (wheel_distance, speed_ratio, "
+                             "encode_sampling_time)")
+    bad = set(chassis) - _CHASSIS_KEYS
+    if bad:
+        raise LogFormatError(f"{path}: [chassis] unknown key(s) {sorted(bad)}; "
+                             f"allowed: {sorted(_CHASSIS_KEYS)}")
+    for key in ("wheel_distance", "speed_ratio", "encode_sampling_time"):
+        if key not in chassis:
+            raise LogFormatError(f"{path}: [chassis] needs {key}")
+    values = {k: _number(path, "chassis", k, v) for k, v in chassis.items()}
+    try:
+        params = DiffDriveParams(**values)
+    except ValueError as exc:
+        raise LogFormatError(f"{path}: [chassis] {exc}") from exc
+
+    frames = doc.get("frames", {})
+    if not isinstance(frames, dict) or set(frames) - _FRAME_KEYS:
+        raise LogFormatError(f"{path}: [frames] allows only {sorted(_FRAME_KEYS)}")
+    rpy = frames.get("imu_mount_rpy", [0.0, 0.0, 0.0])
+    if not (isinstance(rpy, list) and len(rpy) == 3):
+        raise LogFormatError(f"{path}: [frames] imu_mount_rpy must be [roll, pitch, yaw] "
+                             f"in rad, got {rpy!r}")
+    rpy_t = tuple(_number(path, "frames", "imu_mount_rpy", v) for v in rpy)
+    for key in ("odom", "base"):
+        if key in frames and not isinstance(frames[key], str):
+            raise LogFormatError(f"{path}: [frames] {key} must be a string")
+
+    ekf_tab = doc.get("ekf", {})
+    if not isinstance(ekf_tab, dict) or set(ekf_tab) - _EKF_KEYS:
+        bad = sorted(set(ekf_tab) - _EKF_KEYS) if isinstance(ekf_tab, dict) else ekf_tab
+        raise LogFormatError(f"{path}: [ekf] unknown key(s) {bad}; allowed: {sorted(_EKF_KEYS)}")
+    ekf_values = {k: _number(path, "ekf", k, v) for k, v in ekf_tab.items()}
+    if "zupt_frames" in ekf_values:
+        ekf_values["zupt_frames"] = int(ekf_values["zupt_frames"])
+    try:
+        ekf = EkfNoise(**ekf_values)
+    except ValueError as exc:
+        raise LogFormatError(f"{path}: [ekf] {exc}") from exc
+    return RobotConfig(
+        chassis=params,
+        odom_frame=frames.get("odom", "odom"),
+        base_frame=frames.get("base", "base_footprint"),
+        imu_mount_rpy=rpy_t,  # type: ignore[arg-type]
+        ekf=ekf,
+    )
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, float) and math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    return repr(v)
+
+
+def write_robot_toml(path: str | Path, robot: RobotConfig | DiffDriveParams) -> None:
+    """Write ``robot.toml`` for ``robot`` (infinite limits are left out)."""
+    if isinstance(robot, DiffDriveParams):
+        robot = RobotConfig(chassis=robot)
+    c = robot.chassis
+    units = {"wheel_distance": "m", "speed_ratio": "m per encoder tick",
+             "encode_sampling_time": "s, firmware period", "cmd_vel_linear_max": "m/s",
+             "cmd_vel_angular_max": "rad/s", "wheel_speed_max": "m/s"}
+    lines = ["# robot.toml: chassis parameters with the names of the miiboo driver (seed 000)",
+             "[chassis]"]
+    for f in fields(DiffDriveParams):
+        v = getattr(c, f.name)
+        if isinstance(v, float) and math.isinf(v):
+            continue
+        lines.append(f"{f.name} = {v!r}  # {units.get(f.name, '')}")
+    lines += ["", "[frames]", f"odom = {_toml_value(robot.odom_frame)}",
+              f"base = {_toml_value(robot.base_frame)}",
+              f"imu_mount_rpy = {_toml_value(list(robot.imu_mount_rpy))}  # rad, URDF rpy"]
+    default = EkfNoise()
+    changed = {f.name: getattr(robot.ekf, f.name) for f in fields(EkfNoise)
+               if getattr(robot.ekf, f.name) != getattr(default, f.name)}
+    if changed:
+        lines += ["", "[ekf]"] + [f"{k} = {_toml_value(v)}" for k, v in changed.items()]
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+# -- CSV ---------------------------------------------------------------------------------------
+
+
+def _read_csv(path: Path, columns: tuple[str, ...]) -> tuple[NDArray[np.float64], NDArray]:
+    with path.open(newline="") as fh:
+        reader = csv.reader(fh)
+        header = next(reader, None)
+        if header is None or tuple(h.strip() for h in header) != columns:
+            raise LogFormatError(f"{path}:1: header must be {','.join(columns)}, got "
+                                 f"{','.join(header) if header else 'an empty file'!r}")
+        rows = []
+        for lineno, row in enumerate(reader, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(columns):
+                raise LogFormatError(f"{path}:{lineno}: expected {len(columns)} fields, "
+                                     f"got {len(row)}")
+            try:
+                values = [float(c) for c in row]
+            except ValueError:
+                bad = next(c for c in row if not _is_float(c))
+                raise LogFormatError(f"{path}:{lineno}: not a number: {bad!r}") from None
+            if not all(math.isfinite(v) for v in values):
+                raise LogFormatError(f"{path}:{lineno}: non-finite value in {row}")
+            rows.append((lineno, values))
+    data = np.array([r[1] for r in rows], dtype=float).reshape(-1, len(columns))
+    lines = np.array([r[0] for r in rows], dtype=int)
+    bad = np.flatnonzero(~(np.diff(data[:, 0]) > 0)) if len(data) > 1 else []
+    if len(bad):
+        i = int(bad[0]) + 1
+        raise LogFormatError(f"{path}:{lines[i]}: time stamp {float(data[i, 0])!r} does not "
+                             f"increase (previous {float(data[i - 1, 0])!r})")
+    return data, lines
+
+
+def _is_float(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def read_wheels_csv(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Read ``wheels.csv``; returns ``(t, ticks)`` with ticks (M, 2) int64 (left, right).
+
+    Raises:
+        LogFormatError: wrong header, non-integer ticks, ticks beyond the 24-bit wire range,
+            stamps that do not increase; the message names file and line.
+    """
+    path = Path(path)
+    data, lines = _read_csv(path, WHEELS_COLUMNS)
+    ticks = data[:, 1:]
+    frac = np.flatnonzero(np.any(ticks != np.round(ticks), axis=1))
+    if frac.size:
+        raise LogFormatError(f"{path}:{lines[frac[0]]}: ticks must be integers, got "
+                             f"{ticks[frac[0]].tolist()}")
+    big = np.flatnonzero(np.any(np.abs(ticks) > TICKS_MAX, axis=1))
+    if big.size:
+        raise LogFormatError(f"{path}:{lines[big[0]]}: ticks {ticks[big[0]].tolist()} exceed "
+                             f"the 24-bit range +-{TICKS_MAX} of a DATA-uart2 frame")
+    return data[:, 0].copy(), ticks.astype(np.int64)
+
+
+def read_truth_csv(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Read ``truth.csv``; returns ``(t, poses)`` with poses (K, 3) ``x, y, yaw`` (m, m, rad)."""
+    path = Path(path)
+    data, _ = _read_csv(path, TRUTH_COLUMNS)
+    return data[:, 0].copy(), np.ascontiguousarray(data[:, 1:])
+
+
+def read_logdir(path: str | Path) -> LogDir:
+    """Read a log directory (see the module docstring).
+
+    Raises:
+        FileNotFoundError: the directory or ``robot.toml`` is missing.
+        LogFormatError: a file does not match its format, or neither ``imu.csv`` nor
+            ``wheels.csv`` exists.
+    """
+    path = Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(f"{path}: not a directory (expected a log directory with "
+                                "robot.toml, imu.csv and/or wheels.csv)")
+    toml_path = path / "robot.toml"
+    if not toml_path.is_file():
+        raise FileNotFoundError(f"{toml_path}: missing; a log directory needs robot.toml "
+                                "with a [chassis] table")
+    robot = read_robot_toml(toml_path)
+    log = LogDir(path=path, robot=robot)
+    if (path / "imu.csv").is_file():
+        imu = read_imu_csv(path / "imu.csv")
+        q = robot.imu_to_base()
+        log.imu_t = imu.t
+        log.gyro = quat.rotate(q, imu.gyro) if imu.gyro.size else imu.gyro
+        log.accel = quat.rotate(q, imu.accel) if imu.accel.size else imu.accel
+        log.mag = quat.rotate(q, imu.mag) if imu.mag is not None and imu.mag.size else imu.mag
+    if (path / "wheels.csv").is_file():
+        log.wheel_t, log.ticks = read_wheels_csv(path / "wheels.csv")
+    if log.imu_t is None and log.wheel_t is None:
+        raise LogFormatError(f"{path}: neither imu.csv nor wheels.csv found")
+    if (path / "truth.csv").is_file():
+        log.truth_t, log.truth = read_truth_csv(path / "truth.csv")
+    return log
+
+
+def _write_table(path: Path, header: tuple[str, ...], cols: list[ArrayLike],
+                 fmts: list[str]) -> None:
+    arrays = [np.asarray(c) for c in cols]
+    tmp = path.with_name(path.name + ".partial")
+    try:
+        with tmp.open("w", newline="") as fh:
+            fh.write(",".join(header) + "\n")
+            fmt = ",".join(fmts) + "\n"
+            for row in zip(*arrays, strict=True):
+                fh.write(fmt % row)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_logdir(
+    path: str | Path,
+    robot: RobotConfig | DiffDriveParams,
+    imu_t: ArrayLike | None = None,
+    gyro: ArrayLike | None = None,
+    accel: ArrayLike | None = None,
+    wheel_t: ArrayLike | None = None,
+    ticks: ArrayLike | None = None,
+    truth_t: ArrayLike | None = None,
+    truth: ArrayLike | None = None,
+    mag: ArrayLike | None = None,
+) -> Path:
+    """Write a log directory (created if needed); returns its path.
+
+    Values are written with 17 significant digits (``%.17g``), so reading the directory back
+    gives the very same floats. Each file is written to a temporary name and renamed.
+    """
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    write_robot_toml(path / "robot.toml", robot)
+    g17 = "%.17g"
+    if imu_t is not None:
+        t = np.asarray(imu_t, dtype=float)
+        g = np.asarray(gyro, dtype=float).reshape(-1, 3)
+        a = np.asarray(accel, dtype=float).reshape(-1, 3)
+        cols = [t, *g.T, *a.T]
+        header = ("t", "gx", "gy", "gz", "ax", "ay", "az")
+        if mag is not None:
+            m = np.asarray(mag, dtype=float).reshape(-1, 3)
+            cols += list(m.T)
+            header += ("mx", "my", "mz")
+        _write_table(path / "imu.csv", header, cols, [g17] * len(cols))
+    if wheel_t is not None:
+        tk = np.asarray(ticks).reshape(-1, 2)
+        if not np.all(tk == np.round(tk)):
+            raise ValueError("ticks must be integers")
+        tk = tk.astype(np.int64)
+        _write_table(path / "wheels.csv", WHEELS_COLUMNS,
+                     [np.asarray(wheel_t, dtype=float), tk[:, 0], tk[:, 1]], [g17, "%d", "%d"])
+    if truth_t is not None:
+        tr = np.asarray(truth, dtype=float).reshape(-1, 3)
+        _write_table(path / "truth.csv", TRUTH_COLUMNS,
+                     [np.asarray(truth_t, dtype=float), *tr.T], [g17] * 4)
+    return path
