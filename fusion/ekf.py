@@ -624,6 +624,8 @@ class FusedTrack:
             terms); yaw is continuous.
         status: (N,) update status codes.
         stats: the filter's counters at the end.
+        t_filter: (N,) the filter's time after each event, s (a wheel frame's effective time,
+            the midpoint of its period; the stamp for the other inputs).
     """
 
     t: NDArray[np.float64]
@@ -631,6 +633,7 @@ class FusedTrack:
     states: NDArray[np.float64]
     status: NDArray[np.int64]
     stats: dict = field(default_factory=dict)
+    t_filter: NDArray[np.float64] | None = None
 
     def output_rows(self) -> NDArray[np.bool_]:
         """Mask of the rows to publish: every gyro event, or every wheel event without a gyro."""
@@ -668,4 +671,4 @@ def fuse(
         yaw_t, yaw, yaw_std,
     )
     states, status = ekf.process_batch(kinds, t_eff, a, b)
-    return FusedTrack(stamp, kinds, states, status, ekf.stats), ekf
+    return FusedTrack(stamp, kinds, states, status, ekf.stats, t_eff), ekf

@@ -1,0 +1,111 @@
+"""``fusion replay LOGDIR``: output CSV, agreement with the library, summary, errors."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from fusion.cli import main
+from fusion.cli.replay import FUSED_CSV_COLUMNS
+from fusion.ekf import fuse
+from fusion.logdir import RobotConfig, write_logdir
+from fusion.quaternion import from_euler, rotate_inverse
+from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
+
+
+@pytest.fixture(scope="module")
+def run():
+    return degraded_mission(seed=4, duration=60.0)
+
+
+@pytest.fixture(scope="module")
+def logdir(run, tmp_path_factory):
+    return run.write_logdir(tmp_path_factory.mktemp("logs") / "run4")
+
+
+def _read(path):
+    with open(path) as fh:
+        header = fh.readline().strip().split(",")
+    return header, np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+
+
+def test_replay_writes_the_fused_track(run, logdir, tmp_path, capsys):
+    out = tmp_path / "fused.csv"
+    assert main(["replay", str(logdir), "-o", str(out), "--level"]) == 0
+    header, data = _read(out)
+    assert tuple(header) == FUSED_CSV_COLUMNS
+    assert header[:6] == ["t", "x", "y", "yaw", "v", "w"]
+    # one row per IMU sample: the whole run
+    assert data.shape == (run.imu_t.size, len(FUSED_CSV_COLUMNS))
+    np.testing.assert_allclose(data[:, 0], run.imu_t, atol=1e-9)
+    # the same numbers as the library on the same (level) gyro rates
+    track, _ = fuse(EXAMPLE_ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks)
+    gyro = track.kind == 0
+    np.testing.assert_allclose(data[:, 1:3], track.states[gyro, :2], rtol=1e-9, atol=1e-9)
+    assert np.all(np.abs(data[:, 3]) <= math.pi)
+    # accuracy against the truth the simulator wrote
+    truth = run.truth_at(data[:, 0])
+    err = math.hypot(*(data[-1, 1:3] - truth[-1, :2]))
+    assert err / run.distance < 0.005
+    text = capsys.readouterr().out
+    assert "fused:      final position error" in text
+    assert "wheel only: final position error" in text
+    assert "slip frames" in text
+
+
+def test_mounted_imu_and_tilt_compensation(run, tmp_path):
+    # The IMU mounted rotated (roll 180 deg, yaw 90 deg): the log holds IMU-frame vectors and
+    # robot.toml the mount. Replay (with Mahony tilt compensation) must match the level replay
+    # of the base-frame log closely.
+    rpy = (math.pi, 0.0, math.pi / 2)
+    q = from_euler(*rpy)
+    d = write_logdir(tmp_path / "mounted", RobotConfig(EXAMPLE_ROBOT, imu_mount_rpy=rpy),
+                     run.imu_t, rotate_inverse(q, run.gyro), rotate_inverse(q, run.accel),
+                     run.wheel_t, run.ticks, run.truth_t, run.truth)
+    plain = tmp_path / "plain.csv"
+    mounted = tmp_path / "mounted.csv"
+    base = write_logdir(tmp_path / "base", EXAMPLE_ROBOT, run.imu_t, run.gyro, run.accel,
+                        run.wheel_t, run.ticks)
+    assert main(["replay", str(base), "-o", str(plain), "--level"]) == 0
+    assert main(["replay", str(d), "-o", str(mounted)]) == 0
+    _, a = _read(plain)
+    _, b = _read(mounted)
+    assert a.shape == b.shape
+    yaw_diff = np.degrees(np.abs(np.angle(np.exp(1j * (a[:, 3] - b[:, 3])))))
+    assert yaw_diff.max() < 0.5
+    assert np.hypot(*(a[-1, 1:3] - b[-1, 1:3])) < 0.05
+
+
+def test_wheels_only_log(run, tmp_path, capsys):
+    d = write_logdir(tmp_path / "w", EXAMPLE_ROBOT, wheel_t=run.wheel_t, ticks=run.ticks)
+    out = tmp_path / "w.csv"
+    assert main(["replay", str(d), "-o", str(out)]) == 0
+    _, data = _read(out)
+    assert data.shape[0] == run.wheel_t.size
+    assert "wheel odometry only" in capsys.readouterr().out
+
+
+def test_errors_exit_2_with_a_message(tmp_path, capsys):
+    assert main(["replay", str(tmp_path / "missing"), "-o", str(tmp_path / "o.csv")]) == 2
+    assert "no such log directory" in capsys.readouterr().err
+    (tmp_path / "f.bag").write_bytes(b"")
+    assert main(["replay", str(tmp_path / "f.bag"), "-o", str(tmp_path / "o.csv")]) == 2
+    assert "replay takes a log directory" in capsys.readouterr().err
+    d = tmp_path / "bad"
+    d.mkdir()
+    (d / "robot.toml").write_text("[chassis]\nwheel_distance = 0.3\n")
+    assert main(["replay", str(d), "-o", str(tmp_path / "o.csv")]) == 2
+    assert "robot.toml: [chassis] needs speed_ratio" in capsys.readouterr().err
+    assert not (tmp_path / "o.csv").exists()
+
+
+def test_real_command_line(logdir, tmp_path):
+    out = tmp_path / "cli.csv"
+    proc = subprocess.run([sys.executable, "-m", "fusion", "replay", str(logdir), "-o", str(out)],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert out.read_text().startswith("t,x,y,yaw,v,w,")
