@@ -1,0 +1,367 @@
+"""Ros1Sink against a real ROS 1 graph on loopback.
+
+The suite's own interpreter has no rospy, so this test starts three processes under a
+ROS-capable Python (Debian's /usr/bin/python3 + python3-rospy, through the venv that .ci/run
+makes at .ci/ros-venv with the package installed, or $FUSION_ROS_PYTHON):
+
+1. rosmaster on a free loopback port;
+2. the node: ``Ros1Sink`` publishing a few known records in a loop and printing every
+   ``/cmd_vel`` callback ``(v, w)`` as a JSON line;
+3. a checker: plain rospy subscribers to the five topics that print what arrived as JSON, and
+   a ``/cmd_vel`` publisher.
+
+Without that interpreter the test skips, except under CI (``CI`` set), where it fails.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import queue
+import socket
+import subprocess
+import sys
+import textwrap
+import threading
+import time
+import xmlrpc.client
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fusion.fused import FusedOdometry
+from fusion.ros1 import RateLimiter, Ros1Sink
+
+ROOT = Path(__file__).resolve().parents[1]
+DEFAULT_ROS_PYTHON = ROOT / ".ci" / "ros-venv" / "bin" / "python"
+TIMEOUT = 90.0  # generous: reached only when something is broken
+
+
+def ros_python() -> str:
+    """The ROS-capable interpreter, or skip (fail under CI) with the reason."""
+    candidate = os.environ.get("FUSION_ROS_PYTHON") or str(DEFAULT_ROS_PYTHON)
+    probe = "import rospy, rosmaster, nav_msgs.msg, tf2_msgs.msg, sensor_msgs.msg, fusion.ros1"
+    reason = None
+    if not Path(candidate).exists():
+        reason = f"no ROS 1 interpreter at {candidate}"
+    else:
+        r = subprocess.run([candidate, "-c", probe], capture_output=True, text=True,
+                           timeout=120, cwd=ROOT)
+        if r.returncode != 0:
+            reason = f"{candidate} cannot import rospy and fusion: {r.stderr.strip()[-500:]}"
+    if reason:
+        reason += (" (bash .ci/run creates it from Debian's python3-rospy; or set "
+                   "FUSION_ROS_PYTHON)")
+        if os.environ.get("CI"):
+            pytest.fail(reason)
+        pytest.skip(reason)
+    return candidate
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def templates() -> list[FusedOdometry]:
+    out = []
+    for k in range(4):
+        cov = np.diag([0.01 * (k + 1), 0.02, 99999.0, 99999.0, 99999.0, 0.003])
+        cov[0, 5] = cov[5, 0] = 0.0004 * (k + 1)  # x-yaw: row-major index 5 and 30
+        cov[0, 1] = cov[1, 0] = -0.0001  # x-y: index 1 and 6
+        tw = np.diag([0.001, 99999.0, 99999.0, 99999.0, 99999.0, 0.002 * (k + 1)])
+        tw[0, 5] = tw[5, 0] = 0.0003  # vx-wz: index 5 and 30
+        q = Rotation.from_euler("xyz", [0.05, -0.02, 0.4 * k]).as_quat()
+        out.append(FusedOdometry(
+            t=1000.125 + 0.25 * k, x=0.5 * k, y=-0.25 * k, yaw=0.4 * k - 0.2,
+            v=0.3 + 0.1 * k, w=-0.1 * k, pose_covariance=cov, twist_covariance=tw,
+            orientation=[q[3], q[0], q[1], q[2]] if k != 1 else None,
+            angular_velocity=[0.01, -0.02, -0.1 * k],
+            linear_acceleration=[0.2, -0.1, 9.8] if k != 2 else None,
+            wheel_left_speed=0.25 + 0.125 * k if k != 3 else None,
+            wheel_right_speed=0.375 + 0.125 * k if k != 3 else None,
+        ))
+    return out
+
+
+NODE = textwrap.dedent("""
+    import json, sys, threading
+    from fusion.fused import FusedOdometry
+    from fusion.ros1 import Ros1Sink
+
+    records = [FusedOdometry.from_dict(d) for d in json.loads(sys.argv[1])]
+    lock = threading.Lock()
+
+    def on_cmd_vel(v, w):
+        with lock:
+            print(json.dumps({"cmd_vel": [v, w]}), flush=True)
+
+    stop = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+    sink = Ros1Sink(stamp="record", on_cmd_vel=on_cmd_vel, node_name="fusion_test_node",
+                    imu_frame_id="imu_link")
+    with sink:
+        print(json.dumps({"ready": True}), flush=True)
+        for i in range(4000):  # bounded: at most 200 s
+            if stop.wait(0.05):
+                break
+            sink.write(records[i % len(records)])
+    print(json.dumps({"closed": sink.records_written}), flush=True)
+""")
+
+CHECKER = textwrap.dedent("""
+    import json, sys, threading
+    import genpy, rospy
+    from geometry_msgs.msg import Twist
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import Imu
+    from std_msgs.msg import Float32
+    from tf2_msgs.msg import TFMessage
+
+    want = json.loads(sys.argv[1])  # topic -> number of distinct messages expected
+
+    def plain(m):
+        if isinstance(m, genpy.Time):
+            return [m.secs, m.nsecs]
+        if isinstance(m, genpy.Message):
+            return {s: plain(getattr(m, s)) for s in m.__slots__}
+        if isinstance(m, (list, tuple)):
+            return [plain(v) for v in m]
+        return m
+
+    got = {t: {} for t in want}
+    lock = threading.Lock()
+    done = threading.Event()
+
+    def callback(topic):
+        def cb(msg):
+            d = plain(msg)
+            key = json.dumps(d, sort_keys=True)
+            with lock:
+                got[topic].setdefault(key, d)
+                if all(len(got[t]) >= n for t, n in want.items()):
+                    done.set()
+        return cb
+
+    rospy.init_node("fusion_test_checker", disable_signals=True)
+    types = {"/odom": Odometry, "/tf": TFMessage, "/imu/data": Imu,
+             "/wheel_left_speed": Float32, "/wheel_right_speed": Float32}
+    subs = [rospy.Subscriber(t, types[t], callback(t)) for t in want]
+    cmd = rospy.Publisher("/cmd_vel", Twist, queue_size=10)
+    twist = Twist()
+    twist.linear.x, twist.angular.z = 0.25, -0.5
+    stop = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+    reported = False
+    for _ in range(2000):  # bounded: at most 200 s
+        cmd.publish(twist)
+        if done.is_set() and not reported:
+            with lock:
+                print(json.dumps({t: list(v.values()) for t, v in got.items()}), flush=True)
+            reported = True
+        if stop.wait(0.1):
+            break
+""")
+
+
+class LineReader:
+    """Lines of a child's stdout on a queue, read by a thread (timeouts without select)."""
+
+    def __init__(self, proc: subprocess.Popen, name: str) -> None:
+        self.proc, self.name, self.lines = proc, name, queue.Queue()
+        threading.Thread(target=self._pump, daemon=True).start()
+
+    def _pump(self) -> None:
+        for line in self.proc.stdout:
+            self.lines.put(line)
+        self.lines.put(None)
+
+    def next_json(self, timeout: float = TIMEOUT) -> dict:
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                line = self.lines.get(timeout=max(0.0, deadline - time.monotonic()))
+            except queue.Empty:
+                raise AssertionError(f"{self.name}: no output within {timeout} s") from None
+            if line is None:
+                raise AssertionError(f"{self.name} exited with {self.proc.wait()}")
+            line = line.strip()
+            if line.startswith("{"):
+                return json.loads(line)
+
+
+def wait_for_master(uri: str, master: subprocess.Popen) -> None:
+    deadline = time.monotonic() + TIMEOUT
+    while time.monotonic() < deadline:
+        if master.poll() is not None:
+            raise AssertionError(f"rosmaster exited: {master.stderr.read()}")
+        try:
+            code, _msg, _pid = xmlrpc.client.ServerProxy(uri).getPid("/fusion_test")
+            if code == 1:
+                return
+        except OSError:
+            pass
+        time.sleep(0.2)
+    raise AssertionError(f"rosmaster at {uri} did not answer within {TIMEOUT} s")
+
+
+def stamp_of(sec_nsec: list[int]) -> float:
+    return sec_nsec[0] + sec_nsec[1] * 1e-9
+
+
+def xyzw(q: dict) -> np.ndarray:
+    return np.array([q["x"], q["y"], q["z"], q["w"]])
+
+
+def same_rotation(q_xyzw: np.ndarray, expected_xyzw: np.ndarray) -> None:
+    np.testing.assert_allclose(q_xyzw * np.sign(q_xyzw @ expected_xyzw), expected_xyzw,
+                               atol=1e-12)
+
+
+def by_stamp(msgs: list[dict], recs: list[FusedOdometry], header=lambda m: m["header"]):
+    """Pair each received message with the template whose t equals its stamp."""
+    table = {round(r.t * 1e9): r for r in recs}
+    out = []
+    for m in msgs:
+        sec, nsec = header(m)["stamp"]
+        out.append((m, table[sec * 1_000_000_000 + nsec]))
+    return out
+
+
+def test_ros1_node_publishes_seed_000_interface_and_hands_cmd_vel_over(tmp_path: Path) -> None:
+    py = ros_python()
+    recs = templates()
+    port = free_port()
+    uri = f"http://127.0.0.1:{port}/"
+    env = {**os.environ, "ROS_MASTER_URI": uri, "ROS_IP": "127.0.0.1",
+           "ROS_HOME": str(tmp_path / "ros"), "ROS_LOG_DIR": str(tmp_path / "ros" / "log"),
+           "PYTHONUNBUFFERED": "1"}
+    env.pop("ROS_HOSTNAME", None)
+    procs: list[subprocess.Popen] = []
+
+    def start(args: list[str], stdin=subprocess.PIPE) -> subprocess.Popen:
+        p = subprocess.Popen([py, *args], env=env, cwd=tmp_path, stdin=stdin,
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        procs.append(p)
+        return p
+
+    try:
+        master = start(["-c", "import sys, rosmaster; sys.argv[0] = 'rosmaster'; "
+                              "rosmaster.rosmaster_main()", "--core", "-p", str(port)],
+                       stdin=subprocess.DEVNULL)
+        wait_for_master(uri, master)
+        node = start(["-c", NODE, json.dumps([r.to_dict() for r in recs])])
+        node_out = LineReader(node, "ROS node")
+        assert node_out.next_json() == {"ready": True}
+        want = {"/odom": 4, "/tf": 4, "/imu/data": 4,
+                "/wheel_left_speed": 3, "/wheel_right_speed": 3}  # record 3 has no speeds
+        checker = start(["-c", CHECKER, json.dumps(want)])
+        got = LineReader(checker, "checker").next_json()
+        cmd = node_out.next_json()
+        checker.stdin.close()
+        node.stdin.close()
+        closed = node_out.next_json(timeout=30)
+        while "closed" not in closed:  # more /cmd_vel callbacks may come first
+            assert closed == cmd
+            closed = node_out.next_json(timeout=30)
+        assert checker.wait(30) == 0, checker.stderr.read()
+        assert node.wait(30) == 0, node.stderr.read()
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                p.terminate()
+                try:
+                    p.wait(10)
+                except subprocess.TimeoutExpired:
+                    p.kill()
+                    p.wait()
+
+    # /cmd_vel reached the callback as (linear.x, angular.z)
+    assert cmd == {"cmd_vel": [0.25, -0.5]}
+    assert closed["closed"] >= 4
+
+    assert {t: len(v) for t, v in got.items()} == want  # nothing unexpected or duplicated
+    for m, rec in by_stamp(got["/odom"], recs):
+        assert m["header"]["frame_id"] == "odom"
+        assert m["child_frame_id"] == "base_footprint"
+        pose = m["pose"]["pose"]
+        assert [pose["position"][a] for a in "xyz"] == [rec.x, rec.y, 0.0]
+        same_rotation(xyzw(pose["orientation"]), Rotation.from_euler("z", rec.yaw).as_quat())
+        cov, k = m["pose"]["covariance"], recs.index(rec)
+        assert len(cov) == 36
+        assert cov[0] == 0.01 * (k + 1) and cov[7] == 0.02 and cov[35] == 0.003
+        assert cov[5] == cov[30] == 0.0004 * (k + 1) and cov[1] == cov[6] == -0.0001
+        assert cov[14] == cov[21] == cov[28] == 99999.0
+        twist = m["twist"]
+        assert [twist["twist"]["linear"][a] for a in "xyz"] == [rec.v, 0.0, 0.0]
+        assert [twist["twist"]["angular"][a] for a in "xyz"] == [0.01, -0.02, -0.1 * k]
+        tc = twist["covariance"]
+        assert tc[0] == 0.001 and tc[35] == 0.002 * (k + 1) and tc[5] == tc[30] == 0.0003
+
+    for m, rec in by_stamp(got["/tf"], recs, header=lambda m: m["transforms"][0]["header"]):
+        assert len(m["transforms"]) == 1
+        tf = m["transforms"][0]
+        assert tf["header"]["frame_id"] == "odom" and tf["child_frame_id"] == "base_footprint"
+        assert [tf["transform"]["translation"][a] for a in "xyz"] == [rec.x, rec.y, 0.0]
+        same_rotation(xyzw(tf["transform"]["rotation"]),
+                      Rotation.from_euler("z", rec.yaw).as_quat())
+
+    for m, rec in by_stamp(got["/imu/data"], recs):
+        k = recs.index(rec)
+        assert m["header"]["frame_id"] == "imu_link"  # the sink's override
+        assert math.isclose(stamp_of(m["header"]["stamp"]), rec.t, abs_tol=1e-9)
+        if k == 1:  # no attitude: element 0 of the covariance is -1 (sensor_msgs/Imu)
+            assert m["orientation_covariance"][0] == -1.0
+        else:
+            same_rotation(xyzw(m["orientation"]),
+                          Rotation.from_euler("xyz", [0.05, -0.02, 0.4 * k]).as_quat())
+            assert m["orientation_covariance"] == [0.0] * 9
+        assert [m["angular_velocity"][a] for a in "xyz"] == [0.01, -0.02, -0.1 * k]
+        if k == 2:
+            assert m["linear_acceleration_covariance"][0] == -1.0
+        else:
+            assert [m["linear_acceleration"][a] for a in "xyz"] == [0.2, -0.1, 9.8]
+
+    # wheel speeds (exact in float32: multiples of 1/8), m/s
+    assert sorted(m["data"] for m in got["/wheel_left_speed"]) == [0.25, 0.375, 0.5]
+    assert sorted(m["data"] for m in got["/wheel_right_speed"]) == [0.375, 0.5, 0.625]
+
+
+def test_rate_limiter_follows_record_time() -> None:
+    lim = RateLimiter(10.0)
+    t = [0.0, 0.02, 0.05, 0.1, 0.13, 0.2, 0.3, 0.35, 0.41, 0.05, 0.1]
+    assert [lim.due(x) for x in t] == [True, False, False, True, False, True, True, False,
+                                       True, True, False]
+    grid = RateLimiter(10.0)
+    # a 50 Hz grid (computed as k * 0.02, with its rounding) passes every fifth sample
+    assert [k for k in range(50) if grid.due(k * 0.02)] == [0, 5, 10, 15, 20, 25, 30, 35, 40,
+                                                             45]
+    assert all(RateLimiter(None).due(x) for x in t)
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="positive"):
+            RateLimiter(bad)
+
+
+def test_ros1_sink_without_rospy_says_how_to_install() -> None:
+    try:
+        import rospy  # noqa: F401
+    except ImportError:
+        pass
+    else:
+        pytest.skip("rospy is importable here")
+    with pytest.raises(ImportError, match="apt-get install python3-rospy"):
+        Ros1Sink().open()
+    assert "rospy" not in sys.modules  # importing fusion.ros1 did not need it
+
+
+def test_ros1_sink_argument_checks() -> None:
+    with pytest.raises(ValueError, match="stamp"):
+        Ros1Sink(stamp="wall")
+    with pytest.raises(ValueError, match="cmd_vel_topic"):
+        Ros1Sink(cmd_vel_topic="cmd_vel")
+    with pytest.raises(ValueError, match="child_frame_id"):
+        Ros1Sink(child_frame_id="")
