@@ -1,0 +1,148 @@
+"""``fusion calibrate``: odometry calibration from log directories.
+
+- ``fusion calibrate odometry LOGDIR``: wheel separation and left/right radius ratio with the
+  gyro as reference (and ``speed_ratio`` with ``--distance`` or ``--use-truth``); prints the
+  corrected ``[chassis]`` parameters (seed 000's names).
+- ``fusion calibrate umbmark --cw DIR... --ccw DIR...``: Borenstein & Feng's UMBmark from
+  square runs whose log directories carry ``truth.csv``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+
+import numpy as np
+
+from fusion.cli import CommandError
+
+__all__ = ["register"]
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "calibrate",
+        help="odometry calibration (wheel separation, radius ratio, UMBmark)",
+        description="Calibrate the wheel odometry from recorded log directories "
+                    "(see datasets/LOGDIR.md).",
+    )
+    sub = p.add_subparsers(dest="what", metavar="WHAT")
+    o = sub.add_parser(
+        "odometry",
+        help="wheel_distance and radius ratio from a run, with the gyro as reference",
+        description=(
+            "Fit the wheels' turning against the gyro over windows of consecutive frames: "
+            "gives wheel_distance and the right/left wheel radius ratio. The run needs a few "
+            "seconds at rest (gyro bias), turns in both directions and straight driving. A "
+            "gyro cannot observe the common distance scale: speed_ratio is kept unless "
+            "--distance or --use-truth is given."
+        ),
+    )
+    o.add_argument("input", type=Path, help="log directory with imu.csv and wheels.csv")
+    o.add_argument("--distance", type=float,
+                   help="path length driven in the whole run, m (measured), to correct "
+                        "speed_ratio")
+    o.add_argument("--use-truth", action="store_true",
+                   help="correct speed_ratio from truth.csv (distance travelled)")
+    o.add_argument("--window", type=int, default=25,
+                   help="wheel frames per fitting window (default 25, one second at 40 ms)")
+    o.add_argument("--level", action="store_true",
+                   help="use the gyro z axis (default: tilt-compensated with Mahony)")
+    o.set_defaults(func=run_odometry)
+    u = sub.add_parser(
+        "umbmark",
+        help="UMBmark (Borenstein & Feng 1996) from square runs with ground truth",
+        description=(
+            "Each DIR is a log directory of one square run (start and end at the same pose) "
+            "with truth.csv; the return error is truth minus wheel-only odometry at the end."
+        ),
+    )
+    u.add_argument("--cw", type=Path, nargs="+", required=True, help="clockwise runs")
+    u.add_argument("--ccw", type=Path, nargs="+", required=True, help="counter-clockwise runs")
+    u.add_argument("--side", type=float, default=4.0, help="side of the square, m (default 4)")
+    u.set_defaults(func=run_umbmark)
+    p.set_defaults(func=lambda args: _missing_what(p))
+
+
+def _missing_what(parser) -> int:
+    parser.print_help()
+    return 2
+
+
+def run_odometry(args: argparse.Namespace) -> int:
+    from fusion.ekf import vertical_rate
+    from fusion.logdir import read_logdir
+    from fusion.odometry_calibration import calibrate_odometry
+
+    if not args.input.is_dir():
+        raise CommandError(f"{args.input}: not a log directory")
+    log = read_logdir(args.input)
+    if log.imu_t is None or log.wheel_t is None:
+        raise CommandError(f"{args.input}: odometry calibration needs both imu.csv and "
+                           "wheels.csv")
+    if args.use_truth and log.truth_t is None:
+        raise CommandError(f"{args.input}: --use-truth but there is no truth.csv")
+    if args.distance is not None and args.use_truth:
+        raise CommandError("give --distance or --use-truth, not both")
+    if args.level:
+        gyro_z = log.gyro[:, 2]
+    else:
+        from fusion.mahony import Mahony
+
+        q = Mahony(axes=6).update_batch(log.gyro, log.accel, timestamps=log.imu_t)
+        gyro_z = vertical_rate(log.gyro, q)
+    cal = calibrate_odometry(
+        log.imu_t, gyro_z, log.wheel_t, log.ticks, log.robot.chassis,
+        distance=args.distance,
+        truth_t=log.truth_t if args.use_truth else None,
+        truth=log.truth if args.use_truth else None,
+        window=args.window,
+        latency=log.robot.ekf.wheel_latency,
+    )
+    print(f"{args.input}: odometry calibration with the gyro as reference")
+    print(cal.report())
+    return 0
+
+
+def run_umbmark(args: argparse.Namespace) -> int:
+    from fusion.logdir import read_logdir
+    from fusion.odometry import WheelOdometry
+    from fusion.odometry_calibration import umbmark
+
+    def errors(dirs: list[Path]) -> tuple[np.ndarray, float]:
+        out = []
+        L = None
+        for d in dirs:
+            log = read_logdir(d)
+            if log.truth is None or log.wheel_t is None:
+                raise CommandError(f"{d}: UMBmark needs wheels.csv and truth.csv")
+            pose = WheelOdometry(log.robot.chassis).update_batch(log.ticks[:, 0],
+                                                                 log.ticks[:, 1])[-1]
+            # express the truth in the start frame of the run
+            x0, y0, th0 = log.truth[0]
+            dx, dy = log.truth[-1, 0] - x0, log.truth[-1, 1] - y0
+            c, s = math.cos(th0), math.sin(th0)
+            out.append((c * dx + s * dy - pose[0], -s * dx + c * dy - pose[1]))
+            if L is not None and L != log.robot.chassis.wheel_distance:
+                raise CommandError(f"{d}: wheel_distance differs from the other runs")
+            L = log.robot.chassis.wheel_distance
+        return np.array(out), float(L)
+
+    cw, L = errors(args.cw)
+    ccw, L2 = errors(args.ccw)
+    if L != L2:
+        raise CommandError("the CW and CCW runs use different wheel_distance values")
+    r = umbmark(cw, ccw, args.side, L)
+    print(f"UMBmark: {len(cw)} CW and {len(ccw)} CCW runs of a {args.side:g} m square")
+    print(f"  centres of gravity of the return errors: CW ({r.cw_centre[0]:+.4f}, "
+          f"{r.cw_centre[1]:+.4f}) m, CCW ({r.ccw_centre[0]:+.4f}, {r.ccw_centre[1]:+.4f}) m; "
+          f"E_max,syst {r.max_error:.4f} m")
+    print(f"  type A (wheelbase) alpha {math.degrees(r.alpha):+.4f} deg, type B (diameters) "
+          f"beta {math.degrees(r.beta):+.4f} deg")
+    print(f"  E_d = D_R/D_L = {r.diameter_ratio:.5f}; E_b = {r.wheelbase_factor:.5f}")
+    print("[chassis]")
+    print(f"wheel_distance = {r.wheel_distance:.6g}  # m, was {L:.6g}")
+    print(f"# per-wheel factors on speed_ratio: left {r.left_factor:.5f}, right "
+          f"{r.right_factor:.5f}")
+    return 0

@@ -1,0 +1,154 @@
+"""Odometry calibration against the simulator's true geometry; UMBmark on simulated squares."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fusion.odometry import WheelOdometry
+from fusion.odometry_calibration import calibrate_odometry, rest_bias, umbmark
+from fusion.synthetic import (
+    EXAMPLE_ROBOT,
+    EncoderModel,
+    ImuModel,
+    degraded_mission,
+    simulate,
+    spin,
+    square,
+    stop,
+    straight,
+)
+
+ROBOT = EXAMPLE_ROBOT
+
+
+@pytest.mark.parametrize("seed", [0, 3, 6])
+def test_separation_and_radius_ratio_within_0p3_percent(seed):
+    # 3 % separation error, 0.5 % radius mismatch, bias 0.5 deg/s with random walk, three slip
+    # patches (degraded_mission). The gyro is the reference; the truth is the simulator's.
+    run = degraded_mission(seed=seed, duration=300.0)
+    cal = calibrate_odometry(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, ROBOT)
+    true_ratio = run.true_right_ratio / run.true_left_ratio
+    assert cal.wheel_distance == pytest.approx(run.true_wheel_distance, rel=0.003)
+    assert cal.radius_ratio == pytest.approx(true_ratio, rel=0.003)
+    # measured when written: |L error| <= 0.03 %, |ratio error| <= 0.01 %
+    assert cal.wheel_distance == pytest.approx(run.true_wheel_distance, rel=5e-4)
+    assert cal.radius_ratio == pytest.approx(true_ratio, rel=2e-4)
+    assert cal.speed_ratio == ROBOT.speed_ratio  # no distance given: scale kept
+    assert not cal.scale_from_distance
+    assert cal.windows_rejected >= 1  # the slip windows were thrown out
+    text = cal.report()
+    assert "wheel_distance = " in text and "speed_ratio = " in text
+
+
+def test_speed_ratio_from_ground_truth_and_from_a_known_distance():
+    # Both wheels 1 % and 1.5 % larger than robot.toml says: a common scale error the gyro
+    # cannot see. With the ground truth (or a measured distance) it is recovered.
+    enc = EncoderModel(separation_error=-0.02, left_scale_error=0.010, right_scale_error=0.015)
+    segs = stop(4) + straight(3.0) + spin(math.pi) + straight(3.0) + spin(-math.pi / 2) \
+        + straight(1.0) + spin(2 * math.pi) + stop(3)
+    run = simulate(segs, ROBOT, ImuModel(gyro_bias=(0, 0, 0.01)), enc, seed=9)
+    true_mean = 0.5 * (run.true_left_ratio + run.true_right_ratio)
+    cal = calibrate_odometry(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, ROBOT,
+                             truth_t=run.truth_t, truth=run.truth, window=10)
+    assert cal.speed_ratio == pytest.approx(true_mean, rel=0.003)
+    assert cal.left_ratio == pytest.approx(run.true_left_ratio, rel=0.003)
+    assert cal.right_ratio == pytest.approx(run.true_right_ratio, rel=0.003)
+    assert cal.wheel_distance == pytest.approx(run.true_wheel_distance, rel=0.003)
+    cal_d = calibrate_odometry(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, ROBOT,
+                               distance=run.distance, window=10)
+    assert cal_d.speed_ratio == pytest.approx(true_mean, rel=0.003)
+    assert cal_d.params().speed_ratio == cal_d.speed_ratio
+    assert cal_d.params().wheel_distance == cal_d.wheel_distance
+
+
+def test_rest_bias_is_the_mean_at_standstill():
+    run = simulate(stop(5) + straight(1.0) + stop(5), ROBOT,
+                   ImuModel(gyro_bias=(0, 0, 0.02)), seed=1)
+    bias, mids = rest_bias(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, 0.04)
+    assert len(mids) == 2
+    assert bias[0] == pytest.approx(0.02, abs=4 * 8.7e-4 / math.sqrt(400))
+    moving = simulate(straight(2.0), ROBOT, seed=1)
+    with pytest.raises(ValueError, match="no standstill"):
+        calibrate_odometry(moving.imu_t, moving.gyro[:, 2], moving.wheel_t, moving.ticks, ROBOT,
+                           window=5)
+
+
+def test_no_turning_is_refused():
+    run = simulate(stop(3) + straight(4.0) + stop(3), ROBOT, seed=2)
+    with pytest.raises(ValueError, match="not observable"):
+        calibrate_odometry(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, ROBOT, window=10)
+
+
+def _return_errors(direction, enc, runs=5):
+    out = []
+    for s in range(runs):
+        run = simulate(square(side=4.0, direction=direction), ROBOT, ImuModel(), enc, seed=s)
+        pose = WheelOdometry(ROBOT).update_batch(run.ticks[:, 0], run.ticks[:, 1])[-1]
+        out.append(run.truth[-1, :2] - pose[:2])
+    return np.array(out)
+
+
+def test_umbmark_finds_the_simulated_errors():
+    # Borenstein & Feng's 4 m squares, 5 runs each way, wheel-only odometry against the truth.
+    enc = EncoderModel(separation_error=0.03, left_scale_error=-0.0025, right_scale_error=0.0025)
+    res = umbmark(_return_errors("cw", enc), _return_errors("ccw", enc), 4.0,
+                  ROBOT.wheel_distance)
+    true_ed = 1.0025 / 0.9975
+    # UMBmark is a first-order method: measured when written E_d 1.00544 (true 1.00501) and
+    # wheelbase 0.3107 m (true 0.309, +0.54 %).
+    assert res.diameter_ratio == pytest.approx(true_ed, rel=1e-3)
+    assert res.wheel_distance == pytest.approx(0.3 * 1.03, rel=0.01)
+    assert res.wheelbase_factor > 1 and res.diameter_ratio > 1
+    assert res.left_factor * res.diameter_ratio == pytest.approx(res.right_factor)
+    assert res.max_error > 0.5  # a 3 % wheelbase error is far off after 16 m
+    # errors of a perfectly calibrated robot: no systematic error left
+    clean = EncoderModel()
+    res0 = umbmark(_return_errors("cw", clean, 2), _return_errors("ccw", clean, 2), 4.0,
+                   ROBOT.wheel_distance)
+    assert abs(res0.diameter_ratio - 1) < 2e-4 and abs(res0.wheelbase_factor - 1) < 1e-3
+
+
+def test_umbmark_validation():
+    with pytest.raises(ValueError):
+        umbmark(np.zeros((0, 2)), np.zeros((1, 2)), 4.0, 0.3)
+
+
+def _value(text, key):
+    line = next(ln for ln in text.splitlines() if ln.startswith(key + " = "))
+    return float(line.split("=")[1].split("#")[0])
+
+
+def test_cli_calibrate_odometry(tmp_path, capsys):
+    from fusion.cli import main
+
+    run = degraded_mission(seed=1, duration=150.0)
+    d = run.write_logdir(tmp_path / "run")
+    assert main(["calibrate", "odometry", str(d)]) == 0
+    out = capsys.readouterr().out
+    assert _value(out, "wheel_distance") == pytest.approx(run.true_wheel_distance, rel=0.003)
+    assert _value(out, "speed_ratio") == ROBOT.speed_ratio
+    assert main(["calibrate", "odometry", str(d), "--use-truth", "--level"]) == 0
+    out = capsys.readouterr().out
+    true_mean = 0.5 * (run.true_left_ratio + run.true_right_ratio)
+    assert _value(out, "speed_ratio") == pytest.approx(true_mean, rel=0.003)
+    assert main(["calibrate", "odometry", str(tmp_path / "none")]) == 2
+    assert "not a log directory" in capsys.readouterr().err
+
+
+def test_cli_umbmark(tmp_path, capsys):
+    from fusion.cli import main
+
+    enc = EncoderModel(separation_error=0.03, left_scale_error=-0.0025, right_scale_error=0.0025)
+    dirs = {}
+    for direction in ("cw", "ccw"):
+        dirs[direction] = []
+        for s in range(2):
+            run = simulate(square(side=4.0, direction=direction), ROBOT, ImuModel(), enc, seed=s)
+            dirs[direction].append(str(run.write_logdir(tmp_path / f"{direction}{s}")))
+    assert main(["calibrate", "umbmark", "--cw", *dirs["cw"], "--ccw", *dirs["ccw"]]) == 0
+    out = capsys.readouterr().out
+    assert _value(out, "wheel_distance") == pytest.approx(0.3 * 1.03, rel=0.01)
+    assert "E_d = D_R/D_L = 1.005" in out
