@@ -3,8 +3,8 @@
 1. Throughput (MB/s) of :class:`drivers.chassis.WheelFrameParser` on a clean stream and on a
    noisy one (a burst of line noise every 50 frames), beside two peers written here from the
    seed's description: the seed's byte-by-byte sliding window (the ``base_controller`` loop,
-   in Python) and a ``bytes.find`` scanner that accepts the first checksum match. The peers
-   are not exact (they lose and invent frames on the noisy stream); the counts are printed.
+   in Python) and a ``bytes.find`` scanner that accepts the first checksum match. Frames lost
+   and invented (by stream offset) are counted for each.
    "speed" is each parser's MB/s relative to ours with 4 KiB reads (the size of a serial
    read); "1 MiB" is the bulk case (decoding a capture file).
 2. Latency over a real pty (os.openpty): from the moment the frame's last byte is written on
@@ -49,75 +49,90 @@ def make_frames(n: int, rng: np.random.Generator) -> np.ndarray:
     return out
 
 
-def noisy(frames: np.ndarray, rng: np.random.Generator, every: int = 50) -> bytes:
+def noisy(frames: np.ndarray, rng: np.random.Generator, every: int = 50):
+    """Frames with a burst every ``every`` frames: random bytes or a frame cut short (a
+    dropout). Returns the stream and the offsets of the real frames."""
     pieces = []
+    offsets = []
+    pos = 0
     for i in range(0, frames.shape[0], every):
-        pieces.append(frames[i : i + every].tobytes())
-        pieces.append(rng.integers(0, 256, rng.integers(1, 30), dtype=np.uint8).tobytes())
-    return b"".join(pieces)
+        chunk = frames[i : i + every]
+        offsets.extend(range(pos, pos + 11 * chunk.shape[0], 11))
+        pieces.append(chunk.tobytes())
+        pos += 11 * chunk.shape[0]
+        if rng.random() < 0.5:
+            burst = rng.integers(0, 256, rng.integers(1, 30), dtype=np.uint8).tobytes()
+        else:
+            burst = frames[rng.integers(0, frames.shape[0])].tobytes()[: rng.integers(2, 11)]
+        pieces.append(burst)
+        pos += len(burst)
+    return b"".join(pieces), np.array(offsets)
 
 
-def seed_sliding_window(data: bytes) -> int:
+def seed_sliding_window(data: bytes) -> list[int]:
     """The seed's host loop: shift an 11-byte window per byte, accept any checksum match."""
     win = [0] * 11
-    count = 0
-    for byte in data:
+    found = []
+    for i, byte in enumerate(data):
         win.pop(0)
         win.append(byte)
         if win[0] == 0xFF and win[1] == 0xFF and (sum(win[:10]) & 0xFF) == win[10]:
-            count += 1
-    return count
+            found.append(i - 10)
+    return found
 
 
-def find_scanner(data: bytes) -> int:
+def find_scanner(data: bytes) -> list[int]:
     """First checksum match after each header found with bytes.find (no plausibility)."""
-    count = 0
+    found = []
     i = data.find(b"\xff\xff")
     n = len(data)
     while 0 <= i <= n - 11:
         w = data[i : i + 11]
         if sum(w[:10]) & 0xFF == w[10]:
-            count += 1
+            found.append(i)
             i = data.find(b"\xff\xff", i + 11)
         else:
             i = data.find(b"\xff\xff", i + 1)
-    return count
+    return found
 
 
-def ours(data: bytes, chunk: int = 4096) -> int:
+def ours(data: bytes, chunk: int = 4096) -> list[int]:
     p = WheelFrameParser()
-    count = 0
+    found = []
     for i in range(0, len(data), chunk):
-        count += p.feed_arrays(data[i : i + chunk])[0].size
-    return count + len(p.finish())
+        found.extend(p.feed_arrays(data[i : i + chunk])[0].tolist())
+    return found + [f.offset for f in p.finish()]
 
 
-def timed(fn, data: bytes) -> tuple[float, int, int]:
+def timed(fn, data: bytes) -> tuple[float, list[int]]:
     t0 = time.perf_counter()
-    n = fn(data)
+    found = fn(data)
     dt = time.perf_counter() - t0
-    return len(data) / dt / 1e6, n, len(data)
+    return len(data) / dt / 1e6, found
 
 
 def throughput(n_frames: int) -> None:
     rng = np.random.default_rng(0)
     frames = make_frames(n_frames, rng)
     clean = frames.tobytes()
-    dirty = noisy(frames, rng)
+    dirty, dirty_offsets = noisy(frames, rng)
     print(f"throughput, {n_frames} frames ({len(clean) / 1e6:.1f} MB clean, "
-          f"{len(dirty) / 1e6:.1f} MB with a noise burst every 50 frames)")
-    print(f"{'parser':<34}{'stream':<8}{'MB/s':>9}{'frames':>10}{'sent':>10}{'speed':>9}")
-    for name, data in (("clean", clean), ("noisy", dirty)):
-        base, n_ours, _ = timed(ours, data)
-        rows = [("ours (WheelFrameParser, 4 KiB)", base, n_ours, len(data))]
-        mbps, n, used = timed(lambda d: ours(d, chunk=1 << 20), data)
-        rows.append(("ours (WheelFrameParser, 1 MiB)", mbps, n, used))
-        for label, fn in (("seed sliding window (Python)", seed_sliding_window),
+          f"{len(dirty) / 1e6:.1f} MB with a burst of noise or a cut frame every 50 frames)")
+    print(f"{'parser':<32}{'stream':<7}{'MB/s':>8}{'speed':>8}{'frames':>9}{'lost':>7}"
+          f"{'invented':>9}")
+    for name, data, truth in (("clean", clean, np.arange(n_frames) * 11),
+                              ("noisy", dirty, dirty_offsets)):
+        base = None
+        for label, fn in (("ours (WheelFrameParser, 4 KiB)", ours),
+                          ("ours (WheelFrameParser, 1 MiB)", lambda d: ours(d, 1 << 20)),
+                          ("seed sliding window (Python)", seed_sliding_window),
                           ("bytes.find + checksum", find_scanner)):
-            mbps, n, used = timed(fn, data)
-            rows.append((label, mbps, n, used))
-        for label, mbps, n, _ in rows:
-            print(f"{label:<34}{name:<8}{mbps:>9.2f}{n:>10}{n_frames:>10}{mbps / base:>8.2f}x")
+            mbps, found = timed(fn, data)
+            base = base or mbps
+            got = set(found)
+            want = set(truth.tolist())
+            print(f"{label:<32}{name:<7}{mbps:>8.2f}{mbps / base:>7.2f}x{len(found):>9}"
+                  f"{len(want - got):>7}{len(got - want):>9}")
 
 
 def latency(n: int, period: float) -> None:
