@@ -204,6 +204,21 @@ class ChassisLink:
         self._stale_sent = False
         return self._write(frame)
 
+    def send_twist(self, v: float, w: float, params, rounding: str = "truncate") -> bool:
+        """Send a body twist as seed 000's ``base_controller`` does: clamp to the
+        ``cmd_vel_*_max`` limits, scale to ``wheel_speed_max`` keeping the curvature, convert to
+        target ticks per period (:func:`fusion.kinematics.twist_to_ticks`).
+
+        Args:
+            v: forward speed, m/s. w: yaw rate, rad/s (CCW). params: a
+                :class:`fusion.kinematics.DiffDriveParams`. rounding: ``"truncate"`` (seed) or
+                ``"nearest"``.
+        """
+        from fusion.kinematics import twist_to_ticks
+
+        left, right = twist_to_ticks(v, w, params, rounding=rounding)
+        return self.send_ticks(left, right)
+
     def stop(self) -> bool:
         """Send zero targets (the firmware brakes on a zero target)."""
         return self.send_ticks(0, 0)

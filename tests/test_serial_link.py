@@ -190,3 +190,44 @@ def test_open_failure_names_the_port(tmp_path):
         link.start(wait=0.3)
     link.close(stop=False)
     assert not link.connected
+
+
+def test_send_twist_uses_the_seed_command_path(pty_pair):
+    from fusion.kinematics import DiffDriveParams
+
+    geo = DiffDriveParams(wheel_distance=0.3, speed_ratio=3e-4, encode_sampling_time=0.04,
+                          cmd_vel_linear_max=0.4)
+    with ChassisLink(pty_pair.link_path, command_timeout=None) as link:
+        # v clamped to 0.4; vl = 0.4 - 0.15 = 0.25 -> 0.25*0.04/3e-4 = 33.3 -> 33;
+        # vr = 0.55 -> 73.3 -> 73 (truncation, as the seed's int assignment)
+        link.send_twist(1.0, 1.0, geo)
+        assert pty_pair.read_until(11) == encode_wheel_frame(33, 73)
+
+
+def test_noisy_line_over_the_pty_is_exact(pty_pair):
+    """Frames with noise bursts and frames cut short, written in odd pieces on a real pty."""
+    import numpy as np
+
+    rng = np.random.default_rng(11)
+    values = [(int(a), int(b)) for a, b in rng.integers(-2000, 2000, (400, 2))]
+    values[::37] = [(255, -1)] * len(values[::37])  # checksum 0xFF: deferred decisions
+    stream = b""
+    for i, (a, b) in enumerate(values):
+        stream += encode_wheel_frame(a, b)
+        if i % 9 == 4:
+            stream += rng.integers(0, 256, int(rng.integers(1, 20)), dtype=np.uint8).tobytes()
+        elif i % 9 == 7:
+            stream += encode_wheel_frame(*values[i - 3])[: int(rng.integers(2, 11))]
+    with ChassisLink(pty_pair.link_path, command_timeout=None, period=0.02) as link:
+        i = 0
+        while i < len(stream):
+            k = int(rng.integers(1, 64))
+            pty_pair.write(stream[i : i + k])
+            i += k
+            if rng.random() < 0.1:
+                time.sleep(0.002)
+        got = []
+        assert wait_for(lambda: got.extend(link.drain()) or len(got) >= len(values))
+        time.sleep(0.1)
+        got.extend(link.drain())
+    assert [(w.left, w.right) for w in got] == values
