@@ -1,4 +1,4 @@
-"""Log readers: BROAD benchmark trials and plain IMU CSV files.
+"""Log readers: BROAD benchmark trials, plain IMU CSV files, ROS 1/2 bags and MCAP files.
 
 IMU CSV schema (header line required)::
 
@@ -8,13 +8,26 @@ IMU CSV schema (header line required)::
 magnetometer in uT, all in the body frame (x forward, y left, z up).
 
 Errors name the file and, where it applies, the line (1-based, as an editor shows it).
+
+Bags (:func:`read_bag`, :func:`read_bag_imu`, :func:`read_bag_odometry`,
+:func:`read_bag_twist`, :func:`bag_topics`) through the pure-Python ``rosbags`` package
+(``pip install 'diffbot-fusion[ros]'``): a ROS 1 ``.bag`` file, a ROS 2 bag folder (with
+``metadata.yaml``; sqlite3 or MCAP storage) or a single ``.mcap`` file (read with the ``mcap``
+package, messages decoded by ``rosbags`` from the schemas inside). Message types:
+sensor_msgs/Imu, nav_msgs/Odometry, geometry_msgs/Twist and TwistStamped. Times are s; by
+default each message's ``header.stamp`` (``stamps="header"``), or the time the bag recorded it
+(``stamps="bag"``, the only choice for Twist). Errors name the file and topic; a missing
+topic lists the topics present.
 """
 
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
+import math
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,9 +36,18 @@ from fusion import quaternion as quat
 
 __all__ = [
     "IMU_CSV_COLUMNS",
+    "BagImuLog",
+    "BagLog",
     "BroadTrial",
     "ImuLog",
     "LogFormatError",
+    "OdometryLog",
+    "TwistLog",
+    "bag_topics",
+    "read_bag",
+    "read_bag_imu",
+    "read_bag_odometry",
+    "read_bag_twist",
     "read_broad",
     "read_imu_csv",
     "write_attitude_csv",
@@ -238,3 +260,426 @@ def write_attitude_csv(
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+# -- ROS 1/2 bags and MCAP -------------------------------------------------------------------
+
+IMU_TYPES = ("sensor_msgs/Imu",)
+ODOMETRY_TYPES = ("nav_msgs/Odometry",)
+TWIST_TYPES = ("geometry_msgs/Twist", "geometry_msgs/TwistStamped")
+
+
+@dataclass
+class BagImuLog(ImuLog):
+    """sensor_msgs/Imu messages of one topic (beyond :class:`ImuLog`'s ``t``, ``gyro`` rad/s
+    and ``accel`` m/s^2, in the message's frame ``frame_id``).
+
+    Attributes:
+        orientation: (N, 4) the messages' attitude ``[w, x, y, z]`` (frame_id -> the driver's
+            world frame), NaN rows where a message has none (``orientation_covariance[0] ==
+            -1`` or an all-zero quaternion); None when no message has one.
+        frame_id: ``header.frame_id`` (the same in every message, else a LogFormatError).
+        topic: the topic read.
+        bag_time: (N,) s, when the bag recorded each message.
+        out_of_order: messages whose stamp was earlier than one recorded before it (the
+            arrays are sorted by ``t``, stably; 0 for a clean recording).
+    """
+
+    orientation: NDArray[np.float64] | None = None
+    frame_id: str = ""
+    topic: str = ""
+    bag_time: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    out_of_order: int = 0
+
+
+@dataclass
+class OdometryLog:
+    """nav_msgs/Odometry messages of one topic.
+
+    Attributes:
+        t: (N,) s, sorted (see ``out_of_order``).
+        x, y: (N,) position of ``child_frame_id`` in ``frame_id``, m.
+        yaw: (N,) heading from the pose quaternion (ZYX yaw), rad in (-pi, pi].
+        v: (N,) forward speed, ``twist.linear.x``, m/s in ``child_frame_id``.
+        vy: (N,) lateral speed, ``twist.linear.y``, m/s (0 for a differential drive).
+        w: (N,) yaw rate, ``twist.angular.z``, rad/s.
+        pose_covariance, twist_covariance: (N, 36) row major, nav_msgs/Odometry layout.
+        frame_id, child_frame_id: frame names (the same in every message).
+        topic, source: the topic and the file read.
+        bag_time: (N,) s, when the bag recorded each message.
+        out_of_order: messages whose stamp was earlier than one recorded before it.
+    """
+
+    t: NDArray[np.float64]
+    x: NDArray[np.float64]
+    y: NDArray[np.float64]
+    yaw: NDArray[np.float64]
+    v: NDArray[np.float64]
+    vy: NDArray[np.float64]
+    w: NDArray[np.float64]
+    pose_covariance: NDArray[np.float64]
+    twist_covariance: NDArray[np.float64]
+    frame_id: str = ""
+    child_frame_id: str = ""
+    topic: str = ""
+    source: str = ""
+    bag_time: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    out_of_order: int = 0
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+@dataclass
+class TwistLog:
+    """geometry_msgs/Twist or TwistStamped messages of one topic (e.g. ``/cmd_vel``).
+
+    Attributes:
+        t: (N,) s: ``header.stamp`` of TwistStamped, else the bag's record time.
+        v: (N,) ``linear.x``, m/s.  vy: (N,) ``linear.y``, m/s.  w: (N,) ``angular.z``, rad/s.
+        frame_id: ``header.frame_id`` of TwistStamped, "" for Twist.
+        topic, source, bag_time, out_of_order: as in :class:`OdometryLog`.
+    """
+
+    t: NDArray[np.float64]
+    v: NDArray[np.float64]
+    vy: NDArray[np.float64]
+    w: NDArray[np.float64]
+    frame_id: str = ""
+    topic: str = ""
+    source: str = ""
+    bag_time: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    out_of_order: int = 0
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+@dataclass
+class BagLog:
+    """What :func:`read_bag` read: one log per requested topic (None if not requested), and
+    ``topics``, every topic of the file as ``{topic: (type, message count)}``."""
+
+    imu: BagImuLog | None
+    odometry: OdometryLog | None
+    twist: TwistLog | None
+    topics: dict[str, tuple[str, int]]
+    source: str
+
+
+def _ros1_name(msgtype: str) -> str:
+    """``sensor_msgs/msg/Imu`` -> ``sensor_msgs/Imu`` (one spelling for ROS 1 and 2)."""
+    parts = msgtype.split("/")
+    return f"{parts[0]}/{parts[-1]}" if len(parts) == 3 else msgtype
+
+
+def _ros2_name(msgtype: str) -> str:
+    parts = msgtype.split("/")
+    return f"{parts[0]}/msg/{parts[1]}" if len(parts) == 2 else msgtype
+
+
+def _need_rosbags(path: Path) -> Any:
+    try:
+        import rosbags.highlevel
+        import rosbags.typesys
+    except ImportError as exc:
+        raise ImportError(
+            f"{path}: reading bags needs rosbags: pip install 'diffbot-fusion[ros]'"
+        ) from exc
+    return rosbags
+
+
+class _BagFile:
+    """One bag or MCAP file behind a small interface: ``topics`` and ``messages(topics)``."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: no such bag file or folder")
+        self.is_mcap_file = path.is_file() and path.suffix.lower() == ".mcap"
+        self.topics: dict[str, tuple[str, int]] = {}
+
+    def __enter__(self) -> _BagFile:
+        rosbags = _need_rosbags(self.path)
+        if self.is_mcap_file:
+            self._open_mcap(rosbags)
+        else:
+            self._reader = rosbags.highlevel.AnyReader([self.path])
+            try:
+                self._reader.open()
+            except Exception as exc:  # rosbags' errors, struct errors of truncated files
+                raise LogFormatError(f"{self.path}: not a readable ROS bag ({exc})") from exc
+            for c in self._reader.connections:
+                name = _ros1_name(c.msgtype)
+                old = self.topics.get(c.topic, (name, 0))
+                self.topics[c.topic] = (name, old[1] + c.msgcount)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        if self.is_mcap_file:
+            self._fh.close()
+        else:
+            self._reader.close()
+
+    def _open_mcap(self, rosbags: Any) -> None:
+        try:
+            from mcap.exceptions import McapError
+            from mcap.reader import make_reader
+        except ImportError as exc:
+            raise ImportError(
+                f"{self.path}: reading .mcap files needs mcap: pip install 'diffbot-fusion[ros]'"
+            ) from exc
+        typesys = rosbags.typesys
+        self._fh = self.path.open("rb")
+        try:
+            self._mcap = make_reader(self._fh)
+            summary = self._mcap.get_summary()
+        except (McapError, ValueError, EOFError) as exc:
+            self._fh.close()
+            raise LogFormatError(f"{self.path}: not a readable MCAP file ({exc})") from exc
+        if summary is None:
+            self._fh.close()
+            raise LogFormatError(f"{self.path}: MCAP file without a summary section "
+                                 "(unfinished recording?); run `mcap recover` on it")
+        counts = summary.statistics.channel_message_counts if summary.statistics else {}
+        self._ts = typesys.get_typestore(typesys.Stores.EMPTY)
+        self._encoding: dict[str, tuple[str, str]] = {}
+        for ch in summary.channels.values():
+            schema = summary.schemas.get(ch.schema_id)
+            if schema is None or schema.encoding not in ("ros2msg", "ros1msg"):
+                continue  # not a ROS message (protobuf, JSON...): not ours to read
+            rostype = _ros2_name(schema.name)
+            try:
+                self._ts.register(typesys.get_types_from_msg(schema.data.decode(), rostype))
+            except Exception as exc:
+                raise LogFormatError(
+                    f"{self.path}: topic {ch.topic}: bad {schema.encoding} schema "
+                    f"{schema.name!r} ({exc})") from exc
+            self._encoding[ch.topic] = (ch.message_encoding, rostype)
+            name = _ros1_name(rostype)
+            old = self.topics.get(ch.topic, (name, 0))
+            self.topics[ch.topic] = (name, old[1] + counts.get(ch.id, 0))
+
+    def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
+        """``(topic, bag time ns, message)`` of the given topics, in the bag's record order."""
+        if self.is_mcap_file:
+            for _schema, ch, msg in self._mcap.iter_messages(topics=list(topics)):
+                encoding, rostype = self._encoding[ch.topic]
+                if encoding == "cdr":
+                    obj = self._ts.deserialize_cdr(msg.data, rostype)
+                elif encoding == "ros1":
+                    obj = self._ts.deserialize_ros1(msg.data, rostype)
+                else:
+                    raise LogFormatError(f"{self.path}: topic {ch.topic}: message encoding "
+                                         f"{encoding!r} is neither cdr nor ros1")
+                yield ch.topic, msg.log_time, obj
+            return
+        conns = [c for c in self._reader.connections if c.topic in topics]
+        for c, ns, raw in self._reader.messages(connections=conns):
+            yield c.topic, ns, self._reader.deserialize(raw, c.msgtype)
+
+
+def bag_topics(path: str | Path) -> dict[str, tuple[str, int]]:
+    """Every topic of a bag or MCAP file: ``{topic: (type as pkg/Type, message count)}``."""
+    with _BagFile(Path(path)) as bag:
+        return dict(bag.topics)
+
+
+def _describe_topics(topics: dict[str, tuple[str, int]]) -> str:
+    if not topics:
+        return "the file has no ROS topics"
+    return "topics present: " + ", ".join(
+        f"{t} ({typ}, {n} messages)" for t, (typ, n) in sorted(topics.items()))
+
+
+def _stamp(header: Any) -> float:
+    return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
+class _Collector:
+    """Rows of one topic: the stamp source, frame ids, and per-message values."""
+
+    def __init__(self, path: Path, topic: str, kind: str, msgtype: str, stamps: str) -> None:
+        self.path, self.topic, self.kind, self.msgtype = path, topic, kind, msgtype
+        self.use_header = stamps == "header" and msgtype != "geometry_msgs/Twist"
+        self.t: list[float] = []
+        self.bag_t: list[float] = []
+        self.rows: list[tuple[float, ...]] = []
+        self.frames: dict[str, str] = {}
+
+    def _frame(self, key: str, value: str) -> None:
+        old = self.frames.setdefault(key, value)
+        if old != value:
+            raise LogFormatError(
+                f"{self.path}: topic {self.topic}: {key} changes from {old!r} to {value!r} "
+                f"at message {len(self.t) + 1}")
+
+    def add(self, ns: int, msg: Any) -> None:
+        header = getattr(msg, "header", None)
+        if header is not None:
+            self._frame("frame_id", header.frame_id)
+        if self.kind == "odometry":
+            self._frame("child_frame_id", msg.child_frame_id)
+        self.bag_t.append(ns * 1e-9)
+        self.t.append(_stamp(header) if self.use_header else ns * 1e-9)
+        if self.kind == "imu":
+            q, a, g = msg.orientation, msg.linear_acceleration, msg.angular_velocity
+            no_q = msg.orientation_covariance[0] == -1 or (q.w == q.x == q.y == q.z == 0)
+            self.rows.append((g.x, g.y, g.z, a.x, a.y, a.z,
+                              *((math.nan,) * 4 if no_q else (q.w, q.x, q.y, q.z))))
+        elif self.kind == "odometry":
+            p, q = msg.pose.pose.position, msg.pose.pose.orientation
+            lin, ang = msg.twist.twist.linear, msg.twist.twist.angular
+            yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+            self.rows.append((p.x, p.y, yaw, lin.x, lin.y, ang.z,
+                              *msg.pose.covariance, *msg.twist.covariance))
+        else:
+            tw = msg.twist if self.msgtype == "geometry_msgs/TwistStamped" else msg
+            self.rows.append((tw.linear.x, tw.linear.y, tw.angular.z))
+
+    def arrays(self) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                              int]:
+        """``(t, bag_time, rows)`` sorted by t, and how many messages were out of order."""
+        where = f"{self.path}: topic {self.topic}"
+        if not self.t:
+            raise LogFormatError(f"{where}: no messages")
+        t = np.asarray(self.t, dtype=np.float64)
+        if self.use_header and not np.any(t > 0):
+            raise LogFormatError(f"{where}: every header.stamp is zero; read it with "
+                                 "stamps='bag' (the bag's record times)")
+        rows = np.asarray(self.rows, dtype=np.float64)
+        check = rows[:, :6] if self.kind != "twist" else rows
+        bad = np.flatnonzero(~np.all(np.isfinite(check), axis=1))
+        if bad.size:
+            i = int(bad[0])
+            raise LogFormatError(
+                f"{where}: message {i + 1} (t = {t[i]:.9f} s) has a non-finite value: "
+                f"{check[i].tolist()}")
+        running_max = np.maximum.accumulate(t)
+        out_of_order = int(np.count_nonzero(t[1:] < running_max[:-1]))
+        bag_t = np.asarray(self.bag_t, dtype=np.float64)
+        if out_of_order:
+            order = np.argsort(t, kind="stable")
+            t, bag_t, rows = t[order], bag_t[order], rows[order]
+        return t, bag_t, rows, out_of_order
+
+
+_KINDS = {"imu": IMU_TYPES, "odometry": ODOMETRY_TYPES, "twist": TWIST_TYPES}
+
+
+def read_bag(
+    path: str | Path,
+    *,
+    imu_topic: str | None = None,
+    odom_topic: str | None = None,
+    twist_topic: str | None = None,
+    stamps: str = "header",
+) -> BagLog:
+    """Read IMU, odometry and twist topics of a bag or MCAP file in one pass.
+
+    Args:
+        path: ROS 1 ``.bag``, ROS 2 bag folder, or ``.mcap`` file.
+        imu_topic: a sensor_msgs/Imu topic (e.g. ``/imu/data``), or None.
+        odom_topic: a nav_msgs/Odometry topic (e.g. ``/odom``), or None.
+        twist_topic: a geometry_msgs/Twist or TwistStamped topic (e.g. ``/cmd_vel``), or None.
+        stamps: ``"header"`` (each message's header.stamp) or ``"bag"`` (record times).
+
+    Raises:
+        FileNotFoundError: no such path.
+        LogFormatError: not a bag; a topic missing (the message lists the topics present),
+            of another type, empty, with changing frame ids, zero stamps or non-finite values.
+        ImportError: rosbags (or mcap for .mcap files) is not installed.
+    """
+    path = Path(path)
+    if stamps not in ("header", "bag"):
+        raise ValueError(f"stamps must be 'header' or 'bag', got {stamps!r}")
+    wanted = {k: t for k, t in (("imu", imu_topic), ("odometry", odom_topic),
+                                ("twist", twist_topic)) if t is not None}
+    if not wanted:
+        raise ValueError("give at least one of imu_topic, odom_topic, twist_topic")
+    if len(set(wanted.values())) != len(wanted):
+        raise ValueError(f"one topic cannot be read as two kinds: {wanted}")
+    with _BagFile(path) as bag:
+        collectors: dict[str, _Collector] = {}
+        for kind, topic in wanted.items():
+            if topic not in bag.topics:
+                raise LogFormatError(
+                    f"{path}: no topic {topic!r}; {_describe_topics(bag.topics)}")
+            msgtype = bag.topics[topic][0]
+            if msgtype not in _KINDS[kind]:
+                raise LogFormatError(
+                    f"{path}: topic {topic} is {msgtype}, expected {' or '.join(_KINDS[kind])}")
+            collectors[topic] = _Collector(path, topic, kind, msgtype, stamps)
+        try:
+            for topic, ns, msg in bag.messages(list(collectors)):
+                collectors[topic].add(ns, msg)
+        except LogFormatError:
+            raise
+        except Exception as exc:  # a truncated chunk, a message that does not decode
+            raise LogFormatError(
+                f"{path}: reading {', '.join(collectors)} failed: {exc!r}") from exc
+        topics = dict(bag.topics)
+    return BagLog(
+        imu=_imu_log(collectors.get(imu_topic)) if imu_topic else None,
+        odometry=_odometry_log(collectors.get(odom_topic)) if odom_topic else None,
+        twist=_twist_log(collectors.get(twist_topic)) if twist_topic else None,
+        topics=topics, source=str(path),
+    )
+
+
+def _imu_log(c: _Collector) -> BagImuLog:
+    t, bag_t, rows, ooo = c.arrays()
+    q = np.ascontiguousarray(rows[:, 6:10])
+    has_q = np.all(np.isfinite(q), axis=1)
+    if has_q.any():
+        q[has_q] /= np.linalg.norm(q[has_q], axis=1, keepdims=True)
+    return BagImuLog(
+        t=t, gyro=np.ascontiguousarray(rows[:, 0:3]), accel=np.ascontiguousarray(rows[:, 3:6]),
+        source=str(c.path), orientation=q if has_q.any() else None,
+        frame_id=c.frames.get("frame_id", ""), topic=c.topic, bag_time=bag_t, out_of_order=ooo,
+    )
+
+
+def _odometry_log(c: _Collector) -> OdometryLog:
+    t, bag_t, rows, ooo = c.arrays()
+    col = [np.ascontiguousarray(rows[:, i]) for i in range(6)]
+    return OdometryLog(
+        t=t, x=col[0], y=col[1], yaw=col[2], v=col[3], vy=col[4], w=col[5],
+        pose_covariance=np.ascontiguousarray(rows[:, 6:42]),
+        twist_covariance=np.ascontiguousarray(rows[:, 42:78]),
+        frame_id=c.frames.get("frame_id", ""), child_frame_id=c.frames.get("child_frame_id", ""),
+        topic=c.topic, source=str(c.path), bag_time=bag_t, out_of_order=ooo,
+    )
+
+
+def _twist_log(c: _Collector) -> TwistLog:
+    t, bag_t, rows, ooo = c.arrays()
+    return TwistLog(
+        t=t, v=np.ascontiguousarray(rows[:, 0]), vy=np.ascontiguousarray(rows[:, 1]),
+        w=np.ascontiguousarray(rows[:, 2]), frame_id=c.frames.get("frame_id", ""),
+        topic=c.topic, source=str(c.path), bag_time=bag_t, out_of_order=ooo,
+    )
+
+
+def read_bag_imu(path: str | Path, topic: str = "/imu/data", *,
+                 stamps: str = "header") -> BagImuLog:
+    """sensor_msgs/Imu of one topic (see :func:`read_bag`)."""
+    log = read_bag(path, imu_topic=topic, stamps=stamps).imu
+    assert log is not None
+    return log
+
+
+def read_bag_odometry(path: str | Path, topic: str = "/odom", *,
+                      stamps: str = "header") -> OdometryLog:
+    """nav_msgs/Odometry of one topic (see :func:`read_bag`)."""
+    log = read_bag(path, odom_topic=topic, stamps=stamps).odometry
+    assert log is not None
+    return log
+
+
+def read_bag_twist(path: str | Path, topic: str = "/cmd_vel", *,
+                   stamps: str = "header") -> TwistLog:
+    """geometry_msgs/Twist or TwistStamped of one topic (see :func:`read_bag`)."""
+    log = read_bag(path, twist_topic=topic, stamps=stamps).twist
+    assert log is not None
+    return log
