@@ -158,6 +158,73 @@ def _increments(theta_prev, d, dth, method: str):
     return c * cos_phi, c * sin_phi, c, s, ds, dphi_ddth, cos_phi, sin_phi
 
 
+def _advance(x, y, th, P, dl, dr, L, method, k_wheel, k_turn):
+    """The core step on Python floats: pose and covariance (6 unique entries) after one
+    period of wheel travel dl, dr (m). Used by every streaming and batch entry point."""
+    d = 0.5 * (dl + dr)
+    dth = (dr - dl) / L
+    if method == "midpoint":
+        phi = th + 0.5 * dth
+        s, ds, k = 1.0, 0.0, 0.5
+    elif method == "arc":
+        phi = th + 0.5 * dth
+        a = 0.5 * dth
+        if abs(a) < 1e-4:
+            s, ds = 1.0 - a * a / 6.0, -a / 6.0
+        else:
+            s, ds = math.sin(a) / a, 0.5 * (a * math.cos(a) - math.sin(a)) / (a * a)
+        k = 0.5
+    else:  # euler
+        phi = th
+        s, ds, k = 1.0, 0.0, 0.0
+    c = d * s
+    cos_phi = math.cos(phi)
+    sin_phi = math.sin(phi)
+    # covariance P <- F P F^T + G Q G^T; F = I but for the heading column (a, b, 1)
+    pxx, pxy, pxt, pyy, pyt, ptt = P
+    a = -c * sin_phi
+    b = c * cos_phi
+    nxx = pxx + 2.0 * a * pxt + a * a * ptt
+    nxy = pxy + a * pyt + b * pxt + a * b * ptt
+    nxt = pxt + a * ptt
+    nyy = pyy + 2.0 * b * pyt + b * b * ptt
+    nyt = pyt + b * ptt
+    ntt = ptt
+    # Q in (d, dtheta) from independent wheel variances k*|dl|, k*|dr| (+ turn slip)
+    vl = k_wheel * abs(dl)
+    vr = k_wheel * abs(dr)
+    q11 = 0.25 * (vl + vr)
+    q12 = 0.5 * (vr - vl) / L
+    q22 = (vl + vr) / (L * L) + k_turn * abs(dth)
+    # G = [[gx1, gx2], [gy1, gy2], [0, 1]]
+    dc = d * ds
+    gx1, gx2 = s * cos_phi, dc * cos_phi + a * k
+    gy1, gy2 = s * sin_phi, dc * sin_phi + b * k
+    qx1 = gx1 * q11 + gx2 * q12
+    qx2 = gx1 * q12 + gx2 * q22
+    qy1 = gy1 * q11 + gy2 * q12
+    qy2 = gy1 * q12 + gy2 * q22
+    P = (
+        nxx + qx1 * gx1 + qx2 * gx2,
+        nxy + qx1 * gy1 + qx2 * gy2,
+        nxt + qx2,
+        nyy + qy1 * gy1 + qy2 * gy2,
+        nyt + qy2,
+        ntt + q22,
+    )
+    return x + c * cos_phi, y + c * sin_phi, th + dth, P, d, dth
+
+
+def _p6(cov) -> tuple[float, ...]:
+    (pxx, pxy, pxt), (_, pyy, pyt), (_, _, ptt) = np.asarray(cov, dtype=float).tolist()
+    return pxx, pxy, pxt, pyy, pyt, ptt
+
+
+def _p33(P) -> NDArray[np.float64]:
+    pxx, pxy, pxt, pyy, pyt, ptt = P
+    return np.array([[pxx, pxy, pxt], [pxy, pyy, pyt], [pxt, pyt, ptt]])
+
+
 def integrate_wheel_travel(
     dl: ArrayLike,
     dr: ArrayLike,
@@ -223,42 +290,14 @@ class _DeadReckoner:
         self._state = OdometryState()
 
     # -- core --------------------------------------------------------------------------------
-    def _propagate_cov(self, cov, dl, dr, d, dth, inc) -> NDArray[np.float64]:
-        """One covariance step; ``inc`` are the pieces returned by ``_increments`` (scalars)."""
-        _, _, c, s, ds, dphi_ddth, cos_phi, sin_phi = inc
-        L = self.params.wheel_distance
-        F = np.array([[1.0, 0.0, -c * sin_phi], [0.0, 1.0, c * cos_phi], [0.0, 0.0, 1.0]])
-        # Jacobian w.r.t. (d, dtheta)
-        dc_ddth = d * ds
-        Gu = np.array(
-            [
-                [s * cos_phi, dc_ddth * cos_phi - c * sin_phi * dphi_ddth],
-                [s * sin_phi, dc_ddth * sin_phi + c * cos_phi * dphi_ddth],
-                [0.0, 1.0],
-            ]
-        )
-        M = np.array([[0.5, 0.5], [-1.0 / L, 1.0 / L]])  # (d, dth) from (dl, dr)
-        q_wheels = np.diag([self.noise.k_wheel * abs(dl), self.noise.k_wheel * abs(dr)])
-        Q = M @ q_wheels @ M.T
-        Q[1, 1] += self.noise.k_turn * abs(dth)
-        out = F @ cov @ F.T + Gu @ Q @ Gu.T
-        return 0.5 * (out + out.T)
-
     def _step(self, dl: float, dr: float, t: float | None) -> None:
         st = self._state
         p = self.params
-        L = p.wheel_distance
-        d = 0.5 * (dl + dr)
-        dth = (dr - dl) / L
-        inc = _increments(
-            np.array([st.theta]), np.array([d]), np.array([dth]), self.method
+        st.x, st.y, st.theta, P, d, dth = _advance(
+            st.x, st.y, st.theta, _p6(st.cov), dl, dr, p.wheel_distance, self.method,
+            self.noise.k_wheel, self.noise.k_turn,
         )
-        scal = tuple(float(np.asarray(v).reshape(-1)[0]) for v in inc)
-        st.cov = self._propagate_cov(st.cov, dl, dr, d, dth, scal)
-        # x += dx, same float operations as the cumulative sums of update_batch
-        st.x = float(np.cumsum(np.array([st.x, scal[0]]))[1])
-        st.y = float(np.cumsum(np.array([st.y, scal[1]]))[1])
-        st.theta = float(np.cumsum(np.array([st.theta, dth]))[1])
+        st.cov = _p33(P)
         T = p.encode_sampling_time
         st.v = d / T
         st.w = dth / T
@@ -315,8 +354,9 @@ class WheelOdometry(_DeadReckoner):
     ) -> NDArray[np.float64]:
         """Integrate N periods of ticks; returns the (N, 3) poses ``(x, y, theta)`` after each.
 
-        Identical (bit for bit) to N calls of :meth:`update`; the final state, including the
-        covariance, is updated too.
+        Identical (bit for bit) to N calls of :meth:`update` (the same core step); the final
+        state, including the covariance, is updated too. For poses alone over long logs,
+        :func:`integrate_wheel_travel` is the vectorised form.
         """
         sr = self.params.speed_ratio
         lt = np.asarray(left, dtype=float).reshape(-1)
@@ -329,33 +369,26 @@ class WheelOdometry(_DeadReckoner):
         if n == 0:
             return np.zeros((0, 3))
         st = self._state
-        dl = lt * sr
-        dr = rt * sr
-        L = self.params.wheel_distance
-        d = 0.5 * (dl + dr)
-        dth = (dr - dl) / L
-        theta = np.cumsum(np.concatenate(([st.theta], dth)))
-        inc = _increments(theta[:-1], d, dth, self.method)
-        x = np.cumsum(np.concatenate(([st.x], inc[0])))[1:]
-        y = np.cumsum(np.concatenate(([st.y], inc[1])))[1:]
-        cov = st.cov
-        arrays = [np.broadcast_to(np.asarray(a, dtype=float), (n,)) for a in inc]
-        for k in range(n):
-            scal = tuple(float(a[k]) for a in arrays)
-            cov = self._propagate_cov(cov, dl[k], dr[k], d[k], dth[k], scal)
-        T = self.params.encode_sampling_time
-        st.cov = cov
-        st.x, st.y, st.theta = float(x[-1]), float(y[-1]), float(theta[-1])
-        st.v, st.w = float(d[-1] / T), float(dth[-1] / T)
-        st.vl, st.vr = float(dl[-1] / T), float(dr[-1] / T)
-        for dk in d:
-            st.distance += abs(float(dk))
-        if t is not None:
-            st.t = float(np.asarray(t, dtype=float).reshape(-1)[-1])
-        else:
-            st.t = None
+        p = self.params
+        L, method = p.wheel_distance, self.method
+        kw, kt = self.noise.k_wheel, self.noise.k_turn
+        x, y, th, P = st.x, st.y, st.theta, _p6(st.cov)
+        out = np.empty((n, 3))
+        dist = st.distance
+        d = dth = dl = dr = 0.0
+        for k, (a, b) in enumerate(zip(lt.tolist(), rt.tolist())):
+            dl = a * sr
+            dr = b * sr
+            x, y, th, P, d, dth = _advance(x, y, th, P, dl, dr, L, method, kw, kt)
+            out[k] = (x, y, th)
+            dist += abs(d)
+        T = p.encode_sampling_time
+        st.x, st.y, st.theta, st.cov = x, y, th, _p33(P)
+        st.v, st.w, st.vl, st.vr = d / T, dth / T, dl / T, dr / T
+        st.distance = dist
+        st.t = None if t is None else float(np.asarray(t, dtype=float).reshape(-1)[-1])
         st.updates += n
-        return np.column_stack([x, y, theta[1:]])
+        return out
 
 
 class TwistOdometry(_DeadReckoner):
