@@ -48,6 +48,7 @@ __all__ = [
     "read_robot_toml",
     "read_truth_csv",
     "read_wheels_csv",
+    "robot_config_from_tables",
     "write_logdir",
     "write_robot_toml",
 ]
@@ -141,6 +142,18 @@ def read_robot_toml(path: str | Path) -> RobotConfig:
     if unknown:
         raise LogFormatError(f"{path}: unknown table(s) {sorted(unknown)}; "
                              "allowed: chassis, frames, ekf")
+    return robot_config_from_tables(path, doc)
+
+
+def robot_config_from_tables(path: str | Path, doc: dict[str, Any]) -> RobotConfig:
+    """:class:`RobotConfig` from the ``[chassis]``, ``[frames]`` and ``[ekf]`` tables of an
+    already loaded TOML document (other tables are the caller's: :func:`read_robot_toml`
+    refuses them, :mod:`fusion.config` has its own). ``path`` names the file in errors.
+
+    Raises:
+        LogFormatError: as :func:`read_robot_toml`.
+    """
+    path = Path(path)
     chassis = doc.get("chassis")
     if not isinstance(chassis, dict):
         raise LogFormatError(f"{path}: missing [chassis] table (wheel_distance, speed_ratio, "
