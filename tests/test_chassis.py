@@ -225,9 +225,19 @@ def test_truncated_frame_before_real_frame_is_not_taken():
 
 
 @settings(max_examples=300, deadline=None)
-@given(st.binary(min_size=0, max_size=2000), st.integers(1, 200))
-def test_fuzz_random_bytes(data, chunk):
-    p = WheelFrameParser()
+@given(
+    st.one_of(
+        st.binary(min_size=0, max_size=2000),
+        # 0xFF-heavy bytes: headers everywhere, the hard case for resynchronisation
+        st.lists(st.sampled_from([0x00, 0x01, 0x02, 0xFF, 0xFF, 0xFF, 0x7F]), max_size=600)
+        .map(bytes),
+    ),
+    st.integers(1, 200),
+    st.sampled_from([(100_000, True), (100_000, False), (300, True), (0xFFFFFF, False)]),
+)
+def test_fuzz_random_bytes(data, chunk, config):
+    max_ticks, strict = config
+    p = WheelFrameParser(max_ticks=max_ticks, strict_sign=strict)
     frames = []
     for i in range(0, len(data), chunk):
         frames += p.feed(data[i : i + chunk])
@@ -236,6 +246,8 @@ def test_fuzz_random_bytes(data, chunk):
         assert abs(f.left) <= p.max_ticks and abs(f.right) <= p.max_ticks
         raw = data[f.offset : f.offset + 11]
         assert decode_wheel_frame(raw) == (f.left, f.right)
+        if strict:
+            assert raw[2] in (0, 1) and raw[6] in (0, 1)
     offs = [f.offset for f in frames]
     assert all(b - a >= 11 for a, b in itertools.pairwise(offs))
     s = p.stats
