@@ -42,7 +42,11 @@ P_WHEEL_W_STD = 17
 P_Q_K = 18
 P_Q_C = 19
 P_STILL_SCALE = 20
-PAR_SIZE = 21
+P_TWIST_V_STD = 21
+P_TWIST_W_STD = 22
+P_TWIST_ZERO_V = 23
+P_TWIST_ZERO_W = 24
+PAR_SIZE = 25
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -58,6 +62,7 @@ AUX_SIZE = 9
 EV_GYRO = 0
 EV_WHEELS = 1
 EV_YAW = 2
+EV_TWIST = 3
 
 
 @njit
@@ -285,6 +290,8 @@ def step_core(x, P, aux, par, kind, t, a, b):
     kind 1 (wheels): ``a``, ``b`` = left, right ticks in one period; ``t`` is the period's
     midpoint (stamp - period/2 - latency), the instant whose speed the period's mean equals.
     kind 2 (absolute yaw): ``a`` = yaw, rad; ``b`` = its standard deviation, rad.
+    kind 3 (twist): ``a`` = forward speed m/s, ``b`` = yaw rate rad/s of an external wheel
+    odometry (nav_msgs/Odometry twist), taken as instantaneous at ``t``.
 
     Status: 0 applied, 1 applied down-weighted (slip), 2 gated out, 3 S not positive definite,
     4 zero-velocity update, 5 dropped as too late, 6 invalid input.
@@ -310,7 +317,7 @@ def step_core(x, P, aux, par, kind, t, a, b):
         H[0, 5] = 1.0
         R = np.full((1, 1), par[P_GYRO_VAR])
         d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, S)
-    elif kind == 1:
+    elif kind == 1 or kind == 3:
         T = par[P_PERIOD]
         sr = par[P_SPEED_RATIO]
         L = par[P_WHEEL_DISTANCE]
@@ -318,7 +325,11 @@ def step_core(x, P, aux, par, kind, t, a, b):
         H[0, 3] = 1.0
         H[1, 4] = 1.0
         R = np.zeros((2, 2))
-        if a == 0.0 and b == 0.0:
+        if kind == 1:
+            still = a == 0.0 and b == 0.0
+        else:
+            still = abs(a) <= par[P_TWIST_ZERO_V] and abs(b) <= par[P_TWIST_ZERO_W]
+        if still:
             aux[A_ZERO_COUNT] += 1.0
         else:
             aux[A_ZERO_COUNT] = 0.0
@@ -331,19 +342,26 @@ def step_core(x, P, aux, par, kind, t, a, b):
                 status = 4
                 aux[A_ZUPTS] += 1.0
         else:
-            dl = a * sr
-            dr = b * sr
-            v_m = 0.5 * (dl + dr) / T
-            w_m = (dr - dl) / (L * T)
-            tick = par[P_TICK_STD] * sr
-            ks = par[P_SCALE_STD]
-            var_l = tick * tick + (ks * dl) ** 2
-            var_r = tick * tick + (ks * dr) ** 2
-            # (v, w) = M (dl, dr) / T with M = [[1/2, 1/2], [-1/L, 1/L]]
-            R[0, 0] = 0.25 * (var_l + var_r) / (T * T)
-            R[0, 1] = 0.5 * (var_r - var_l) / (L * T * T)
-            R[1, 0] = R[0, 1]
-            R[1, 1] = (var_l + var_r) / (L * L * T * T)
+            if kind == 1:
+                dl = a * sr
+                dr = b * sr
+                v_m = 0.5 * (dl + dr) / T
+                w_m = (dr - dl) / (L * T)
+                tick = par[P_TICK_STD] * sr
+                ks = par[P_SCALE_STD]
+                var_l = tick * tick + (ks * dl) ** 2
+                var_r = tick * tick + (ks * dr) ** 2
+                # (v, w) = M (dl, dr) / T with M = [[1/2, 1/2], [-1/L, 1/L]]
+                R[0, 0] = 0.25 * (var_l + var_r) / (T * T)
+                R[0, 1] = 0.5 * (var_r - var_l) / (L * T * T)
+                R[1, 0] = R[0, 1]
+                R[1, 1] = (var_l + var_r) / (L * L * T * T)
+            else:
+                # a twist from someone else's wheel odometry (nav_msgs/Odometry)
+                v_m = a
+                w_m = b
+                R[0, 0] = par[P_TWIST_V_STD] ** 2 + (par[P_SCALE_STD] * a) ** 2
+                R[1, 1] = par[P_TWIST_W_STD] ** 2
             R[1, 1] += (par[P_SEP_STD] * w_m) ** 2 + par[P_WHEEL_W_STD] ** 2
             # wheel model: v_m = v + c*w*L^2/4, w_m = (1 + k)*w + c*v
             L2 = 0.25 * L * L

@@ -118,6 +118,9 @@ class EkfNoise:
             filter time, s; older ones are dropped.
         max_dt: longest single prediction step, s.
         wheel_latency: transport delay from the end of a period to its host stamp, s.
+        twist_v_std, twist_w_std: noise of an external odometry twist (nav_msgs/Odometry
+            from a ROS bag), m/s and rad/s.
+        twist_zero_v, twist_zero_w: below both (m/s, rad/s) a twist counts as standing still.
         initial_bias_std: prior standard deviation of the gyro bias, rad/s.
         initial_speed_std: prior standard deviation of v (m/s) and w (rad/s).
     """
@@ -143,6 +146,10 @@ class EkfNoise:
     late_tolerance: float = 0.05
     max_dt: float = 0.05
     wheel_latency: float = 0.0
+    twist_v_std: float = 0.01
+    twist_w_std: float = 0.01
+    twist_zero_v: float = 1e-3
+    twist_zero_w: float = 1e-3
     initial_bias_std: float = math.radians(2.0)
     initial_speed_std: float = 0.05
 
@@ -227,8 +234,11 @@ def merge_events(
     yaw_t: ArrayLike | None = None,
     yaw: ArrayLike | None = None,
     yaw_std: ArrayLike | float = 0.01,
+    twist_t: ArrayLike | None = None,
+    twist_v: ArrayLike | None = None,
+    twist_w: ArrayLike | None = None,
 ):
-    """Merge gyro, wheel and absolute-yaw inputs into one time-ordered event list.
+    """Merge gyro, wheel, absolute-yaw and twist inputs into one time-ordered event list.
 
     Args:
         imu_t, gyro_z: gyro stamps (s) and vertical rates (rad/s), or None.
@@ -236,6 +246,8 @@ def merge_events(
         period: ``encode_sampling_time``, s.
         wheel_latency: s, subtracted from wheel stamps with half a period.
         yaw_t, yaw, yaw_std: absolute yaw stamps (s), values (rad), standard deviations (rad).
+        twist_t, twist_v, twist_w: external odometry twists: stamps (s), forward speed (m/s),
+            yaw rate (rad/s), fused at their stamps.
 
     Returns:
         ``(kinds, t_eff, a, b, stamp)`` arrays sorted by effective time (stable; at equal
@@ -269,6 +281,17 @@ def merge_events(
         aa.append(np.broadcast_to(np.asarray(yaw, dtype=float), yt.shape))
         bb.append(np.broadcast_to(np.asarray(yaw_std, dtype=float), yt.shape))
         st.append(yt)
+    if twist_t is not None:
+        tt = np.asarray(twist_t, dtype=float).reshape(-1)
+        tv = np.asarray(twist_v, dtype=float).reshape(-1)
+        tw = np.asarray(twist_w, dtype=float).reshape(-1)
+        if not (tv.size == tw.size == tt.size):
+            raise ValueError(f"{tt.size} twist stamps but {tv.size} v and {tw.size} w values")
+        kinds.append(np.full(tt.size, core.EV_TWIST))
+        ts.append(tt)
+        aa.append(tv)
+        bb.append(tw)
+        st.append(tt)
     if not kinds:
         return (np.zeros(0, np.int64), *(np.zeros(0) for _ in range(4)))
     k = np.concatenate(kinds).astype(np.int64)
@@ -380,6 +403,10 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_Q_K] = n.calib_k_psd
         par[core.P_Q_C] = n.calib_c_psd
         par[core.P_STILL_SCALE] = n.still_scale
+        par[core.P_TWIST_V_STD] = n.twist_v_std
+        par[core.P_TWIST_W_STD] = n.twist_w_std
+        par[core.P_TWIST_ZERO_V] = n.twist_zero_v
+        par[core.P_TWIST_ZERO_W] = n.twist_zero_w
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
 
@@ -447,6 +474,12 @@ class PlanarEKF(ExtendedKalmanFilter):
         5 too late)."""
         t_eff = t - 0.5 * self.robot.encode_sampling_time - self.noise.wheel_latency
         return self._step(core.EV_WHEELS, t_eff, left, right)
+
+    def update_twist(self, t: float, v: float, w: float) -> int:
+        """Fuse an external wheel-odometry twist: forward speed ``v`` (m/s) and yaw rate ``w``
+        (rad/s) at time ``t`` (s), e.g. the twist of a nav_msgs/Odometry message. Noise from
+        ``twist_v_std``/``twist_w_std``; near-zero twists trigger ZUPTs like zero ticks."""
+        return self._step(core.EV_TWIST, t, v, w)
 
     def update_yaw(self, t: float, yaw: float, std: float) -> int:
         """Fuse an absolute yaw (rad, in odom) with standard deviation ``std`` (rad)."""
@@ -558,10 +591,14 @@ class PlanarEKF(ExtendedKalmanFilter):
                     self.P[4, 4] += n.angular_accel_psd * self.robot.encode_sampling_time
             self.update(np.array([a]), lambda x: H, lambda x: H @ x,
                         R=np.array([[n.gyro_std ** 2]]))
-        elif kind == core.EV_WHEELS:
+        elif kind in (core.EV_WHEELS, core.EV_TWIST):
             H = np.zeros((2, 8))
             H[0, 3] = H[1, 4] = 1.0
-            aux[core.A_ZERO_COUNT] = aux[core.A_ZERO_COUNT] + 1 if a == 0 and b == 0 else 0
+            if kind == core.EV_WHEELS:
+                still = a == 0 and b == 0
+            else:
+                still = abs(a) <= n.twist_zero_v and abs(b) <= n.twist_zero_w
+            aux[core.A_ZERO_COUNT] = aux[core.A_ZERO_COUNT] + 1 if still else 0
             if aux[core.A_ZERO_COUNT] >= n.zupt_frames:
                 R = np.diag([n.zupt_v_std ** 2, n.zupt_w_std ** 2])
                 self.update(np.zeros(2), lambda x: H, lambda x: H @ x, R=R)
@@ -570,13 +607,18 @@ class PlanarEKF(ExtendedKalmanFilter):
             else:
                 p = self.robot
                 T, L = p.encode_sampling_time, p.wheel_distance
-                dl, dr = a * p.speed_ratio, b * p.speed_ratio
-                z = np.array([0.5 * (dl + dr) / T, (dr - dl) / (L * T)])
-                tick = n.tick_std * p.speed_ratio
-                var = np.diag([tick ** 2 + (n.scale_std * dl) ** 2,
-                               tick ** 2 + (n.scale_std * dr) ** 2])
-                M = np.array([[0.5, 0.5], [-1.0 / L, 1.0 / L]]) / T
-                R = M @ var @ M.T
+                if kind == core.EV_WHEELS:
+                    dl, dr = a * p.speed_ratio, b * p.speed_ratio
+                    z = np.array([0.5 * (dl + dr) / T, (dr - dl) / (L * T)])
+                    tick = n.tick_std * p.speed_ratio
+                    var = np.diag([tick ** 2 + (n.scale_std * dl) ** 2,
+                                   tick ** 2 + (n.scale_std * dr) ** 2])
+                    M = np.array([[0.5, 0.5], [-1.0 / L, 1.0 / L]]) / T
+                    R = M @ var @ M.T
+                else:
+                    z = np.array([a, b])
+                    R = np.diag([n.twist_v_std ** 2 + (n.scale_std * a) ** 2,
+                                 n.twist_w_std ** 2])
                 R[1, 1] += (n.separation_std * z[1]) ** 2 + n.wheel_w_std ** 2
                 x = self.x
                 L2 = 0.25 * L * L
@@ -619,7 +661,7 @@ class FusedTrack:
 
     Attributes:
         t: (N,) host stamp of each event, s (a wheel frame's own stamp, not its effective time).
-        kind: (N,) 0 gyro, 1 wheels, 2 absolute yaw.
+        kind: (N,) 0 gyro, 1 wheels, 2 absolute yaw, 3 twist.
         states: (N, 19) rows of :meth:`PlanarEKF.process_batch` (state, diag(P), pose cross
             terms); yaw is continuous.
         status: (N,) update status codes.
@@ -638,7 +680,9 @@ class FusedTrack:
     def output_rows(self) -> NDArray[np.bool_]:
         """Mask of the rows to publish: every gyro event, or every wheel event without a gyro."""
         gyro = self.kind == core.EV_GYRO
-        return gyro if gyro.any() else self.kind == core.EV_WHEELS
+        if gyro.any():
+            return gyro
+        return (self.kind == core.EV_WHEELS) | (self.kind == core.EV_TWIST)
 
 
 def fuse(
@@ -651,6 +695,9 @@ def fuse(
     yaw_t: ArrayLike | None = None,
     yaw: ArrayLike | None = None,
     yaw_std: ArrayLike | float = 0.01,
+    twist_t: ArrayLike | None = None,
+    twist_v: ArrayLike | None = None,
+    twist_w: ArrayLike | None = None,
 ) -> tuple[FusedTrack, PlanarEKF]:
     """Fuse recorded streams offline (merged by effective time, see the module docstring).
 
@@ -661,6 +708,8 @@ def fuse(
         wheel_t, ticks: wheel frame stamps (s, end of each period) and (M, 2) ticks.
         noise: filter tuning.
         yaw_t, yaw, yaw_std: optional absolute yaw (s, rad, rad).
+        twist_t, twist_v, twist_w: optional external odometry twists (s, m/s, rad/s), e.g.
+            from a ROS bag's nav_msgs/Odometry, instead of (or besides) wheel ticks.
 
     Returns:
         ``(track, filter)``; the filter holds the final state.
@@ -668,7 +717,7 @@ def fuse(
     ekf = PlanarEKF(robot, noise)
     kinds, t_eff, a, b, stamp = merge_events(
         imu_t, gyro_z, wheel_t, ticks, robot.encode_sampling_time, ekf.noise.wheel_latency,
-        yaw_t, yaw, yaw_std,
+        yaw_t, yaw, yaw_std, twist_t, twist_v, twist_w,
     )
     states, status = ekf.process_batch(kinds, t_eff, a, b)
     return FusedTrack(stamp, kinds, states, status, ekf.stats, t_eff), ekf
