@@ -74,7 +74,8 @@ class ChassisLink:
         on_frame: callback ``f(WheelTicks)`` in the reader thread (keep it short).
         on_event: callback ``f(LinkEvent)`` in the reader thread.
         clock: the host clock, s.
-        queue_size: frames kept for :meth:`get` (the oldest are dropped and counted beyond).
+        queue_size: frames kept for :meth:`get` (the oldest are dropped and counted beyond);
+            0 keeps none (use ``on_frame`` alone).
     """
 
     def __init__(
@@ -107,7 +108,10 @@ class ChassisLink:
         self._on_frame = on_frame
         self._on_event = on_event
         self._clock = clock
-        self._frames: queue.Queue[WheelTicks] = queue.Queue(maxsize=queue_size)
+        if queue_size < 0:
+            raise ValueError(f"queue_size must be >= 0, got {queue_size!r}")
+        self._queue_size = int(queue_size)
+        self._frames: queue.Queue[WheelTicks] = queue.Queue(maxsize=max(1, queue_size))
         self.events: collections.deque[LinkEvent] = collections.deque(maxlen=1000)
         self.frames_dropped = 0
         self.frames_received = 0
@@ -307,11 +311,12 @@ class ChassisLink:
             sample = WheelTicks(t, int(lft), int(rgt))
             self.frames_received += 1
             self._last_frame_time = sample.t
-            if self._frames.full():
-                with contextlib.suppress(queue.Empty):
-                    self._frames.get_nowait()
-                    self.frames_dropped += 1
-            self._frames.put_nowait(sample)
+            if self._queue_size:
+                if self._frames.full():
+                    with contextlib.suppress(queue.Empty):
+                        self._frames.get_nowait()
+                        self.frames_dropped += 1
+                self._frames.put_nowait(sample)
             if self._on_frame is not None:
                 self._on_frame(sample)
         if frames_off.size and self._silent:

@@ -231,3 +231,17 @@ def test_noisy_line_over_the_pty_is_exact(pty_pair):
         time.sleep(0.1)
         got.extend(link.drain())
     assert [(w.left, w.right) for w in got] == values
+
+
+def test_callback_only_and_bounded_queue(pty_pair):
+    seen = []
+    with ChassisLink(pty_pair.link_path, command_timeout=None, queue_size=0,
+                     on_frame=seen.append) as link:
+        pty_pair.write(b"".join(encode_wheel_frame(i, i) for i in range(5)))
+        assert wait_for(lambda: len(seen) == 5)
+        assert link.get(0.05) is None and link.frames_dropped == 0
+    with ChassisLink(pty_pair.link_path, command_timeout=None, queue_size=3) as link:
+        pty_pair.write(b"".join(encode_wheel_frame(i, i) for i in range(5)))
+        assert wait_for(lambda: link.frames_received == 5)
+        assert [w.left for w in link.drain()] == [2, 3, 4]  # the oldest were dropped
+        assert link.frames_dropped == 2
