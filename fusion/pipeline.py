@@ -1,0 +1,795 @@
+"""One fusion pipeline for live data and replay: sources -> Mahony -> planar EKF -> sinks.
+
+Data flow (one :class:`FusionPipeline` object; only the sources differ between live and
+replay)::
+
+    ImuSample (IMU frame) --mount rotation--> Mahony (attitude) --vertical rate--\\
+                                                                                  ReorderBuffer
+    WheelTicks (DATA-uart2 frame, ticks per period) ----------------------------/      |
+                                                           PlanarEKF <-----------------+
+                                                               |
+                                      FusedOdometry records -> sinks (fusion.publish)
+
+Event-time model, stated once:
+
+- Every input is a time-stamped event on one host clock (s): :class:`fusion.samples.ImuSample`
+  (the sample instant) or :class:`fusion.samples.WheelTicks` (the end of the firmware period,
+  as stamped by :class:`drivers.serial_link.ChassisLink`). Callers push events in *arrival*
+  order, which for a replay is host time order (:func:`merge_by_time`).
+- IMU samples go through the Mahony filter on arrival (they must increase in time; a sample
+  that does not is dropped and counted), which gives the attitude and the yaw rate about the
+  world vertical (:func:`fusion.ekf.vertical_rate`, tilt compensation).
+- The EKF's own policy orders the inputs: each event is keyed by its *effective* time (a wheel
+  frame's is ``stamp - encode_sampling_time/2 - wheel_latency``, the middle of its period; an
+  IMU sample's is its stamp) and held in a :class:`fusion.ekf.ReorderBuffer` until it is
+  ``reorder_window`` s older than the newest event; what is released still late is handled by
+  the EKF's late-input policy (fused at the filter time within ``late_tolerance``, else
+  dropped and counted in :attr:`PipelineStats.late_dropped`). The default window,
+  ``encode_sampling_time/2 + wheel_latency``, is exactly enough for host-ordered replay; live
+  sources that deliver in batches (the MPU6050 FIFO) need their batch interval on top.
+- Output: with ``publish_rate_hz=None`` one record per wheel frame, stamped with the filter
+  time after that frame (the middle of its period); with a rate, one record each time the
+  filter time crosses a multiple of ``1/publish_rate_hz`` (seed 000 publishes at 10 Hz).
+
+Determinism: nothing here reads a clock except to measure latency (``clock``), so replaying
+the same events gives the same records bit for bit (tests/test_pipeline_golden.py).
+
+Replay sources: :func:`logdir_events` (a log directory, ``datasets/LOGDIR.md``),
+:func:`read_uart2_capture` (raw DATA-uart2 bytes through :class:`drivers.chassis.WheelFrameParser`,
+optionally with the arrival time of each read), :func:`imu_csv_events`. Live sources are
+:class:`drivers.serial_link.ChassisLink` and :class:`drivers.mpu6050.MPU6050` (see
+``fusion/cli/run.py``).
+"""
+
+from __future__ import annotations
+
+import collections
+import csv
+import heapq
+import math
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion import _ekf_core as core
+from fusion import quaternion as quat
+from fusion.ekf import PlanarEKF, ReorderBuffer
+from fusion.fused import FusedOdometry
+from fusion.logdir import RobotConfig
+from fusion.logs import LogFormatError
+from fusion.mahony import Mahony
+from fusion.samples import ImuSample, WheelTicks
+
+__all__ = [
+    "FusionPipeline",
+    "PipelineStats",
+    "WheelGap",
+    "imu_csv_events",
+    "logdir_events",
+    "merge_by_time",
+    "read_uart2_capture",
+    "replay",
+]
+
+_EV_GYRO = core.EV_GYRO
+_EV_WHEELS = core.EV_WHEELS
+
+
+@dataclass(frozen=True)
+class WheelGap:
+    """Wheel frames missing between two received ones (a pulled cable, a dropped frame).
+
+    Attributes:
+        t_start, t_end: stamps of the frames on either side of the gap, s.
+        missing: frames that should have arrived in between (``round(dt/T) - 1``).
+    """
+
+    t_start: float
+    t_end: float
+    missing: int
+
+
+@dataclass
+class PipelineStats:
+    """Counters of a :class:`FusionPipeline` (monotonic).
+
+    Attributes:
+        imu_samples: IMU samples accepted (pushed in time order).
+        imu_out_of_order: IMU samples dropped because their stamp did not increase.
+        wheel_frames: wheel frames accepted.
+        wheel_out_of_order: wheel frames dropped because their stamp did not increase.
+        records: records published.
+        late_dropped, late_applied: inputs the EKF dropped as too late / fused at its own time.
+        slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
+        gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
+        gap_count: gaps seen in total; frames_missing: frames missing in them.
+    """
+
+    imu_samples: int = 0
+    imu_out_of_order: int = 0
+    wheel_frames: int = 0
+    wheel_out_of_order: int = 0
+    records: int = 0
+    late_dropped: int = 0
+    late_applied: int = 0
+    slips: int = 0
+    zupts: int = 0
+    gap_count: int = 0
+    frames_missing: int = 0
+    gaps: collections.deque = field(default_factory=lambda: collections.deque(maxlen=100))
+
+    def as_dict(self) -> dict[str, Any]:
+        d = {k: v for k, v in self.__dict__.items() if k != "gaps"}
+        d["gaps"] = [g.__dict__ for g in self.gaps]
+        return d
+
+
+def _matrix_or_none(q: NDArray[np.float64]) -> list[list[float]] | None:
+    R = quat.to_matrix(q)
+    return None if np.array_equal(R, np.eye(3)) else R.tolist()
+
+
+class FusionPipeline:
+    """Mahony attitude + planar EKF over time-stamped IMU and wheel events, into sinks.
+
+    Args:
+        robot: chassis geometry, frames (with the IMU mount rotation) and EKF tuning
+            (:class:`fusion.logdir.RobotConfig`, e.g. from :func:`fusion.config.load_config`).
+        sinks: :class:`fusion.publish.Sink` objects; the pipeline opens them in
+            :meth:`open` (or ``with``) and closes them in :meth:`close` (aborts them when the
+            block raises, so file sinks leave no partial output).
+        publish_rate_hz: None: one record per wheel frame; else records at this rate of
+            filter time (Hz).
+        reorder_window: s an event is held for reordering (default: half a wheel period plus
+            the EKF's ``wheel_latency``, enough for host-ordered replay; add the largest batch
+            delay of live sources).
+        imu_rate_hz: nominal IMU rate, Hz (the Mahony filter's first step).
+        tilt: tilt-compensate the gyro with the Mahony attitude (False: the gyro's z axis is
+            the yaw rate, a level robot).
+        mahony: a configured :class:`fusion.mahony.Mahony` (default: the 6-axis preset).
+        clock: host clock (s) used only to measure latency from a wheel frame's stamp to its
+            record; None disables latency measurement.
+        gap_periods: a wheel-frame interval longer than this many periods is a gap.
+        on_record: ``callback(record)`` after each record is written to the sinks.
+        latency_window: latencies kept (the newest) for :meth:`latency_percentiles`.
+
+    The pipeline is not thread safe: feed it from one thread (live sources put their events
+    on a queue, see ``fusion/cli/run.py``).
+    """
+
+    def __init__(
+        self,
+        robot: RobotConfig,
+        sinks: Sequence[Any] = (),
+        *,
+        publish_rate_hz: float | None = None,
+        reorder_window: float | None = None,
+        imu_rate_hz: float = 100.0,
+        tilt: bool = True,
+        mahony: Mahony | None = None,
+        clock: Callable[[], float] | None = None,
+        gap_periods: float = 2.5,
+        on_record: Callable[[FusedOdometry], None] | None = None,
+        latency_window: int = 100_000,
+    ) -> None:
+        if publish_rate_hz is not None and not (
+            math.isfinite(publish_rate_hz) and publish_rate_hz > 0
+        ):
+            raise ValueError(f"publish_rate_hz must be > 0 Hz or None, got {publish_rate_hz!r}")
+        if not (math.isfinite(imu_rate_hz) and imu_rate_hz > 0):
+            raise ValueError(f"imu_rate_hz must be > 0 Hz, got {imu_rate_hz!r}")
+        if not gap_periods > 1:
+            raise ValueError(f"gap_periods must be > 1, got {gap_periods!r}")
+        self.robot = robot
+        chassis = robot.chassis
+        self.period = chassis.encode_sampling_time
+        if reorder_window is None:
+            reorder_window = 0.5 * self.period + robot.ekf.wheel_latency
+        if not (math.isfinite(reorder_window) and reorder_window >= 0):
+            raise ValueError(f"reorder_window must be >= 0 s, got {reorder_window!r}")
+        self.reorder_window = float(reorder_window)
+        self.sinks = list(sinks)
+        self.publish_rate_hz = publish_rate_hz
+        self.tilt = bool(tilt)
+        self.ekf = PlanarEKF(chassis, robot.ekf)
+        self.mahony = mahony if mahony is not None else Mahony(axes=6,
+                                                               sample_period=1.0 / imu_rate_hz)
+        self._mount = _matrix_or_none(robot.imu_to_base())
+        self._buffer = ReorderBuffer(self.reorder_window)
+        self._clock = clock
+        self._gap_periods = float(gap_periods)
+        self._on_record = on_record
+        self.stats = PipelineStats()
+        self.latencies: collections.deque[float] = collections.deque(maxlen=latency_window)
+        self._last_imu_t = -math.inf
+        self._last_wheel_t: float | None = None
+        self._q: NDArray[np.float64] | None = None  # attitude of the last fused IMU sample
+        self._gyro = None
+        self._accel = None
+        self._wheel_speeds: tuple[float, float] | None = None
+        self._next_tick: float | None = None
+        self._state = "new"
+        self._m_per_s = chassis.speed_ratio / self.period
+
+    # -- lifecycle --------------------------------------------------------------------------
+    def open(self) -> FusionPipeline:
+        """Open the sinks (a sink that fails to open closes the ones already open)."""
+        if self._state != "new":
+            raise RuntimeError("the pipeline was already opened")
+        opened = []
+        try:
+            for sink in self.sinks:
+                sink.open()
+                opened.append(sink)
+        except BaseException:
+            for sink in opened:
+                sink.abort()
+            raise
+        self._state = "open"
+        return self
+
+    def close(self) -> None:
+        """Fuse what the reorder buffer still holds, publish, and close the sinks."""
+        if self._state != "open":
+            return
+        try:
+            self.flush()
+        except BaseException:
+            self.abort()
+            raise
+        self._state = "closed"
+        errors = []
+        for sink in self.sinks:
+            try:
+                sink.close()
+            except Exception as exc:  # close every sink, then report
+                errors.append(exc)
+        if errors:
+            raise errors[0]
+
+    def abort(self) -> None:
+        """Stop without finishing: sinks are aborted (file sinks discard partial output)."""
+        if self._state != "open":
+            return
+        self._state = "aborted"
+        for sink in self.sinks:
+            try:
+                sink.abort()
+            except Exception:  # aborting: keep going
+                continue
+
+    def __enter__(self) -> FusionPipeline:
+        if self._state == "new":
+            self.open()
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    # -- inputs -----------------------------------------------------------------------------
+    def push(self, event: ImuSample | WheelTicks) -> None:
+        """Feed one event (in arrival order); records are published as they become due."""
+        if self._state != "open":
+            raise RuntimeError("the pipeline is not open: call open() or use 'with'")
+        if type(event) is WheelTicks:
+            self.push_wheels(event)
+        elif type(event) is ImuSample:
+            self.push_imu(event)
+        else:
+            raise TypeError(f"events are ImuSample or WheelTicks, got {type(event).__name__}")
+
+    def push_imu(self, sample: ImuSample) -> None:
+        """One IMU sample: gyro rad/s and specific force m/s^2 in the IMU frame, stamp s."""
+        t = float(sample.t)
+        if not t > self._last_imu_t:
+            self.stats.imu_out_of_order += 1
+            return
+        R = self._mount
+        if R is None:
+            g = np.asarray(sample.gyro, dtype=np.float64).reshape(3)
+            a = np.asarray(sample.accel, dtype=np.float64).reshape(3)
+        else:  # written out so that push_arrays computes the very same floats
+            gx, gy, gz = np.asarray(sample.gyro, dtype=np.float64).reshape(3).tolist()
+            ax, ay, az = np.asarray(sample.accel, dtype=np.float64).reshape(3).tolist()
+            g = np.array([R[0][0] * gx + R[0][1] * gy + R[0][2] * gz,
+                          R[1][0] * gx + R[1][1] * gy + R[1][2] * gz,
+                          R[2][0] * gx + R[2][1] * gy + R[2][2] * gz])
+            a = np.array([R[0][0] * ax + R[0][1] * ay + R[0][2] * az,
+                          R[1][0] * ax + R[1][1] * ay + R[1][2] * az,
+                          R[2][0] * ax + R[2][1] * ay + R[2][2] * az])
+        self._last_imu_t = t
+        self.stats.imu_samples += 1
+        q = self.mahony.update(g, a, timestamp=t)
+        if self.tilt:
+            w, x, y, z = q.tolist()
+            gx, gy, gz = g.tolist()
+            n2 = w * w + x * x + y * y + z * z
+            r20 = 2.0 * (x * z - w * y) / n2
+            r21 = 2.0 * (y * z + w * x) / n2
+            r22 = 1.0 - 2.0 * (x * x + y * y) / n2
+            rate = r20 * gx + r21 * gy + r22 * gz
+        else:
+            rate = float(g[2])
+        self._buffer.push(t, (_EV_GYRO, t, rate, q, g, a))
+        self._release()
+
+    def push_wheels(self, frame: WheelTicks) -> None:
+        """One DATA-uart2 frame: ticks counted in the period ending at ``frame.t`` (s)."""
+        t = float(frame.t)
+        last = self._last_wheel_t
+        if last is not None:
+            if not t > last:
+                self.stats.wheel_out_of_order += 1
+                return
+            if t - last > self._gap_periods * self.period:
+                missing = max(1, round((t - last) / self.period) - 1)
+                self.stats.gaps.append(WheelGap(last, t, missing))
+                self.stats.gap_count += 1
+                self.stats.frames_missing += missing
+        self._last_wheel_t = t
+        self.stats.wheel_frames += 1
+        t_eff = t - 0.5 * self.period - self.ekf.noise.wheel_latency
+        self._buffer.push(t_eff, (_EV_WHEELS, t, int(frame.left), int(frame.right)))
+        self._release()
+
+    def flush(self) -> None:
+        """Fuse every held event now (end of a replay, or before a pause)."""
+        for _t, ev in self._buffer.flush():
+            self._apply(ev)
+
+    # -- core -------------------------------------------------------------------------------
+    def _release(self) -> None:
+        for _t, ev in self._buffer.pop_ready():
+            self._apply(ev)
+
+    def _apply(self, ev: tuple) -> None:
+        ekf = self.ekf
+        if ev[0] == _EV_GYRO:
+            _, t, rate, q, g, a = ev
+            ekf.update_gyro(t, rate)
+            self._q, self._gyro, self._accel = q, g, a
+            if self.publish_rate_hz is not None:
+                self._tick()
+            return
+        _, t, left, right = ev
+        ekf.update_wheels(t, left, right)
+        self._wheel_speeds = (left * self._m_per_s, right * self._m_per_s)
+        if self.publish_rate_hz is None:
+            self._publish(t)
+        else:
+            self._tick()
+
+    def _tick(self) -> None:
+        t = self.ekf.t
+        if t is None:
+            return
+        if self._next_tick is None:
+            self._next_tick = t
+        if t >= self._next_tick:
+            self._publish(None)
+            rate = self.publish_rate_hz
+            self._next_tick = (math.floor(t * rate + 1e-9) + 1) / rate
+
+    def _publish(self, wheel_stamp: float | None) -> None:
+        if self._state != "open":
+            raise RuntimeError("the pipeline is not open: call open() or use 'with'")
+        rec = self.current_record()
+        for sink in self.sinks:
+            sink.write(rec)
+        self.stats.records += 1
+        if self._clock is not None and wheel_stamp is not None:
+            self.latencies.append(self._clock() - wheel_stamp)
+        if self._on_record is not None:
+            self._on_record(rec)
+
+    def current_record(self) -> FusedOdometry:
+        """The fused state now as a :class:`FusedOdometry` (frames from the config).
+
+        ``angular_velocity`` is the last base-frame gyro sample's x and y with the EKF's
+        yaw rate as z (so /odom's twist carries the fused rate); ``orientation`` the Mahony
+        attitude of that sample; wheel speeds are the last frame's rim speeds (m/s).
+        """
+        ekf = self.ekf
+        g = self._gyro
+        ws = self._wheel_speeds
+        return _fast_record(_record_fields(
+            ekf.t if ekf.t is not None else 0.0, ekf.x, ekf.P, self._q,
+            None if g is None else (float(g[0]), float(g[1])), self._accel,
+            ws, self.robot.odom_frame, self.robot.base_frame,
+        ))
+
+    # -- batch entry point --------------------------------------------------------------------
+    def push_arrays(
+        self,
+        imu_t: NDArray[np.float64] | None = None,
+        gyro: NDArray[np.float64] | None = None,
+        accel: NDArray[np.float64] | None = None,
+        wheel_t: NDArray[np.float64] | None = None,
+        ticks: NDArray[np.int64] | None = None,
+    ) -> None:
+        """Whole recorded streams at once, then :meth:`flush` (for replay of long logs).
+
+        Exactly equivalent to pushing ``merge_by_time(imu_samples, wheel_frames)`` one event
+        at a time into this (fresh) pipeline and flushing: the same records, bit for bit
+        (tests/test_pipeline.py), computed with the Mahony filter's and the EKF's batch
+        entry points. The pipeline must not have received events before.
+
+        Args:
+            imu_t, gyro, accel: (N,) stamps s, (N, 3) rad/s and m/s^2 in the IMU frame.
+            wheel_t, ticks: (M,) frame stamps s (end of period) and (M, 2) ticks per period.
+        """
+        if self._state != "open":
+            raise RuntimeError("the pipeline is not open: call open() or use 'with'")
+        if self.stats.imu_samples or self.stats.wheel_frames or len(self._buffer):
+            raise ValueError("push_arrays needs a pipeline that has received no events")
+        it = np.zeros(0) if imu_t is None else np.asarray(imu_t, dtype=np.float64).reshape(-1)
+        n_imu = it.size
+        G = np.asarray(gyro, dtype=np.float64).reshape(n_imu, 3) if n_imu else np.zeros((0, 3))
+        A = np.asarray(accel, dtype=np.float64).reshape(n_imu, 3) if n_imu else np.zeros((0, 3))
+        wt = np.zeros(0) if wheel_t is None else np.asarray(wheel_t, dtype=np.float64).reshape(-1)
+        TK = (np.zeros((0, 2), np.int64) if wt.size == 0
+              else np.asarray(ticks).reshape(wt.size, 2).astype(np.int64))
+
+        keep = _increasing(it)
+        self.stats.imu_out_of_order += int(n_imu - keep.sum())
+        it, G, A = it[keep], G[keep], A[keep]
+        R = self._mount
+        if R is not None and it.size:
+            G = _rotate_rows(R, G)
+            A = _rotate_rows(R, A)
+        if it.size:
+            Q = self.mahony.update_batch(G, A, timestamps=it)
+            if self.tilt:
+                w, x, y, z = Q[:, 0], Q[:, 1], Q[:, 2], Q[:, 3]
+                n2 = w * w + x * x + y * y + z * z
+                r20 = 2.0 * (x * z - w * y) / n2
+                r21 = 2.0 * (y * z + w * x) / n2
+                r22 = 1.0 - 2.0 * (x * x + y * y) / n2
+                rate = r20 * G[:, 0] + r21 * G[:, 1] + r22 * G[:, 2]
+            else:
+                rate = G[:, 2].copy()
+            self._last_imu_t = float(it[-1])
+        else:
+            Q = np.zeros((0, 4))
+            rate = np.zeros(0)
+        self.stats.imu_samples += int(it.size)
+
+        keep = _increasing(wt)
+        self.stats.wheel_out_of_order += int(wt.size - keep.sum())
+        wt, TK = wt[keep], TK[keep]
+        if wt.size:
+            dts = np.diff(wt)
+            for i in np.flatnonzero(dts > self._gap_periods * self.period).tolist():
+                missing = max(1, round(float(dts[i]) / self.period) - 1)
+                self.stats.gaps.append(WheelGap(float(wt[i]), float(wt[i + 1]), missing))
+                self.stats.gap_count += 1
+                self.stats.frames_missing += missing
+            self._last_wheel_t = float(wt[-1])
+        self.stats.wheel_frames += int(wt.size)
+
+        # arrival order (host time, IMU first at equal stamps), then the reorder buffer's
+        # release order: by effective time, ties in arrival order
+        n_w = wt.size
+        stamp = np.concatenate([it, wt])
+        kind = np.concatenate([np.full(it.size, _EV_GYRO, np.int64),
+                               np.full(n_w, _EV_WHEELS, np.int64)])
+        src = np.concatenate([np.arange(it.size), np.arange(n_w)])
+        t_eff = np.concatenate([it, wt - 0.5 * self.period - self.ekf.noise.wheel_latency])
+        arrival = np.argsort(stamp, kind="stable")
+        order = arrival[np.argsort(t_eff[arrival], kind="stable")]
+        kind, src, t_eff = kind[order], src[order], t_eff[order]
+        a = np.where(kind == _EV_GYRO, rate[np.minimum(src, max(it.size - 1, 0))]
+                     if it.size else 0.0, 0.0)
+        b = np.zeros(kind.size)
+        is_w = kind == _EV_WHEELS
+        a[is_w] = TK[src[is_w], 0]
+        b[is_w] = TK[src[is_w], 1]
+        # the wheel frame's own stamp goes to the filter: update_wheels() subtracts the same
+        # half period and latency, process_batch() takes effective times
+        if self.publish_rate_hz is None:
+            points = np.flatnonzero(is_w)
+        else:
+            points = self._tick_points(t_eff, a, b)
+        pos = np.arange(kind.size)
+        last_gyro = np.maximum.accumulate(np.where(kind == _EV_GYRO, pos, -1)) if kind.size \
+            else pos
+        last_wheel = np.maximum.accumulate(np.where(is_w, pos, -1)) if kind.size else pos
+        ekf = self.ekf
+        start = 0
+        for p in points.tolist():
+            ekf.process_batch(kind[start:p + 1], t_eff[start:p + 1], a[start:p + 1],
+                              b[start:p + 1])
+            start = p + 1
+            self._set_last(last_gyro[p], last_wheel[p], src, G, A, Q, TK)
+            self._publish(float(wt[src[p]]) if kind[p] == _EV_WHEELS else None)
+        if start < kind.size:
+            ekf.process_batch(kind[start:], t_eff[start:], a[start:], b[start:])
+            self._set_last(last_gyro[-1], last_wheel[-1], src, G, A, Q, TK)
+        self.flush()
+
+    def _set_last(self, gi: int, wi: int, src, G, A, Q, TK) -> None:
+        if gi >= 0:
+            k = src[gi]
+            self._q, self._gyro, self._accel = Q[k].copy(), G[k].copy(), A[k].copy()
+        if wi >= 0:
+            k = src[wi]
+            self._wheel_speeds = (int(TK[k, 0]) * self._m_per_s, int(TK[k, 1]) * self._m_per_s)
+
+    def _tick_points(self, t_eff, a, b) -> NDArray[np.int64]:
+        """Indices after which :meth:`_tick` publishes (the filter's time is the running
+        maximum of the valid events' effective times)."""
+        valid = np.isfinite(t_eff) & np.isfinite(a) & np.isfinite(b)
+        t_after = np.fmax.accumulate(np.where(valid, t_eff, np.nan)) if t_eff.size else t_eff
+        rate = self.publish_rate_hz
+        nxt = self._next_tick
+        out = []
+        for k, t in enumerate(t_after.tolist()):
+            if t != t:  # no valid event yet: the filter has no time
+                continue
+            if nxt is None:
+                nxt = t
+            if t >= nxt:
+                out.append(k)
+                nxt = (math.floor(t * rate + 1e-9) + 1) / rate
+        self._next_tick = nxt
+        return np.array(out, dtype=np.int64)
+
+    def finish_stats(self) -> PipelineStats:
+        """The counters, with the EKF's late/slip/ZUPT counters copied in."""
+        s = self.ekf.stats
+        self.stats.late_dropped = s["late_dropped"]
+        self.stats.late_applied = s["late_applied"]
+        self.stats.slips = s["slips"]
+        self.stats.zupts = s["zupts"]
+        return self.stats
+
+    def latency_percentiles(self, *qs: float) -> list[float]:
+        """Percentiles (0..100) of the measured wheel-frame -> record latencies, s (NaN if
+        none were measured)."""
+        if not self.latencies:
+            return [math.nan for _ in qs]
+        a = np.fromiter(self.latencies, dtype=float)
+        return [float(v) for v in np.percentile(a, qs)]
+
+
+def _increasing(t: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Mask of the stamps that are greater than every earlier one (NaN never is)."""
+    if t.size == 0:
+        return np.zeros(0, dtype=bool)
+    prev = np.concatenate([[-np.inf], np.fmax.accumulate(t)[:-1]])
+    return t > prev
+
+
+def _rotate_rows(R: list[list[float]], v: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``R @ v[i]`` for every row, with the very operations of :meth:`FusionPipeline.push_imu`."""
+    x, y, z = v[:, 0], v[:, 1], v[:, 2]
+    return np.column_stack([R[0][0] * x + R[0][1] * y + R[0][2] * z,
+                            R[1][0] * x + R[1][1] * y + R[1][2] * z,
+                            R[2][0] * x + R[2][1] * y + R[2][2] * z])
+
+
+_UNOBSERVED = 99999.0  # seed 000's variance of what a planar filter does not estimate
+
+
+def _frozen(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    a.setflags(write=False)
+    return a
+
+
+def _record_fields(t, x, P, q, gyro_xy, accel, wheel_speeds, frame_id,
+                   child_frame_id) -> dict[str, Any]:
+    """The :class:`FusedOdometry` fields of a filter state: nav_msgs/Odometry covariances
+    from ``P`` (the layout of :func:`fusion.ekf.odometry_covariances`, symmetrised)."""
+    (p00, p01, p02, _, _, _, _, _), (p10, p11, p12, _, _, _, _, _), \
+        (p20, p21, p22, _, _, _, _, _), (_, _, _, p33, p34, _, _, _), \
+        (_, _, _, p43, p44, _, _, _) = P[:5].tolist()
+    c01, c02, c12 = 0.5 * (p01 + p10), 0.5 * (p02 + p20), 0.5 * (p12 + p21)
+    u = _UNOBSERVED
+    pose = [p00, c01, 0.0, 0.0, 0.0, c02,
+            c01, p11, 0.0, 0.0, 0.0, c12,
+            0.0, 0.0, u, 0.0, 0.0, 0.0,
+            0.0, 0.0, 0.0, u, 0.0, 0.0,
+            0.0, 0.0, 0.0, 0.0, u, 0.0,
+            c02, c12, 0.0, 0.0, 0.0, p22]
+    c34 = 0.5 * (p34 + p43)
+    twist = [p33, 0.0, 0.0, 0.0, 0.0, c34,
+             0.0, u, 0.0, 0.0, 0.0, 0.0,
+             0.0, 0.0, u, 0.0, 0.0, 0.0,
+             0.0, 0.0, 0.0, u, 0.0, 0.0,
+             0.0, 0.0, 0.0, 0.0, u, 0.0,
+             c34, 0.0, 0.0, 0.0, 0.0, p44]
+    w = float(x[4])
+    return dict(
+        t=float(t), x=float(x[0]), y=float(x[1]), yaw=core.wrap_angle_scalar(float(x[2])),
+        v=float(x[3]), w=w,
+        pose_covariance=np.array(pose).reshape(6, 6),
+        twist_covariance=np.array(twist).reshape(6, 6),
+        orientation=None if q is None else [float(v) for v in q],
+        angular_velocity=(0.0, 0.0, w) if gyro_xy is None else (gyro_xy[0], gyro_xy[1], w),
+        linear_acceleration=None if accel is None else [float(v) for v in accel],
+        wheel_left_speed=None if wheel_speeds is None else float(wheel_speeds[0]),
+        wheel_right_speed=None if wheel_speeds is None else float(wheel_speeds[1]),
+        frame_id=frame_id, child_frame_id=child_frame_id,
+    ) | {"_sum": sum(pose) + sum(twist)}
+
+
+def _fast_record(f: dict[str, Any]) -> FusedOdometry:
+    """``FusedOdometry(**f)`` for fields from :func:`_record_fields`, at a fraction of the
+    cost (tests/test_pipeline.py checks the two are equal): the covariances are symmetric by
+    construction there, so only finiteness is checked here, and a non-finite state goes
+    through the validating constructor, which raises naming the field."""
+    f = dict(f)
+    total = f.pop("_sum")
+    av, q, accel = f["angular_velocity"], f["orientation"], f["linear_acceleration"]
+    total += f["t"] + f["x"] + f["y"] + f["yaw"] + f["v"] + f["w"] + av[0] + av[1]
+    if q is not None:
+        qn = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+        total += qn
+    if accel is not None:
+        total += accel[0] + accel[1] + accel[2]
+    if not math.isfinite(total) or (q is not None and abs(qn - 1.0) > 1e-3):
+        return FusedOdometry(**f)  # raises, naming the field (or accepts a huge value)
+    rec = object.__new__(FusedOdometry)
+    put = object.__setattr__
+    for name in ("t", "x", "y", "yaw", "v", "w", "wheel_left_speed", "wheel_right_speed",
+                 "frame_id", "child_frame_id"):
+        put(rec, name, f[name])
+    put(rec, "pose_covariance", _frozen(f["pose_covariance"].copy()))
+    put(rec, "twist_covariance", _frozen(f["twist_covariance"].copy()))
+    if q is not None:
+        qa = np.array(q, dtype=np.float64)
+        put(rec, "orientation", _frozen(qa / float(np.linalg.norm(qa))))
+    else:
+        put(rec, "orientation", None)
+    put(rec, "angular_velocity", _frozen(np.array(av, dtype=np.float64)))
+    put(rec, "linear_acceleration",
+        None if accel is None else _frozen(np.array(accel, dtype=np.float64)))
+    put(rec, "imu_frame_id", f["child_frame_id"])
+    return rec
+
+
+# -- replay sources ---------------------------------------------------------------------------
+
+
+def merge_by_time(*streams: Iterable[ImuSample | WheelTicks]) -> Iterator[ImuSample | WheelTicks]:
+    """Merge event streams, each in time order, into host time order (ties: the earlier
+    stream first), lazily."""
+    return heapq.merge(*streams, key=lambda e: e.t)
+
+
+def replay(pipeline: FusionPipeline, events: Iterable[ImuSample | WheelTicks]) -> PipelineStats:
+    """Push every event through ``pipeline`` (opened here if new) and close it.
+
+    On an exception the sinks are aborted (no partial files) and it propagates.
+    """
+    if pipeline._state == "new":
+        pipeline.open()
+    try:
+        for ev in events:
+            pipeline.push(ev)
+    except BaseException:
+        pipeline.abort()
+        raise
+    pipeline.close()
+    return pipeline.finish_stats()
+
+
+def imu_csv_events(path: str | Path) -> Iterator[ImuSample]:
+    """IMU samples of an IMU CSV (``t,gx,gy,gz,ax,ay,az``; IMU frame, s, rad/s, m/s^2)."""
+    from fusion.logs import read_imu_csv
+
+    log = read_imu_csv(path)
+    t = log.t.tolist()
+    for i in range(len(t)):
+        yield ImuSample(t[i], log.gyro[i], log.accel[i])
+
+
+def logdir_events(path: str | Path) -> tuple[RobotConfig, Iterator[ImuSample | WheelTicks]]:
+    """``(robot, events)`` of a log directory (``datasets/LOGDIR.md``).
+
+    IMU samples stay in the IMU frame (the pipeline applies ``imu_mount_rpy``). The wheel
+    frames come from ``wheels.csv`` or, without it, from a raw capture ``wheels.uart2``
+    (with ``wheels.uart2.times`` when present, see :func:`read_uart2_capture`).
+    """
+    from fusion.logdir import read_robot_toml, read_wheels_csv
+
+    path = Path(path)
+    if not path.is_dir():
+        raise FileNotFoundError(f"{path}: not a log directory")
+    robot = read_robot_toml(path / "robot.toml")
+    streams: list[Iterable[ImuSample | WheelTicks]] = []
+    if (path / "imu.csv").is_file():
+        streams.append(list(imu_csv_events(path / "imu.csv")))
+    if (path / "wheels.csv").is_file():
+        wt, ticks = read_wheels_csv(path / "wheels.csv")
+        streams.append([WheelTicks(float(t), int(l), int(r))
+                        for t, (l, r) in zip(wt.tolist(), ticks.tolist())])
+    elif (path / "wheels.uart2").is_file():
+        frames, _ = read_uart2_capture(path / "wheels.uart2", robot.chassis.encode_sampling_time)
+        streams.append(frames)
+    if not streams:
+        raise LogFormatError(f"{path}: no imu.csv, wheels.csv or wheels.uart2")
+    return robot, merge_by_time(*streams)
+
+
+def read_uart2_capture(
+    path: str | Path,
+    period: float,
+    *,
+    t0: float = 0.0,
+    times: str | Path | None = None,
+    max_ticks: int | None = None,
+) -> tuple[list[WheelTicks], dict[str, int]]:
+    """Wheel frames of a raw DATA-uart2 capture (bytes as read from the chassis port).
+
+    Args:
+        path: the capture file.
+        period: ``encode_sampling_time``, s.
+        t0: without ``times``, frame k (0-based, in stream order) is stamped
+            ``t0 + (k + 1) * period`` (a capture has no clock; dropped frames cannot be seen).
+        times: optional CSV ``t,nbytes`` (header line, then one row per read: the host time
+            the read returned, s, and how many bytes it returned, summing to the file size);
+            a frame is stamped with the time of the read that delivered its last byte.
+            Default: ``PATH.times`` when that file exists.
+        max_ticks: plausibility bound of the parser (default the parser's).
+
+    Returns:
+        ``(frames, parser_counters)``.
+
+    Raises:
+        LogFormatError: a times file that is malformed or does not add up to the capture
+            (the message names the file and line).
+    """
+    from drivers.chassis import WheelFrameParser
+
+    path = Path(path)
+    data = path.read_bytes()
+    parser = WheelFrameParser() if max_ticks is None else WheelFrameParser(max_ticks=max_ticks)
+    off1, l1, r1 = parser.feed_arrays(data)
+    off2, l2, r2 = parser.flush_arrays()
+    parser.finish()
+    offsets = np.concatenate([off1, off2])
+    left = np.concatenate([l1, l2]).tolist()
+    right = np.concatenate([r1, r2]).tolist()
+    if times is None and Path(str(path) + ".times").is_file():
+        times = Path(str(path) + ".times")
+    if times is None:
+        stamps = (t0 + (np.arange(len(left)) + 1) * period).tolist()
+    else:
+        read_t, read_end = _read_times(Path(times), len(data))
+        idx = np.searchsorted(read_end, offsets + 11, side="left")
+        stamps = read_t[idx].tolist()
+    frames = [WheelTicks(stamps[i], int(left[i]), int(right[i])) for i in range(len(left))]
+    return frames, parser.stats.as_dict()
+
+
+def _read_times(path: Path, size: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    ts, ends = [], []
+    total = 0
+    with path.open(newline="") as fh:
+        rows = csv.reader(fh)
+        header = next(rows, None)
+        if header is None or [h.strip() for h in header] != ["t", "nbytes"]:
+            raise LogFormatError(f"{path}:1: header must be t,nbytes, got {header!r}")
+        for lineno, row in enumerate(rows, start=2):
+            if not row:
+                continue
+            try:
+                t, n = float(row[0]), int(row[1])
+            except (ValueError, IndexError):
+                raise LogFormatError(f"{path}:{lineno}: want t,nbytes, got {row!r}") from None
+            if not math.isfinite(t) or n < 0 or (ts and t < ts[-1]):
+                raise LogFormatError(f"{path}:{lineno}: bad or decreasing read time {row!r}")
+            total += n
+            ts.append(t)
+            ends.append(total)
+    if total != size:
+        raise LogFormatError(f"{path}: reads add up to {total} bytes, the capture has {size}")
+    return np.array(ts), np.array(ends, dtype=np.int64)
