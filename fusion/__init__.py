@@ -25,6 +25,12 @@ _EXPORTS = {
     "OdometryNoise": "fusion.odometry",
     "FusedOdometry": "fusion.fused",
     "ImuCalibration": "fusion.calibration",
+    "PlanarEKF": "fusion.ekf",
+    "EkfNoise": "fusion.ekf",
+    "read_logdir": "fusion.logdir",
+    "write_logdir": "fusion.logdir",
+    "calibrate_odometry": "fusion.odometry_calibration",
+    "umbmark": "fusion.odometry_calibration",
 }
 
 __all__ = ["__version__", *_EXPORTS]

@@ -369,6 +369,45 @@ class SyntheticRun:
             self.truth_t if truth else None, self.truth if truth else None,
         )
 
+    def uart2_stream(self) -> tuple[bytes, NDArray[np.float64]]:
+        """The wheel frames as the STM32 sends them on DATA-uart2 (seed 000 section 3.2).
+
+        Returns ``(stream, arrival)``: the concatenated 11-byte frames (left = enc1,
+        right = enc2) and each frame's host stamp (s), for feeding
+        :class:`drivers.chassis.WheelFrameParser` or a pseudo-terminal.
+        """
+        from drivers.chassis import encode_wheel_frame
+
+        stream = b"".join(encode_wheel_frame(int(a), int(b)) for a, b in self.ticks)
+        return stream, self.wheel_t.copy()
+
+    def mpu6050_registers(
+        self, gyro_range_dps: int = 250, accel_range_g: int = 2, temperature: float = 25.0
+    ) -> NDArray[np.uint8]:
+        """The IMU samples as the MPU6050's data registers 0x3B..0x48 (14 bytes per sample).
+
+        ACCEL_XOUT..ZOUT, TEMP_OUT, GYRO_XOUT..ZOUT, each a big-endian int16, with the register
+        map's sensitivities (gyro 131/65.5/32.8/16.4 LSB per deg/s for +-250..2000 deg/s,
+        accelerometer 16384/8192/4096/2048 LSB per g for +-2..16 g, g = 9.80665 m/s^2;
+        temperature ``(T - 36.53)*340``), rounded to the nearest count and saturated at the
+        int16 range. The IMU frame is the body frame (x forward, y left, z up).
+
+        Returns:
+            (N, 14) uint8.
+        """
+        gyro_lsb = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}
+        accel_lsb = {2: 16384.0, 4: 8192.0, 8: 4096.0, 16: 2048.0}
+        if gyro_range_dps not in gyro_lsb or accel_range_g not in accel_lsb:
+            raise ValueError(f"ranges must be one of {sorted(gyro_lsb)} deg/s and "
+                             f"{sorted(accel_lsb)} g, got {gyro_range_dps}, {accel_range_g}")
+        n = self.imu_t.size
+        values = np.empty((n, 7))
+        values[:, 0:3] = self.accel / GRAVITY * accel_lsb[accel_range_g]
+        values[:, 3] = (temperature - 36.53) * 340.0
+        values[:, 4:7] = np.degrees(self.gyro) * gyro_lsb[gyro_range_dps]
+        counts = np.clip(np.round(values), -32768, 32767).astype(">i2")
+        return counts.view(np.uint8).reshape(n, 14)
+
     def truth_at(self, t: NDArray[np.float64]) -> NDArray[np.float64]:
         """Truth ``(x, y, yaw)`` linearly interpolated at times ``t`` (yaw unwrapped first)."""
         t = np.asarray(t, dtype=float)

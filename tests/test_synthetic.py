@@ -178,3 +178,42 @@ def test_degraded_mission_is_what_it_says():
 def test_bad_parameters_raise_value_error(bad):
     with pytest.raises(ValueError):
         bad()
+
+
+def test_uart2_stream_decodes_to_the_ticks_with_the_driver_parser():
+    from drivers.chassis import WheelFrameParser
+
+    run = simulate(random_mission(30, seed=2), ROBOT, seed=2)
+    stream, arrival = run.uart2_stream()
+    assert len(stream) == 11 * run.ticks.shape[0]
+    # first frame by hand: FF FF, sign (1 = non-negative), 24-bit big-endian magnitudes, sum
+    left, right = (int(v) for v in run.ticks[0])
+    first = bytes([0xFF, 0xFF, 1 if left >= 0 else 0, *abs(left).to_bytes(3, "big"),
+                   1 if right >= 0 else 0, *abs(right).to_bytes(3, "big")])
+    assert stream[:11] == first + bytes([sum(first) & 0xFF])
+    frames = []
+    parser = WheelFrameParser()
+    for k in range(0, len(stream), 7):  # arbitrary read sizes
+        frames += parser.feed(stream[k:k + 7])
+    got = np.array([(f.left, f.right) for f in frames])
+    np.testing.assert_array_equal(got, run.ticks)
+    np.testing.assert_array_equal(arrival, run.wheel_t)
+
+
+def test_mpu6050_registers_follow_the_register_map():
+    run = simulate(stop(1) + spin(math.pi, 2.0) + stop(1), ROBOT,
+                   imu=ImuModel(gyro_bias=(0.01, 0.0, 0.0)), seed=3)
+    regs = run.mpu6050_registers(gyro_range_dps=500, accel_range_g=4, temperature=30.0)
+    assert regs.shape == (run.imu_t.size, 14) and regs.dtype == np.uint8
+    words = (regs[:, 0::2].astype(np.int32) << 8) | regs[:, 1::2]
+    words = np.where(words >= 32768, words - 65536, words)  # two's complement by hand
+    np.testing.assert_allclose(words[:, 0:3] / 8192.0 * GRAVITY, run.accel,
+                               atol=0.5 / 8192.0 * GRAVITY + 1e-12)
+    assert np.all(words[:, 3] == round((30.0 - 36.53) * 340.0))
+    np.testing.assert_allclose(np.radians(words[:, 4:7] / 65.5), run.gyro,
+                               atol=np.radians(0.5 / 65.5) + 1e-12)
+    # a 2 rad/s spin (114.6 deg/s, 15013 counts at 131 LSB per deg/s) fits +-250 deg/s
+    assert np.abs(run.mpu6050_registers()[:, 12:14].view(">i2")).max() < 32767
+    fast = simulate(stop(0.5) + spin(4 * math.pi, 6.0), ROBOT, seed=3)
+    sat = fast.mpu6050_registers(gyro_range_dps=250)[:, 12:14].copy().view(">i2")
+    assert sat.max() == 32767  # 344 deg/s beyond +-250 deg/s: clipped, not wrapped
