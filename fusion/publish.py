@@ -36,13 +36,12 @@ import contextlib
 import json
 import os
 import shutil
+import struct
 import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
-
-import numpy as np
 
 from fusion.fused import FusedOdometry
 
@@ -54,6 +53,7 @@ __all__ = [
     "Sink",
     "SinkError",
     "Topics",
+    "encode_cdr",
     "open_sink",
     "ros_messages",
     "stamp_ns",
@@ -324,31 +324,88 @@ def _ros2_type(msgtype: str) -> str:
     return f"{pkg}/msg/{name}"
 
 
-class _Ros2Builder:
-    """Plain dicts of :func:`ros_messages` -> rosbags ROS 2 message objects."""
+class _Cdr:
+    """Little-endian XCDR1 (what ROS 2 and rosbag2 use) for the fixed shapes of our messages.
 
-    def __init__(self, typestore: Any) -> None:
-        self.ts = typestore
+    Alignment is relative to the byte after the 4-byte encapsulation header; strings are a
+    uint32 length that counts the terminating NUL, then the bytes and the NUL. The output is
+    checked byte for byte against rosbags' serialiser in the tests.
+    """
 
-    def build(self, msgtype: str, value: Any) -> Any:
-        if msgtype == "builtin_interfaces/msg/Time":
-            sec, nsec = divmod(int(value), 1_000_000_000)
-            if sec > 2**31 - 1:
-                raise ValueError(f"stamp {value} ns does not fit ROS 2's int32 seconds")
-            return self.ts.types[msgtype](sec=sec, nanosec=nsec)
-        _, fields = self.ts.fielddefs[msgtype]
-        kwargs = {}
-        for name, (kind, detail) in fields:
-            v = value[name]
-            if kind == 2:  # Nodetype.NAME: a nested message
-                kwargs[name] = self.build(detail, v)
-            elif kind == 3:  # Nodetype.ARRAY of float64 (covariances)
-                kwargs[name] = np.asarray(v, dtype=np.float64)
-            elif kind == 4:  # Nodetype.SEQUENCE of messages
-                kwargs[name] = [self.build(detail[0][1], item) for item in v]
-            else:
-                kwargs[name] = v
-        return self.ts.types[msgtype](**kwargs)
+    __slots__ = ("parts", "pos")
+
+    def __init__(self) -> None:
+        self.parts: list[bytes] = [b"\x00\x01\x00\x00"]
+        self.pos = 0
+
+    def _put(self, align: int, data: bytes) -> None:
+        pad = -self.pos % align
+        if pad:
+            self.parts.append(b"\x00" * pad)
+        self.parts.append(data)
+        self.pos += pad + len(data)
+
+    def header(self, h: dict[str, Any]) -> None:
+        sec, nsec = divmod(int(h["stamp"]), 1_000_000_000)
+        if sec > 2**31 - 1:
+            raise ValueError(f"stamp {h['stamp']} ns does not fit ROS 2's int32 seconds")
+        self._put(4, _I_I.pack(sec, nsec))
+        self.string(h["frame_id"])
+
+    def string(self, text: str) -> None:
+        raw = text.encode() + b"\x00"
+        self._put(4, len(raw).to_bytes(4, "little") + raw)
+
+    def doubles(self, values: list[float]) -> None:
+        self._put(8, struct.pack(f"<{len(values)}d", *values))
+
+    def u32(self, n: int) -> None:
+        self._put(4, n.to_bytes(4, "little"))
+
+    def f32(self, value: float) -> None:
+        self._put(4, struct.pack("<f", value))
+
+    def getvalue(self) -> bytes:
+        return b"".join(self.parts)
+
+
+_I_I = struct.Struct("<iI")
+
+
+def _xyz(v: dict[str, float]) -> list[float]:
+    return [v["x"], v["y"], v["z"]]
+
+
+def _xyzw(q: dict[str, float]) -> list[float]:
+    return [q["x"], q["y"], q["z"], q["w"]]
+
+
+def encode_cdr(msgtype: str, m: dict[str, Any]) -> bytes:
+    """CDR bytes of one message dict of :func:`ros_messages` (ROS 1 type spelling)."""
+    c = _Cdr()
+    if msgtype == "nav_msgs/Odometry":
+        c.header(m["header"])
+        c.string(m["child_frame_id"])
+        pose, twist = m["pose"], m["twist"]
+        c.doubles(_xyz(pose["pose"]["position"]) + _xyzw(pose["pose"]["orientation"])
+                  + pose["covariance"] + _xyz(twist["twist"]["linear"])
+                  + _xyz(twist["twist"]["angular"]) + twist["covariance"])
+    elif msgtype == "tf2_msgs/TFMessage":
+        c.u32(len(m["transforms"]))
+        for tr in m["transforms"]:
+            c.header(tr["header"])
+            c.string(tr["child_frame_id"])
+            c.doubles(_xyz(tr["transform"]["translation"]) + _xyzw(tr["transform"]["rotation"]))
+    elif msgtype == "sensor_msgs/Imu":
+        c.header(m["header"])
+        c.doubles(_xyzw(m["orientation"]) + m["orientation_covariance"]
+                  + _xyz(m["angular_velocity"]) + m["angular_velocity_covariance"]
+                  + _xyz(m["linear_acceleration"]) + m["linear_acceleration_covariance"])
+    elif msgtype == "std_msgs/Float32":
+        c.f32(m["data"])
+    else:
+        raise ValueError(f"no CDR encoder for {msgtype}")
+    return c.getvalue()
 
 
 class Rosbag2Sink(Sink):
@@ -393,7 +450,6 @@ class Rosbag2Sink(Sink):
         typesys = _need("rosbags.typesys", "ros")
         self._check_target()
         self._ts = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
-        self._builder = _Ros2Builder(self._ts)
         self._tmpdir = _temp_sibling(self.path, directory=True)
         plugin = {"mcap": rosbag2.StoragePlugin.MCAP,
                   "sqlite3": rosbag2.StoragePlugin.SQLITE3}[self.storage]
@@ -411,8 +467,7 @@ class Rosbag2Sink(Sink):
 
     def _write(self, record: FusedOdometry) -> None:
         for key, _topic, msgtype, fields in ros_messages(record, self.topics):
-            rostype = _ros2_type(msgtype)
-            data = self._ts.serialize_cdr(self._builder.build(rostype, fields), rostype)
+            data = encode_cdr(msgtype, fields)
             self._writer.write(self._connections[key], stamp_ns(record.t), data)
 
     def _finish_writer(self) -> Path:
