@@ -277,8 +277,8 @@ class ChassisLink:
         if self._ever_connected:
             self.reconnects += 1
         self._ever_connected = True
+        self._emit("connected", f"chassis port {self.url} open")  # event first, then the flag
         self._connected.set()
-        self._emit("connected", f"chassis port {self.url} open")
         # resume the current target if it is still fresh
         if self._target != (0, 0) and not self._command_is_stale(self._clock()):
             self._write(encode_wheel_frame(*self._target))
@@ -290,8 +290,8 @@ class ChassisLink:
         if port is not None:
             with contextlib.suppress(Exception):
                 port.close()
-        self._connected.clear()
         self._emit("disconnected", f"chassis port {self.url} lost: {reason}")
+        self._connected.clear()
 
     def _command_is_stale(self, now: float) -> bool:
         return (

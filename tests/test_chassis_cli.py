@@ -123,17 +123,23 @@ def test_step_response_against_the_simulator(chassis, capsys, tmp_path):
     assert "rise time" in out and "overshoot" in out
     got = np.loadtxt(csv_path, delimiter=",", skiprows=1)
     m = step_metrics(got[:, 0], got[:, 1], 300)
-    # the oracle: the same firmware and motor stepped offline, period by period
+    # the oracle: the same firmware and motor stepped offline, period by period. The
+    # response depends only on the period in which the command landed, so after the leading
+    # zeros the recorded counts must equal the offline ones exactly, whatever the host load.
     ref = Stm32Sim(Stm32SimParams(period=p.period))
     ref.target = (300, 300)
-    y = []
     for _ in range(len(got)):
         ref.step()
-        y.append(ref.ticks_counted[-1][0])
-    t_ref = p.period * np.arange(1, len(y) + 1)
-    r = step_metrics(t_ref, y, 300)
-    assert m.overshoot == pytest.approx(r.overshoot, abs=1.0)
-    # timing: stamps are host arrival times; allow two periods of scheduling jitter
-    assert m.rise_time == pytest.approx(r.rise_time, abs=2 * p.period)
+    y_ref = [c[0] for c in ref.ticks_counted]
+    y = [int(v) for v in got[:, 1]]
+    first = next(i for i, v in enumerate(y) if v != 0)
+    first_ref = next(i for i, v in enumerate(y_ref) if v != 0)
+    n = len(y) - first
+    assert n > 30
+    assert y[first:] == y_ref[first_ref : first_ref + n]
+    assert [int(v) for v in got[:, 2]] == y  # both wheels stepped alike
+    r = step_metrics(p.period * np.arange(len(y_ref)), y_ref, 300)
+    assert m.overshoot == pytest.approx(r.overshoot, abs=1e-9)
+    assert 0 < m.rise_time < 1.0
     assert abs(m.steady_state_error) <= 1.0
     assert f"overshoot: {m.overshoot:.1f} %" in out

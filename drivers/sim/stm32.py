@@ -155,6 +155,7 @@ class Stm32Sim:
         self.ticks_counted: list[tuple[int, int]] = []  # every period's count
         self.pose_at_read: list[np.ndarray] = []  # true pose when each count was read
         self.pose_at_sent: list[np.ndarray] = []  # true pose for each frame sent
+        self.targets: list[tuple[int, int]] = []  # the target in force at each period
         self.pwm = (0, 0)
         self.periods = 0
         self.dropped = 0
@@ -212,6 +213,7 @@ class Stm32Sim:
             c_l, c_r = counts
             self.ticks_counted.append((c_l, c_r))
             self.pose_at_read.append(self.pose.copy())
+            self.targets.append(self.target)
             # 2. send them on uart2
             out = b""
             if p.drop_prob and self._rng.random() < p.drop_prob:
