@@ -502,7 +502,14 @@ def _describe_topics(topics: dict[str, tuple[str, int]]) -> str:
 
 
 def _stamp(header: Any) -> float:
+    """header.stamp in s (integer seconds plus nanoseconds, as ROS's to_sec())."""
     return header.stamp.sec + header.stamp.nanosec * 1e-9
+
+
+def _ns_to_s(ns: int) -> float:
+    """Integer nanoseconds in s, computed like :func:`_stamp` so both agree exactly."""
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    return sec + nsec * 1e-9
 
 
 class _Collector:
@@ -529,8 +536,9 @@ class _Collector:
             self._frame("frame_id", header.frame_id)
         if self.kind == "odometry":
             self._frame("child_frame_id", msg.child_frame_id)
-        self.bag_t.append(ns * 1e-9)
-        self.t.append(_stamp(header) if self.use_header else ns * 1e-9)
+        bag_t = _ns_to_s(ns)
+        self.bag_t.append(bag_t)
+        self.t.append(_stamp(header) if self.use_header else bag_t)
         if self.kind == "imu":
             q, a, g = msg.orientation, msg.linear_acceleration, msg.angular_velocity
             no_q = msg.orientation_covariance[0] == -1 or (q.w == q.x == q.y == q.z == 0)

@@ -365,3 +365,77 @@ def test_ros1_sink_argument_checks() -> None:
         Ros1Sink(cmd_vel_topic="cmd_vel")
     with pytest.raises(ValueError, match="child_frame_id"):
         Ros1Sink(child_frame_id="")
+
+
+# -- ROS's own bag reader (Debian's python3-rosbag) as the oracle for fusion.logs.read_bag --
+
+ROSBAG_DUMP = textwrap.dedent("""
+    import json, sys
+    import rosbag
+
+    path, imu_topic, odom_topic = sys.argv[1:4]
+    imu, odom = [], []
+    with rosbag.Bag(path) as bag:
+        info = bag.get_type_and_topic_info()
+        topics = {t: [v.msg_type, v.message_count] for t, v in info.topics.items()}
+        for topic, m, t in bag.read_messages(topics=[imu_topic, odom_topic]):
+            h = m.header
+            row = [h.stamp.secs, h.stamp.nsecs, t.secs, t.nsecs, h.frame_id]
+            if topic == imu_topic:
+                g, a, q = m.angular_velocity, m.linear_acceleration, m.orientation
+                imu.append(row + [g.x, g.y, g.z, a.x, a.y, a.z, q.w, q.x, q.y, q.z])
+            else:
+                p, q = m.pose.pose.position, m.pose.pose.orientation
+                tw = m.twist.twist
+                odom.append(row + [m.child_frame_id, p.x, p.y, q.x, q.y, q.z, q.w,
+                                   tw.linear.x, tw.linear.y, tw.angular.z,
+                                   list(m.pose.covariance), list(m.twist.covariance)])
+    print(json.dumps({"topics": topics, "imu": imu, "odom": odom}))
+""")
+
+
+def test_read_bag_matches_ros_own_rosbag_reader(datasets_dir) -> None:
+    py = ros_python()
+    probe = subprocess.run([py, "-c", "import rosbag"], capture_output=True, text=True,
+                           timeout=120)
+    if probe.returncode != 0:
+        reason = f"{py} has no rosbag module (apt-get install python3-rosbag)"
+        if os.environ.get("CI"):
+            pytest.fail(reason)
+        pytest.skip(reason)
+    pytest.importorskip("rosbags")
+    from fusion.logs import read_bag
+
+    bag = datasets_dir / "rosbag" / "jackal_sim_test2.bag"
+    imu_topic, odom_topic = "/imu/data", "/jackal_velocity_controller/odom"
+    r = subprocess.run([py, "-c", ROSBAG_DUMP, str(bag), imu_topic, odom_topic],
+                       capture_output=True, text=True, timeout=TIMEOUT)
+    assert r.returncode == 0, r.stderr
+    ref = json.loads(r.stdout)
+    log = read_bag(bag, imu_topic=imu_topic, odom_topic=odom_topic)
+
+    assert log.topics == {t: tuple(v) for t, v in ref["topics"].items()}
+    imu = ref["imu"]
+    assert len(log.imu) == len(imu) == 3061
+    np.testing.assert_array_equal(log.imu.t, [row[0] + row[1] * 1e-9 for row in imu])
+    np.testing.assert_array_equal(log.imu.bag_time, [row[2] + row[3] * 1e-9 for row in imu])
+    assert {row[4] for row in imu} == {log.imu.frame_id}
+    np.testing.assert_array_equal(log.imu.gyro, [row[5:8] for row in imu])
+    np.testing.assert_array_equal(log.imu.accel, [row[8:11] for row in imu])
+    # read_bag normalises the attitude; the recorded ones are unit to rounding
+    np.testing.assert_allclose(log.imu.orientation, [row[11:15] for row in imu], atol=1e-15)
+
+    odom = ref["odom"]
+    assert len(log.odometry) == len(odom) == 3060
+    np.testing.assert_array_equal(log.odometry.t, [row[0] + row[1] * 1e-9 for row in odom])
+    assert {(row[4], row[5]) for row in odom} == {(log.odometry.frame_id,
+                                                   log.odometry.child_frame_id)}
+    np.testing.assert_array_equal(log.odometry.x, [row[6] for row in odom])
+    np.testing.assert_array_equal(log.odometry.y, [row[7] for row in odom])
+    yaw = Rotation.from_quat([row[8:12] for row in odom]).as_euler("ZYX")[:, 0]
+    np.testing.assert_allclose(log.odometry.yaw, yaw, atol=1e-12)
+    np.testing.assert_array_equal(log.odometry.v, [row[12] for row in odom])
+    np.testing.assert_array_equal(log.odometry.vy, [row[13] for row in odom])
+    np.testing.assert_array_equal(log.odometry.w, [row[14] for row in odom])
+    np.testing.assert_array_equal(log.odometry.pose_covariance, [row[15] for row in odom])
+    np.testing.assert_array_equal(log.odometry.twist_covariance, [row[16] for row in odom])
