@@ -122,6 +122,14 @@ def test_debug_uart1_replies():
     assert sim.gains == (d.kp, d.ki, d.kd)
 
 
+def wait_periods(chassis, n: int) -> None:
+    """Wait for n firmware periods (not wall-clock time: the host may be loaded)."""
+    p0 = chassis.sim.periods
+    end = time.monotonic() + 30
+    while chassis.sim.periods < p0 + n and time.monotonic() < end:
+        time.sleep(0.01)
+
+
 @pytest.fixture
 def chassis(tmp_path):
     params = Stm32SimParams(period=0.02)
@@ -139,9 +147,9 @@ def test_end_to_end_odometry_matches_truth(chassis):
     with ChassisLink(chassis.data_port, period=p.period, command_timeout=None) as link:
         left, right = twist_to_ticks(0.3, 0.8, geo, rounding="nearest")
         link.send_ticks(left, right)
-        time.sleep(1.5)
+        wait_periods(chassis, 70)
         link.send_ticks(0, 0)
-        time.sleep(0.4)
+        wait_periods(chassis, 20)
         chassis.stop()  # stop the firmware: every frame it sent is now on the wire
         frames = []
         end = time.monotonic() + TIMEOUT
