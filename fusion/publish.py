@@ -1,4 +1,4 @@
-"""Sinks for fused odometry: JSON lines, rosbag2/MCAP files, a Foxglove live server, ROS 1.
+"""Sinks for fused odometry: JSON lines, CSV, rosbag2/MCAP files, a Foxglove live server, ROS 1.
 
 Every sink has the same small interface: ``open()``, ``write(record)`` with a
 :class:`fusion.fused.FusedOdometry`, ``close()``, and use as a context manager (``with sink:``
@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import shutil
 import struct
@@ -46,6 +47,8 @@ from typing import IO, Any
 from fusion.fused import FusedOdometry
 
 __all__ = [
+    "FUSED_RECORD_CSV_COLUMNS",
+    "CsvSink",
     "FoxgloveSink",
     "JsonLinesSink",
     "McapSink",
@@ -302,6 +305,63 @@ class JsonLinesSink(Sink):
         if self._tmp is not None:
             assert self._stream is not None
             self._stream.close()
+            self._tmp.unlink(missing_ok=True)
+            self._tmp = None
+
+
+#: Columns of :class:`CsvSink` (the first six as in ``fusion replay``'s CSV).
+FUSED_RECORD_CSV_COLUMNS = (
+    "t", "x", "y", "yaw", "v", "w", "var_x", "var_y", "var_yaw", "cov_xy", "cov_x_yaw",
+    "cov_y_yaw", "var_v", "var_w", "wheel_left_speed", "wheel_right_speed",
+)
+
+
+class CsvSink(Sink):
+    """Fused records as CSV rows (:data:`FUSED_RECORD_CSV_COLUMNS`), one per record.
+
+    ``t`` s; ``x, y`` m and ``yaw`` rad (wrapped to (-pi, pi]) of ``child_frame_id`` in
+    ``frame_id``; ``v`` m/s, ``w`` rad/s; the pose covariance terms of x, y, yaw (m^2, m*rad,
+    rad^2) and the twist variances of vx and wz from the record's 6x6 matrices; wheel speeds
+    m/s (empty when the record has none). Numbers are written with Python's shortest exact
+    repr, so equal records give byte-identical files. Written to a temporary file and renamed
+    into place on close, like :class:`JsonLinesSink`.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__()
+        self.path = Path(path)
+        self._tmp: Path | None = None
+        self._fh: IO[str] | None = None
+
+    def __repr__(self) -> str:
+        return f"CsvSink({str(self.path)!r})"
+
+    def _open(self) -> None:
+        self._tmp = _temp_sibling(self.path, directory=False)
+        self._fh = self._tmp.open("w", encoding="ascii", newline="\n")
+        self._fh.write(",".join(FUSED_RECORD_CSV_COLUMNS) + "\n")
+
+    def _write(self, record: FusedOdometry) -> None:
+        assert self._fh is not None
+        P, Q = record.pose_covariance, record.twist_covariance
+        yaw = math.remainder(record.yaw, math.tau)
+        if yaw == -math.pi:
+            yaw = math.pi
+        values = (record.t, record.x, record.y, yaw, record.v, record.w, P[0, 0], P[1, 1],
+                  P[5, 5], P[0, 1], P[0, 5], P[1, 5], Q[0, 0], Q[5, 5])
+        speeds = (record.wheel_left_speed, record.wheel_right_speed)
+        self._fh.write(",".join([*(repr(float(v)) for v in values),
+                                 *("" if s is None else repr(s) for s in speeds)]) + "\n")
+
+    def _close(self) -> None:
+        if self._tmp is not None and self._fh is not None:
+            self._fh.close()
+            self._tmp.replace(self.path)
+            self._tmp = None
+
+    def _abort(self) -> None:
+        if self._tmp is not None and self._fh is not None:
+            self._fh.close()
             self._tmp.unlink(missing_ok=True)
             self._tmp = None
 
@@ -673,7 +733,7 @@ class FoxgloveSink(Sink):
 def open_sink(spec: str, *, topics: Topics | None = None) -> Sink:
     """A sink from a command-line spec (not yet opened).
 
-    ``jsonl`` (stdout) | ``jsonl:PATH`` | ``mcap:PATH`` (one .mcap file) |
+    ``jsonl`` (stdout) | ``jsonl:PATH`` | ``csv:PATH`` | ``mcap:PATH`` (one .mcap file) |
     ``rosbag2:PATH`` (bag folder, MCAP storage) | ``foxglove`` (127.0.0.1:8765) |
     ``foxglove:PORT`` | ``foxglove:HOST:PORT`` | ``ros1`` (a ROS 1 node, :mod:`fusion.ros1`).
     """
@@ -681,6 +741,10 @@ def open_sink(spec: str, *, topics: Topics | None = None) -> Sink:
     kind = kind.strip().lower()
     if kind == "jsonl":
         return JsonLinesSink(arg or None)
+    if kind == "csv":
+        if not arg:
+            raise ValueError(f"sink {spec!r}: give a path, e.g. csv:fused.csv")
+        return CsvSink(arg)
     if kind in ("mcap", "rosbag2"):
         if not arg:
             raise ValueError(f"sink {spec!r}: give a path, e.g. {kind}:out.mcap")
@@ -700,6 +764,6 @@ def open_sink(spec: str, *, topics: Topics | None = None) -> Sink:
 
         return Ros1Sink(topics=topics)
     raise ValueError(
-        f"unknown sink {spec!r}: want jsonl[:PATH], mcap:PATH, rosbag2:PATH, "
+        f"unknown sink {spec!r}: want jsonl[:PATH], csv:PATH, mcap:PATH, rosbag2:PATH, "
         "foxglove[:HOST:PORT] or ros1"
     )

@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation
 
 from fusion.fused import FusedOdometry
 from fusion.publish import (
+    CsvSink,
     FoxgloveSink,
     JsonLinesSink,
     McapSink,
@@ -340,9 +341,53 @@ def test_open_sink_specs(tmp_path: Path) -> None:
     assert (s.host, s.port) == ("127.0.0.1", 9001)
     s = open_sink("foxglove:0.0.0.0:9002")
     assert (s.host, s.port) == ("0.0.0.0", 9002)
-    with pytest.raises(ValueError, match="unknown sink 'csv'"):
+    s = open_sink(f"csv:{tmp_path}/f.csv")
+    assert isinstance(s, CsvSink) and s.path == tmp_path / "f.csv"
+    with pytest.raises(ValueError, match="unknown sink 'tsv:x'"):
+        open_sink("tsv:x")
+    with pytest.raises(ValueError, match="give a path"):
         open_sink("csv")
     with pytest.raises(ValueError, match="give a path"):
         open_sink("mcap")
     with pytest.raises(ValueError, match="foxglove"):
         open_sink("foxglove:host:notaport")
+
+
+def test_csv_sink_columns_values_and_atomicity(tmp_path: Path) -> None:
+    import csv
+
+    recs = make_records(6)
+    recs[1] = FusedOdometry(**{**recs[1].__dict__, "yaw": 3 * math.pi / 2})  # wraps to -pi/2
+    out = tmp_path / "fused.csv"
+    out.write_text("old\n")
+    with pytest.raises(RuntimeError):
+        with CsvSink(out) as sink:
+            sink.write(recs[0])
+            raise RuntimeError("stop")
+    assert out.read_text() == "old\n"
+    write_all(CsvSink(out), recs)
+    with out.open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert list(rows[0])[:6] == ["t", "x", "y", "yaw", "v", "w"]
+    assert len(rows) == 6
+    for row, rec in zip(rows, recs):
+        k = round((rec.t - 47.58) / 0.02)
+        assert float(row["t"]) == rec.t and float(row["x"]) == rec.x
+        assert float(row["v"]) == rec.v and float(row["w"]) == rec.w
+        # pose_cov(k): C[i][j] = 10 i + j + k/100 (+1000 on the diagonal); x=0, y=1, yaw=5
+        assert float(row["var_x"]) == 1000 + k / 100
+        assert float(row["var_yaw"]) == 55 + 1000 + k / 100
+        assert float(row["cov_xy"]) == 1 + k / 100
+        assert float(row["cov_x_yaw"]) == 5 + k / 100
+        assert float(row["cov_y_yaw"]) == 15 + k / 100
+        # twist_covariance is pose_cov(k + 50)
+        assert float(row["var_w"]) == 55 + 1000 + (k + 50) / 100
+        if rec.wheel_left_speed is None:
+            assert row["wheel_left_speed"] == row["wheel_right_speed"] == ""
+        else:
+            assert float(row["wheel_right_speed"]) == rec.wheel_right_speed
+    assert float(rows[1]["yaw"]) == pytest.approx(-math.pi / 2, abs=1e-15)
+    assert float(rows[0]["yaw"]) == 0.3
+    first = out.read_bytes()
+    write_all(CsvSink(out), recs)
+    assert out.read_bytes() == first  # byte-identical for the same records
