@@ -178,7 +178,8 @@ class ParserStats:
         checksum_failures: skipped windows that started FF FF but failed the checksum.
         implausible: skipped windows with a good checksum but a value beyond the bound (or a
             sign byte other than 0/1 with ``strict_sign``).
-        resyncs: frames accepted after skipping bytes.
+        resyncs: frames that do not begin where the previous accepted frame ended (bytes were
+            skipped before them).
         deferred: frames whose acceptance waited for the next frame (rule 3).
         ambiguous: deferred decisions that no following frame confirmed.
     """
@@ -224,6 +225,7 @@ class WheelFrameParser:
         self.stats = ParserStats()
         self._buf = b""
         self._base = 0  # stream offset of self._buf[0]
+        self._last_end = 0  # stream offset just after the last accepted frame
 
     @classmethod
     def for_chassis(
@@ -333,19 +335,23 @@ class WheelFrameParser:
             if conf:
                 self.stats.deferred += 1
                 return "accept", q
-        self.stats.deferred += 1
         if not rivals:
+            self.stats.deferred += 1
             return "accept", p
         # nothing confirmed (noise after the frame too): a valid frame never hides the start of
         # another one, so follow the rivals to one with no valid rival inside it. For the
         # earlier window to be genuine its own payload would have to contain the rival's
         # FF FF header; for the later one to be genuine only the bytes before it (noise, or a
         # frame cut short, which begins FF FF) have to pass a checksum: far more likely.
-        self.stats.ambiguous += 1
         c = rivals[0]
         while True:
-            inner = [q for q in range(c + 1, c + FRAME_LEN) if self._valid_at(b, q, n)]
+            status = [self._valid_at(b, q, n) for q in range(c + 1, c + FRAME_LEN)]
+            if None in status and not final:
+                return "wait", p  # decide only on complete data: replay is chunking-proof
+            inner = [c + 1 + i for i, ok in enumerate(status) if ok]
             if not inner:
+                self.stats.deferred += 1
+                self.stats.ambiguous += 1
                 return "accept", c
             c = inner[0]
 
@@ -376,8 +382,6 @@ class WheelFrameParser:
             if kind == "wait":
                 pos = where
                 break
-            if where > pos:
-                self.stats.resyncs += 1
             runs.append(np.array([where], dtype=np.int64))
             pos = where + FRAME_LEN
         self._buf = b[pos:]
@@ -407,7 +411,13 @@ class WheelFrameParser:
         self._base = base + (before - len(self._buf))
         self.stats.frames += int(starts.size)
         left, right = self._decode(b, starts)
-        return starts + base, left, right
+        offsets = starts + base
+        if offsets.size:
+            # a resync: a frame that does not begin where the previous one ended
+            prev_end = np.concatenate(([self._last_end], offsets[:-1] + FRAME_LEN))
+            self.stats.resyncs += int(np.count_nonzero(offsets != prev_end))
+            self._last_end = int(offsets[-1]) + FRAME_LEN
+        return offsets, left, right
 
     # -- public API ------------------------------------------------------------------------------
     def feed_arrays(

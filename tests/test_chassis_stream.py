@@ -146,4 +146,5 @@ def test_million_frames_with_noise_exact():
     s = parser.stats
     assert s.frames == N
     assert s.bytes_skipped == noise_bytes
+    assert s.resyncs == 20_000  # exactly one per noise burst
     assert s.deferred > 0  # the lookahead rule was exercised
