@@ -413,8 +413,11 @@ class _BagFile:
         if self.is_mcap_file:
             self._open_mcap(rosbags)
         else:
-            self._reader = rosbags.highlevel.AnyReader([self.path])
+            if self.path.is_dir() and not (self.path / "metadata.yaml").is_file():
+                raise LogFormatError(f"{self.path}: a folder without metadata.yaml is not a "
+                                     "ROS 2 bag")
             try:
+                self._reader = rosbags.highlevel.AnyReader([self.path])
                 self._reader.open()
             except Exception as exc:  # rosbags' errors, struct errors of truncated files
                 raise LogFormatError(f"{self.path}: not a readable ROS bag ({exc})") from exc

@@ -335,3 +335,32 @@ def test_fused_mcap_output_reads_back_as_odometry(tmp_path) -> None:
     imu = read_bag_imu(out, "/imu/data")
     assert imu.orientation is None  # the records had no attitude: covariance[0] = -1
     assert imu.frame_id == "base_footprint"
+
+
+def test_broken_ros2_bags_and_mcap_files_are_named(converted, tmp_path) -> None:
+    empty = tmp_path / "not_a_bag"
+    empty.mkdir()
+    with pytest.raises(LogFormatError, match=f"{empty}: a folder without metadata.yaml"):
+        read_bag_imu(empty)
+    broken = tmp_path / "broken"
+    shutil.copytree(converted["mcap"], broken)
+    (broken / "metadata.yaml").write_text("rosbag2_bagfile_information: [unclosed\n")
+    with pytest.raises(LogFormatError, match=f"{broken}: not a readable ROS bag"):
+        read_bag_imu(broken, IMU)
+    # an MCAP file cut short (a recorder killed mid-write) has no summary section
+    cut = tmp_path / "cut.mcap"
+    data = Path(converted["lone_mcap"]).read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    with pytest.raises(LogFormatError, match=f"{cut}: .*(summary|not a readable MCAP)"):
+        read_bag_imu(cut, IMU)
+
+
+def test_mcap_without_ros_channels_says_so(tmp_path) -> None:
+    foxglove = pytest.importorskip("foxglove")
+    path = tmp_path / "foxglove.mcap"
+    ctx = foxglove.Context()
+    writer = foxglove.open_mcap(path, context=ctx)
+    foxglove.Channel("/imu/data", context=ctx).log({"x": 1}, log_time=1)
+    writer.close()
+    with pytest.raises(LogFormatError, match="no topic '/imu/data'; the file has no ROS topics"):
+        read_bag_imu(path)
