@@ -36,8 +36,19 @@ Model:
   (down-weighted) so the gyro carries the heading.
 - Zero-velocity update (ZUPT): after ``zupt_frames`` consecutive frames with zero ticks on both
   wheels, ``v = 0`` and ``w = 0`` are fused with a tight noise; the gyro then reads its own bias,
-  which is how ``b`` becomes observable.
+  which is how ``b`` becomes observable. While standing still the v and w random walks shrink
+  by ``still_scale`` so every gyro sample informs the bias; a gyro reading that the still model
+  cannot explain (chi-square above ``slip_gate``) ends the stationary phase at once, so the
+  start of a turn does not leak into the bias before the first moving wheel frame arrives.
+- External twist (kind 3, e.g. a nav_msgs/Odometry from a ROS bag): forward speed and yaw
+  rate through the same wheel model, gate and ZUPT logic, noise ``twist_v_std``/``twist_w_std``.
 - Optional absolute yaw (a compass, a map match), residual wrapped to (-pi, pi].
+
+Tuning (:class:`EkfNoise`): the defaults describe an MPU6050 at 100 Hz and a miiboo-like
+chassis with 40 ms frames. ``bias_psd`` should come from the gyro's Allan variance (the rate
+random walk squared); ``accel_psd`` is how much the speed may change between wheel frames
+(small, since every frame measures it precisely); on the acceptance missions the defaults give
+a pose NEES inside its Monte Carlo 95 % bounds on about 92 % of a run (tests).
 
 Why the wheels are a measurement and not the prediction input: a prediction driven by wheel
 increments makes the heading follow the wheels (3 % separation error, slip) and leaves no place
@@ -52,8 +63,9 @@ Time policy (multi-rate, out of order), stated once:
   ending at its stamp, which equals the speed at the period's midpoint.
 - An input older than the filter's time by at most ``late_tolerance`` s is fused at the current
   time (no re-prediction); an older one is dropped and counted in :attr:`PlanarEKF.stats`.
-- Offline, :meth:`PlanarEKF.process_batch` and :func:`merge_events` sort all inputs by effective
-  time first (stable: wheels before gyro at equal times), so replay never sees late inputs.
+- Offline, :func:`merge_events` sorts all inputs by effective time first (at equal times gyro,
+  then wheels, then yaw, then twists), so replay never sees late inputs;
+  :meth:`PlanarEKF.process_batch` takes such a list.
   Live, feed inputs through a :class:`ReorderBuffer` whose window is at least the largest
   transport delay plus half a period.
 """
@@ -251,7 +263,7 @@ def merge_events(
 
     Returns:
         ``(kinds, t_eff, a, b, stamp)`` arrays sorted by effective time (stable; at equal
-        times wheels come before gyro before yaw). ``stamp`` is each input's own stamp.
+        times gyro, wheels, yaw, twist). ``stamp`` is each input's own stamp.
     """
     kinds, ts, aa, bb, st = [], [], [], [], []
     if wheel_t is not None:
