@@ -217,3 +217,16 @@ def test_mpu6050_registers_follow_the_register_map():
     fast = simulate(stop(0.5) + spin(4 * math.pi, 6.0), ROBOT, seed=3)
     sat = fast.mpu6050_registers(gyro_range_dps=250)[:, 12:14].copy().view(">i2")
     assert sat.max() == 32767  # 344 deg/s beyond +-250 deg/s: clipped, not wrapped
+
+
+def test_accelerate_ramps_the_command_linearly():
+    # 0 -> 0.5 m/s over 2 s (0.25 m/s^2, below the 1 m/s^2 limit), hold 1 s, ramp down:
+    # v(t) = 0.25 t on the ramp; distance = 0.5 + 0.5 + 0.5 m
+    from fusion.synthetic import accelerate
+
+    segs = [*accelerate(0.5, 2.0), Segment(0.5, 0.0, 1.0), *accelerate(0.0, 2.0), *stop(0.5)]
+    run = simulate(segs, ROBOT, seed=0)
+    ramp = (run.truth_t > 0.1) & (run.truth_t < 1.9)
+    np.testing.assert_allclose(run.truth_v[ramp], 0.25 * run.truth_t[ramp], atol=2e-3)
+    assert run.distance == pytest.approx(1.5, abs=1e-3)
+    np.testing.assert_allclose(run.accel[ramp, 0].mean(), 0.25, atol=0.01)
