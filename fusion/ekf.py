@@ -499,6 +499,23 @@ class PlanarEKF(ExtendedKalmanFilter):
             raise ValueError(f"yaw std must be > 0 rad, got {std!r}")
         return self._step(core.EV_YAW, t, yaw, std)
 
+    def predict(self, u=0, dt: float | None = None) -> None:
+        """filterpy's ``predict`` with the step made explicit: propagate by ``dt`` s.
+
+        ``u`` is accepted for filterpy compatibility and must be 0 (the model has no control
+        input). The filter time, if set, advances by ``dt``. Prefer :meth:`predict_to`.
+        """
+        if dt is None or not (math.isfinite(dt) and dt > 0):
+            raise ValueError(f"PlanarEKF.predict needs dt > 0 s (got {dt!r}); or use "
+                             "predict_to(t)")
+        if np.any(u != 0):
+            raise ValueError("PlanarEKF has no control input: u must be 0")
+        t = self.t
+        if t is None:
+            self._aux[core.A_T] = 0.0
+            t = 0.0
+        self.predict_to(t + dt)
+
     def predict_to(self, t: float) -> None:
         """Propagate to time ``t`` s without a measurement (ignored if ``t`` is not newer)."""
         if self.t is None or t <= self.t:
@@ -563,7 +580,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         self.Q = np.diag([0.0, 0.0, 0.0, f * n.accel_psd * dt, f * n.angular_accel_psd * dt,
                           n.bias_psd * dt, n.calib_k_psd * dt, n.calib_c_psd * dt])
         self._dt = dt
-        ExtendedKalmanFilter.predict(self)
+        ExtendedKalmanFilter.predict(self)  # P = F P F^T + Q, x by predict_x
 
     def _advance_filterpy(self, t: float) -> bool:
         aux = self._aux

@@ -329,3 +329,24 @@ def test_predict_to_moves_the_pose_with_the_speed():
     assert ekf.P[0, 0] > 1e-9  # grew with the speed uncertainty
     ekf.predict_to(1.0)  # older: ignored
     assert ekf.t == 2.0
+
+
+@pytest.mark.parametrize("backend", ["core", "filterpy"])
+def test_filterpy_api_fuses_a_custom_measurement(backend):
+    # filterpy's own update() on the same state: a position fix (x, y) with 0.1 m noise
+    # pulls a 1 m-uncertain position halfway-ish, by the Kalman weights computed by hand.
+    x0 = np.zeros(8)
+    P0 = np.diag([1.0, 1.0, 0.01, 0.01, 0.01, 1e-6, 1e-4, 1e-4])
+    ekf = PlanarEKF(ROBOT, x0=x0, P0=P0, backend=backend)
+    H = np.zeros((2, 8))
+    H[0, 0] = H[1, 1] = 1.0
+    ekf.update(np.array([0.5, -0.2]), lambda x: H, lambda x: H @ x, R=np.eye(2) * 0.01)
+    gain = 1.0 / (1.0 + 0.01)
+    np.testing.assert_allclose(ekf.x[:2], [0.5 * gain, -0.2 * gain], atol=1e-12)
+    assert ekf.P[0, 0] == pytest.approx(0.01 * gain)
+    # explicit-step predict keeps filterpy's predict() usable
+    ekf.x[3] = 1.0
+    ekf.predict(dt=0.5)
+    assert ekf.x[0] == pytest.approx(0.5 * gain + 0.5)
+    with pytest.raises(ValueError, match="needs dt"):
+        ekf.predict()
