@@ -129,3 +129,22 @@ def test_dropped_frames_jitter_and_latency(seed):
     assert final_position_error_percent(track.states[g, :2], truth, run.distance) <= 0.5
     assert math.degrees(yaw_rmse(track.states[g, 2], truth[:, 2])) <= 1.5
     assert ekf.stats["late_dropped"] == 0
+
+
+def test_a_common_distance_scale_error_is_not_observable():
+    # Both wheels 1 % larger than robot.toml says (speed_ratio 1 % too small): the gyro sees
+    # turning, not distance, so the fused path is 1 % short, like wheel-only odometry. This is
+    # why the acceptance missions split the radius mismatch evenly, and why
+    # `fusion calibrate odometry` needs a measured distance for speed_ratio.
+    from fusion.synthetic import EncoderModel, ImuModel, random_mission, simulate
+
+    enc = EncoderModel(left_scale_error=0.01, right_scale_error=0.01)
+    run = simulate(random_mission(120, seed=4), EXAMPLE_ROBOT, ImuModel(), enc, seed=4)
+    track, _ = fuse(EXAMPLE_ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks)
+    g = track.kind == core.EV_GYRO
+    t, v = track.t[g], track.states[g, 3]
+    fused_distance = np.sum(0.5 * (np.abs(v[1:]) + np.abs(v[:-1])) * np.diff(t))
+    assert fused_distance / run.distance == pytest.approx(1 / 1.01, abs=1e-3)
+    # and the end point is off by the same 1 % of its distance from the start
+    end = np.hypot(*track.states[g][-1, :2])
+    assert end / np.hypot(*run.truth[-1, :2]) == pytest.approx(1 / 1.01, abs=2e-3)
