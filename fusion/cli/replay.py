@@ -150,6 +150,11 @@ def run(args: argparse.Namespace) -> int:
     print(f"gyro bias {math.degrees(ekf.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, "
           f"slip frames {s['slips']}, late inputs fused {s['late_applied']}, dropped "
           f"{s['late_dropped']}, invalid {s['invalid']}")
+    if n_imu and (log.wheel_t[-1] > log.imu_t[-1] + chassis.encode_sampling_time
+                  or log.wheel_t[0] < log.imu_t[0] - chassis.encode_sampling_time):
+        print(f"warning: wheel frames span {log.wheel_t[0]:.3f}-{log.wheel_t[-1]:.3f} s, the "
+              f"IMU {log.imu_t[0]:.3f}-{log.imu_t[-1]:.3f} s; rows are written at IMU samples "
+              "only, so the output covers the IMU's span")
     if n_imu:
         k, c = ekf.x[6], ekf.x[7]
         print(f"wheel yaw-rate calibration seen by the gyro: k {k:+.4f} "
