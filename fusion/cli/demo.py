@@ -1,0 +1,709 @@
+"""``fusion demo``: the whole live pipeline on a simulated robot, no hardware, no arguments.
+
+What runs (all of it the real code path of ``fusion run`` on a robot):
+
+- the simulated miiboo STM32 firmware (:class:`drivers.sim.stm32.Stm32Sim`: encoders, the
+  seed's incremental PID, DC motors) on a pseudo-terminal, stepped on a clock that runs
+  ``--speed`` times faster than the wall clock;
+- the real :class:`drivers.serial_link.ChassisLink` reading DATA-uart2 frames from that pty and
+  sending the wheel targets of a scripted one-minute mission (straights, spins, arcs, stops);
+- a simulated MPU6050 on a register-level I2C bus (:class:`drivers.sim.mpu6050.SimulatedMPU6050`)
+  driven by the simulated chassis' true motion, read by the real
+  :class:`drivers.mpu6050.MPU6050` driver through its FIFO;
+- :class:`fusion.pipeline.FusionPipeline` (Mahony + EKF) publishing to an MCAP file.
+
+The robot is honest about its flaws: ``robot.toml`` says the wheels are 3 % further apart than
+they are, the wheel radii differ by 0.5 %, two one-second slip patches make a wheel spin
+30 % faster than the ground moves, the IMU sits 2 deg tilted (the mount is configured), and
+its gyro has a 0.5 deg/s bias on z that also walks. The report compares the fused odometry
+and the wheel-only odometry (seed 000's dead reckoning with the configured parameters)
+against the simulator's true pose.
+
+Outputs in ``--out`` (default ``./fusion-demo/``): ``demo.mcap`` (nav_msgs/Odometry, tf,
+sensor_msgs/Imu, wheel speeds; open it in Foxglove) and ``demo.png`` (trajectories and yaw
+error). Each file is written under a temporary name and renamed when complete.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import os
+import select
+import sys
+import tempfile
+import threading
+import time
+import tty
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "MISSION",
+    "DemoReport",
+    "ScaledClock",
+    "SimRobot",
+    "SimRobotParams",
+    "mission_command",
+    "register",
+    "run_demo",
+    "warm_up",
+]
+
+#: The scripted mission: (duration s, forward speed m/s, yaw rate rad/s), about 60 s.
+MISSION: tuple[tuple[float, float, float], ...] = (
+    (3.0, 0.0, 0.0),          # rest: the filter learns the gyro bias
+    (5.0, 0.4, 0.0),          # 2 m straight (a slip patch on the left wheel)
+    (1.0, 0.0, 0.0),
+    (1.571, 0.0, 1.0),        # 90 deg left on the spot
+    (4.0, 0.4, 0.0),
+    (6.0, 0.35, 0.5),         # arc, 172 deg left
+    (1.5, 0.0, 0.0),
+    (4.0, 0.5, 0.0),
+    (2.618, 0.0, -1.2),       # 180 deg right on the spot
+    (5.0, 0.3, -0.6),         # arc right
+    (5.0, 0.4, 0.0),          # (a slip patch on the right wheel)
+    (2.0, 0.0, 0.0),
+    (7.854, 0.4, 0.8),        # a full circle of 0.5 m radius
+    (3.0, 0.3, 0.0),
+    (4.0, 0.0, 0.0),          # rest at the end
+)
+
+
+def mission_command(t: float, mission=MISSION) -> tuple[float, float] | None:
+    """Commanded ``(v m/s, w rad/s)`` at mission time ``t`` s, None after the end."""
+    if t < 0:
+        return 0.0, 0.0
+    for duration, v, w in mission:
+        if t < duration:
+            return v, w
+        t -= duration
+    return None
+
+
+def mission_duration(mission=MISSION) -> float:
+    """Length of a mission, s."""
+    return float(sum(d for d, _, _ in mission))
+
+
+class ScaledClock:
+    """Robot time that runs ``speed`` times faster than the wall clock, s.
+
+    ``monotonic()`` (also the instance itself, called) reads it; ``sleep(s)`` sleeps ``s``
+    robot seconds. It has no ``advance``: the simulated MPU6050 then follows it without
+    adding wire time.
+    """
+
+    def __init__(self, speed: float = 1.0) -> None:
+        if not (math.isfinite(speed) and speed > 0):
+            raise ValueError(f"speed must be > 0, got {speed!r}")
+        self.speed = float(speed)
+        self._t0 = time.monotonic()
+
+    def monotonic(self) -> float:
+        return (time.monotonic() - self._t0) * self.speed
+
+    __call__ = monotonic
+
+    def sleep(self, seconds: float) -> None:
+        if seconds > 0:
+            time.sleep(seconds / self.speed)
+
+
+@dataclass(frozen=True)
+class SimRobotParams:
+    """The simulated robot's *true* properties (what ``robot.toml`` gets slightly wrong).
+
+    Attributes:
+        wheel_distance: true wheel separation, m.
+        speed_ratio: true m of rim travel per tick (both wheels).
+        radius_mismatch: relative ground-travel difference right - left (0.005: the right
+            wheel covers 0.5 % more ground per tick than the left).
+        slip_patches: ``(t0, t1, wheel, slip)`` windows (s after :attr:`SimRobot.t_origin`,
+            the mission start) in which ``wheel``
+            (0 left, 1 right) loses ``slip`` of its travel (0.3: the wheel turns 1/0.7 times
+            as far as the robot moves).
+        gyro_bias_dps: constant gyro bias (x, y, z), deg/s.
+        gyro_bias_walk_dps: random walk of the z bias, deg/s per sqrt(s).
+        gyro_noise_dps, accel_noise_g: white noise per sample (deg/s, g).
+        imu_mount_rpy: how the IMU sits on the robot (URDF rpy, rad).
+        slip_noise: random extra slip per period (floor texture).
+        seed: seed of every random draw.
+    """
+
+    wheel_distance: float = 0.3
+    speed_ratio: float = 5e-5
+    radius_mismatch: float = 0.005
+    slip_patches: tuple[tuple[float, float, int, float], ...] = (
+        (10.5, 11.5, 0, 0.3), (39.0, 40.0, 1, 0.3))
+    gyro_bias_dps: tuple[float, float, float] = (0.1, -0.1, 0.5)
+    gyro_bias_walk_dps: float = 0.002
+    gyro_noise_dps: float = 0.04
+    accel_noise_g: float = 0.004
+    imu_mount_rpy: tuple[float, float, float] = (math.radians(2.0), math.radians(-1.5), 0.0)
+    slip_noise: float = 0.001
+    seed: int = 7
+
+
+@dataclass
+class _Segment:
+    t0: float
+    w: float
+    v: float
+    a: float
+
+
+class SimRobot:
+    """The simulated STM32 (on a pty, in a thread) and MPU6050 (an I2C bus object), sharing
+    one :class:`ScaledClock` and one true motion.
+
+    Args:
+        clock: the robot clock.
+        params: the true robot (:class:`SimRobotParams`).
+        data_link: a symlink path for the data port (needed for :meth:`unplug`/:meth:`replug`).
+        keep_truth: keep the whole true trajectory (for a report; bounded runs only). Without
+            it only the last 60 s of motion are kept (indefinite runs).
+
+    Attributes:
+        port: the path the host opens (the symlink if given).
+        bus: the simulated MPU6050, an SMBus-like object for :class:`drivers.mpu6050.MPU6050`.
+        truth: list of ``(t, x, y, yaw)`` at every period (with ``keep_truth``).
+    """
+
+    def __init__(self, clock: ScaledClock, params: SimRobotParams | None = None, *,
+                 data_link: str | None = None, keep_truth: bool = True) -> None:
+        from drivers.sim.mpu6050 import SimulatedMPU6050
+        from drivers.sim.stm32 import Stm32Sim, Stm32SimParams
+        from fusion import quaternion as quat
+
+        self.clock = clock
+        self.params = p = params or SimRobotParams()
+        half = 0.5 * p.radius_mismatch
+        self._base_slip = (half, -half)  # left covers less ground per tick, right more
+        self.sim = Stm32Sim(Stm32SimParams(wheel_distance=p.wheel_distance,
+                                           speed_ratio=p.speed_ratio, slip=self._base_slip,
+                                           slip_noise=p.slip_noise, seed=p.seed))
+        self.period = self.sim.params.period
+        self._mount_inv = quat.to_matrix(quat.from_euler(*p.imu_mount_rpy)).T
+        self._segments: deque[_Segment] = deque(maxlen=None if keep_truth else 1500)
+        self._seg_lock = threading.Lock()
+        self.keep_truth = keep_truth
+        self.truth: list[tuple[float, float, float, float]] = [(0.0, 0.0, 0.0, 0.0)]
+        self._last_v = 0.0
+        self._rng = np.random.default_rng(p.seed)
+        self.bus = SimulatedMPU6050(self._motion, clock=clock, gyro_bias_dps=p.gyro_bias_dps,
+                                    gyro_noise_dps=p.gyro_noise_dps,
+                                    accel_noise_g=p.accel_noise_g, seed=p.seed)
+        self._data_link = data_link
+        self._io = threading.Lock()
+        self._master, self._slave, name = self._pty()
+        if data_link:
+            self._point(name)
+        self.port = data_link or name
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self.steps = 0
+        self.frames_written = 0
+        self.frame_times: list[float] = []  # robot time of each frame written (keep_truth)
+        self.t_origin = 0.0  # robot time the slip patches are counted from
+
+    # -- pty ---------------------------------------------------------------------------------
+    @staticmethod
+    def _pty() -> tuple[int, int, str]:
+        master, slave = os.openpty()
+        tty.setraw(master)
+        tty.setraw(slave)
+        return master, slave, os.ttyname(slave)
+
+    def _point(self, target: str) -> None:
+        assert self._data_link is not None
+        tmp = f"{self._data_link}.{os.getpid()}.tmp"
+        os.symlink(target, tmp)
+        os.replace(tmp, self._data_link)
+
+    def unplug(self) -> None:
+        """The USB serial adapter is pulled: the port and its symlink vanish."""
+        with self._io:
+            if self._data_link and os.path.islink(self._data_link):
+                os.unlink(self._data_link)
+            for fd in (self._master, self._slave):
+                with contextlib.suppress(OSError):
+                    os.close(fd)
+            self._master = self._slave = -1
+
+    def replug(self) -> None:
+        """The adapter is plugged back in: a new pty behind the same symlink."""
+        if not self._data_link:
+            raise ValueError("replug needs data_link (a stable path the host reopens)")
+        with self._io:
+            self._master, self._slave, name = self._pty()
+            self._point(name)
+
+    # -- truth -------------------------------------------------------------------------------
+    def _motion(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """True body rates (rad/s) and specific force (m/s^2) in the IMU frame at times t:
+        each period's mean yaw rate and speed, so the gyro integrates to the true yaw."""
+        with self._seg_lock:
+            segs = list(self._segments)
+        n = len(t)
+        rate = np.zeros((n, 3))
+        force = np.zeros((n, 3))
+        force[:, 2] = 9.80665
+        if segs:
+            t0 = np.array([s.t0 for s in segs])
+            i = np.clip(np.searchsorted(t0, t, side="right") - 1, 0, len(segs) - 1)
+            before = t < t0[0]
+            w = np.array([s.w for s in segs])[i]
+            v = np.array([s.v for s in segs])[i]
+            a = np.array([s.a for s in segs])[i]
+            w[before] = v[before] = a[before] = 0.0
+            rate[:, 2] = w
+            force[:, 0] = a
+            force[:, 1] = v * w
+        M = self._mount_inv
+        return rate @ M.T, force @ M.T
+
+    # -- firmware loop -----------------------------------------------------------------------
+    def _slip_at(self, t: float) -> tuple[float, float]:
+        slip = list(self._base_slip)
+        t -= self.t_origin
+        for t0, t1, wheel, s in self.params.slip_patches:
+            if t0 <= t < t1:
+                slip[wheel] += s
+        return slip[0], slip[1]
+
+    def _step(self, k: int) -> None:
+        sim = self.sim
+        t = k * self.period
+        # host commands that arrived
+        with self._io:
+            fd = self._master
+            if fd >= 0:
+                with contextlib.suppress(OSError, ValueError):
+                    while select.select([fd], [], [], 0)[0]:
+                        data = os.read(fd, 4096)
+                        if not data:
+                            break
+                        sim.command_bytes(data)
+        sim.params.slip = self._slip_at(t)
+        pose0 = sim.pose.copy()
+        out = sim.step()  # counts of [t - T, t], then the physics of [t, t + T]
+        pose1 = sim.pose.copy()
+        # mean motion over the next period, for the IMU
+        d = float(np.hypot(*(pose1[:2] - pose0[:2])))
+        heading = math.atan2(pose1[1] - pose0[1], pose1[0] - pose0[0]) if d > 0 else pose0[2]
+        sign = 1.0 if math.cos(heading - pose0[2] - 0.5 * (pose1[2] - pose0[2])) >= 0 else -1.0
+        v = sign * d / self.period
+        w = float(pose1[2] - pose0[2]) / self.period
+        seg = _Segment(t, w, v, (v - self._last_v) / self.period)
+        self._last_v = v
+        with self._seg_lock:
+            self._segments.append(seg)
+        if self.keep_truth:
+            self.truth.append((t + self.period, float(pose1[0]), float(pose1[1]),
+                               float(pose1[2])))
+        # the simulator keeps per-period lists for its own tests: keep them short
+        for name in ("ticks_sent", "ticks_counted", "pose_at_read", "pose_at_sent", "targets"):
+            lst = getattr(sim, name, None)
+            if isinstance(lst, list) and len(lst) > 100:
+                del lst[:-10]
+        # the gyro bias walks
+        walk = self.params.gyro_bias_walk_dps
+        if walk:
+            self.bus.gyro_bias_dps = self.bus.gyro_bias_dps + np.array(
+                [0.0, 0.0, walk * math.sqrt(self.period) * self._rng.normal()])
+        if out:
+            with self._io:
+                if self._master >= 0:
+                    with contextlib.suppress(OSError):
+                        os.write(self._master, out)
+                        self.frames_written += 1
+                        if self.keep_truth:
+                            self.frame_times.append(t)
+        self.steps += 1
+
+    def _run(self, k: int) -> None:
+        while not self._stop.is_set():
+            wait = k * self.period - self.clock.monotonic()
+            if wait > 0:
+                self._stop.wait(min(wait / self.clock.speed, 0.05))
+                continue
+            self._step(k)
+            k += 1
+
+    def start(self) -> SimRobot:
+        """Start the firmware at the next period boundary (the robot stands still there)."""
+        k0 = math.ceil(self.clock.monotonic() / self.period)
+        self.truth = [(k0 * self.period, 0.0, 0.0, 0.0)]
+        self._thread = threading.Thread(target=self._run, args=(k0,), name="sim-stm32",
+                                        daemon=True)
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        with self._io:
+            for fd in (self._master, self._slave):
+                if fd >= 0:
+                    with contextlib.suppress(OSError):
+                        os.close(fd)
+            self._master = self._slave = -1
+        if self._data_link and os.path.islink(self._data_link):
+            with contextlib.suppress(OSError):
+                os.unlink(self._data_link)
+
+    def truth_at(self, t: np.ndarray) -> np.ndarray:
+        """True ``(x, y, yaw)`` at robot times ``t`` (linear interpolation; yaw continuous)."""
+        tr = np.array(self.truth)
+        t = np.asarray(t, dtype=float)
+        return np.column_stack([np.interp(t, tr[:, 0], tr[:, i]) for i in (1, 2, 3)])
+
+
+def nominal_config(sim: SimRobotParams):
+    """What the robot's owner wrote in robot.toml: the separation 3 % too large, one
+    speed_ratio for both wheels, the measured IMU mount. Returns a RunConfig."""
+    from fusion.config import DEMO_ROBOT, RunConfig
+    from fusion.kinematics import DiffDriveParams
+    from fusion.logdir import RobotConfig
+
+    chassis = DiffDriveParams(
+        wheel_distance=round(sim.wheel_distance * 1.03, 6), speed_ratio=sim.speed_ratio,
+        encode_sampling_time=0.04, cmd_vel_linear_max=DEMO_ROBOT.cmd_vel_linear_max,
+        cmd_vel_angular_max=DEMO_ROBOT.cmd_vel_angular_max,
+        wheel_speed_max=DEMO_ROBOT.wheel_speed_max)
+    return RunConfig(robot=RobotConfig(chassis=chassis, imu_mount_rpy=sim.imu_mount_rpy),
+                     imu="sim", chassis="sim", publish=())
+
+
+def send_twist(link: Any, chassis: Any, v: float, w: float) -> tuple[int, int]:
+    """Seed 000's command path: clamp (v, w), keep the curvature within the wheel limit,
+    convert to target ticks per period and send them. Returns the ticks sent."""
+    from fusion.kinematics import (
+        clamp_twist,
+        limit_wheel_speeds,
+        twist_to_wheel_speeds,
+        wheel_speeds_to_ticks,
+    )
+
+    v, w = clamp_twist(v, w, chassis)
+    vl, vr = twist_to_wheel_speeds(v, w, chassis.wheel_distance)
+    vl, vr = limit_wheel_speeds(vl, vr, chassis.wheel_speed_max)
+    left, right = wheel_speeds_to_ticks(vl, vr, chassis)
+    link.send_ticks(int(left), int(right))
+    return int(left), int(right)
+
+
+@dataclass
+class DemoReport:
+    """Figures of one demo run (SI units; latencies in s of wall-clock time)."""
+
+    distance: float = 0.0
+    duration: float = 0.0
+    wall_time: float = 0.0
+    fused_final_error: float = math.nan
+    wheel_final_error: float = math.nan
+    fused_yaw_rmse: float = math.nan
+    wheel_yaw_rmse: float = math.nan
+    frames: int = 0
+    samples: int = 0
+    records: int = 0
+    latency_p50: float = math.nan
+    latency_p99: float = math.nan
+    slips: int = 0
+    zupts: int = 0
+    gyro_bias_true: float = math.nan
+    gyro_bias_est: float = math.nan
+    imu_lost: int = 0
+    imu_errors: int = 0
+    outputs: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    track: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def lines(self) -> list[str]:
+        pct = 100.0 / self.distance if self.distance > 0 else math.nan
+        return [
+            f"mission: {self.distance:.1f} m in {self.duration:.0f} s of robot time "
+            f"({self.wall_time:.1f} s wall)",
+            "                        fused (EKF)     wheel-only",
+            f"final position error  {self.fused_final_error:7.3f} m {'':3}"
+            f"{self.wheel_final_error:7.3f} m",
+            f"  (% of distance)     {self.fused_final_error * pct:7.2f} % {'':3}"
+            f"{self.wheel_final_error * pct:7.2f} %",
+            f"yaw RMSE              {math.degrees(self.fused_yaw_rmse):7.2f} deg "
+            f"{math.degrees(self.wheel_yaw_rmse):7.2f} deg",
+            f"handled: {self.frames} wheel frames, {self.samples} IMU samples, "
+            f"{self.records} fused records ({self.slips} slip frames down-weighted, "
+            f"{self.zupts} zero-velocity updates; {self.imu_lost} IMU samples lost, "
+            f"{self.imu_errors} failed I2C reads)",
+            f"gyro z bias: true {math.degrees(self.gyro_bias_true):.3f} deg/s, "
+            f"estimated {math.degrees(self.gyro_bias_est):.3f} deg/s",
+            f"latency frame arrival -> fused record (wall clock): p50 "
+            f"{self.latency_p50 * 1e3:.1f} ms, p99 {self.latency_p99 * 1e3:.1f} ms",
+        ]
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    return np.pi - np.mod(np.pi - a, 2 * np.pi)
+
+
+def run_demo(out: Path | None, *, speed: float = 6.0, mission=MISSION,
+             params: SimRobotParams | None = None, plot: bool = True,
+             log=print) -> DemoReport:
+    """Run the demo; returns its report (``out`` None: no files)."""
+    from drivers.mpu6050 import MPU6050
+    from drivers.serial_link import ChassisLink
+    from fusion.odometry import WheelOdometry
+    from fusion.pipeline import FusionPipeline, LiveRunner
+    from fusion.samples import WheelTicks
+
+    params = params or SimRobotParams()
+    cfg = nominal_config(params)
+    chassis = cfg.robot.chassis
+    sinks = []
+    report = DemoReport()
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        try:
+            import mcap  # noqa: F401
+            import rosbags  # noqa: F401
+
+            from fusion.publish import McapSink
+
+            sinks.append(McapSink(out / "demo.mcap"))
+            report.outputs.append(str(out / "demo.mcap"))
+        except ImportError:
+            report.notes.append("MCAP skipped: it needs rosbags and mcap "
+                                "(python3 -m pip install 'diffbot-fusion[demo]')")
+
+    log("compiling the filters (numba; only the first run takes long) ...")
+    t_compile = time.perf_counter()
+    warm_up(cfg)
+    log(f"  ready in {time.perf_counter() - t_compile:.1f} s")
+
+    clock = ScaledClock(speed)
+    robot = SimRobot(clock, params)
+    wheel_odo = WheelOdometry(chassis)
+    wheel_track: list[tuple[float, float, float, float]] = []
+    fused_track: list[tuple[float, float, float, float]] = []
+
+    def on_record(rec) -> None:
+        fused_track.append((rec.t, rec.x, rec.y, rec.yaw))
+
+    fifo = 0.02
+    pipe = FusionPipeline(cfg.robot, sinks, reorder_window=0.5 * chassis.encode_sampling_time
+                          + fifo + 0.02, clock=clock, on_record=on_record)
+    end = mission_duration(mission)
+    link = None
+    imu = None
+    runner = None
+    wall0 = time.perf_counter()
+    complete = False
+    log(f"running a {end:.0f} s mission at {speed:g}x real time "
+        f"(simulated STM32 on {robot.port}, simulated MPU6050 on I2C) ...")
+    try:
+        link = ChassisLink(robot.port, period=chassis.encode_sampling_time, clock=clock,
+                           command_timeout=0.5, silence_periods=5.0)
+        link.start(wait=5.0)
+        imu = MPU6050(robot.bus, clock=clock, sample_rate_hz=100.0, gyro_range_dps=500,
+                      accel_range_g=4, dlpf=3)
+        pipe.open()
+        robot.start()
+        runner = LiveRunner(pipe, link=link, imu=imu, fifo_interval=fifo).start()
+        t_start = clock.monotonic()  # the mission starts now (the robot stood still so far)
+        robot.t_origin = t_start
+        state = {"cmd": None, "sent": -1.0}
+
+        def on_event(ev) -> None:
+            if type(ev) is WheelTicks:
+                st = wheel_odo.update(ev.left, ev.right, ev.t)
+                wheel_track.append((ev.t, st.x, st.y, st.theta))
+
+        def mission_over() -> bool:
+            now = clock.monotonic()
+            cmd = mission_command(now - t_start, mission)
+            if cmd is None:
+                return True
+            if cmd != state["cmd"] or now - state["sent"] > 0.2:
+                send_twist(link, chassis, *cmd)
+                state["cmd"], state["sent"] = cmd, now
+            return False
+
+        runner.run(until=mission_over, poll=0.01, on_event=on_event)
+        link.stop()
+        t_stop = clock.monotonic()  # take the last frames and samples in
+        runner.run(until=lambda: clock.monotonic() > t_stop + 0.3, poll=0.01,
+                   on_event=on_event)
+        complete = True
+    finally:
+        if runner is not None:
+            runner.stop()
+        if link is not None:
+            link.close()
+        robot.close()
+        if imu is not None:
+            imu.close()
+        if complete:
+            pipe.close()
+        else:  # an error or Ctrl-C: no partial demo.mcap (an older complete one stays)
+            pipe.abort()
+    report.wall_time = time.perf_counter() - wall0
+    if runner is not None:
+        report.imu_lost, report.imu_errors = runner.imu_lost, runner.imu_errors
+    stats = pipe.finish_stats()
+    report.frames = stats.wheel_frames
+    report.samples = stats.imu_samples
+    report.records = stats.records
+    report.slips, report.zupts = stats.slips, stats.zupts
+    p50, p99 = pipe.latency_percentiles(50, 99)
+    report.latency_p50, report.latency_p99 = p50 / speed, p99 / speed
+    report.gyro_bias_true = math.radians(float(robot.bus.gyro_bias_dps[2]))
+    report.gyro_bias_est = pipe.ekf.gyro_bias
+    _evaluate(report, robot, np.array(fused_track), np.array(wheel_track))
+    if out is not None and plot:
+        png = out / "demo.png"
+        msg = _plot(report, png)
+        if msg:
+            report.notes.append(msg)
+        else:
+            report.outputs.append(str(png))
+    return report
+
+
+def warm_up(cfg) -> None:
+    """Compile the numba cores before the clock starts (a cold cache takes ~15 s)."""
+    from fusion.pipeline import FusionPipeline
+    from fusion.samples import ImuSample, WheelTicks
+
+    pipe = FusionPipeline(cfg.robot)
+    with pipe:
+        g, a = np.zeros(3), np.array([0.0, 0.0, 9.80665])
+        for k in range(1, 9):
+            pipe.push(ImuSample(0.01 * k, g, a))
+        pipe.push(WheelTicks(0.04, 0, 0))
+        pipe.push(WheelTicks(0.08, 10, 12))
+
+
+def _evaluate(report: DemoReport, robot: SimRobot, fused: np.ndarray,
+              wheel: np.ndarray) -> None:
+    tr = np.array(robot.truth)
+    report.duration = float(tr[-1, 0])
+    report.distance = float(np.sum(np.hypot(np.diff(tr[:, 1]), np.diff(tr[:, 2]))))
+    frame_t = np.array(robot.frame_times)
+    n = wheel.shape[0] if wheel.size else 0
+    if n and 0 <= frame_t.size - n <= 3:  # (the last frames may still have been in flight)
+        frame_t = frame_t[:n]
+        # every frame written arrived: judge the wheel-only odometry at each frame's true
+        # time (the end of its period), which spares it any transport delay; the fused
+        # records are judged at their own stamps (host clock), delays included
+        wheel_eval_t = frame_t
+    else:
+        wheel_eval_t = wheel[:, 0] if wheel.size else wheel
+        report.notes.append(f"{frame_t.size} frames written, {n} received: "
+                            "wheel-only judged at arrival times")
+    for name, arr in (("fused", fused), ("wheel", wheel)):
+        if arr.size == 0:
+            continue
+        truth = robot.truth_at(arr[:, 0] if name == "fused" else wheel_eval_t)
+        err_xy = np.hypot(arr[:, 1] - truth[:, 0], arr[:, 2] - truth[:, 1])
+        err_yaw = _wrap(arr[:, 3] - truth[:, 2])
+        setattr(report, f"{name}_final_error", float(err_xy[-1]))
+        setattr(report, f"{name}_yaw_rmse", float(np.sqrt(np.mean(err_yaw ** 2))))
+        report.track[name] = arr
+        report.track[f"{name}_yaw_error"] = err_yaw
+        report.track[f"{name}_t"] = arr[:, 0] if name == "fused" else wheel_eval_t
+    report.track["truth"] = tr
+
+
+def _plot(report: DemoReport, path: Path) -> str | None:
+    """Write the PNG (atomically); returns a note when it cannot."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return ("plot skipped: matplotlib is not installed "
+                "(python3 -m pip install 'diffbot-fusion[demo]')")
+    tr = report.track.get("truth")
+    fused, wheel = report.track.get("fused"), report.track.get("wheel")
+    if tr is None or fused is None or wheel is None:
+        return "plot skipped: no data"
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(13, 5.5))
+    ax1.plot(tr[:, 1], tr[:, 2], "k-", lw=2.5, label="truth (simulator)")
+    ax1.plot(wheel[:, 1], wheel[:, 2], "-", color="tab:orange", lw=1.2,
+             label=f"wheel-only (final error {report.wheel_final_error:.2f} m)")
+    ax1.plot(fused[:, 1], fused[:, 2], "--", color="tab:blue", lw=1.5,
+             label=f"fused EKF (final error {report.fused_final_error:.3f} m)")
+    ax1.plot([0], [0], "ko")
+    ax1.set_xlabel("x in odom (m)")
+    ax1.set_ylabel("y in odom (m)")
+    ax1.set_aspect("equal", adjustable="datalim")
+    ax1.grid(True, alpha=0.3)
+    ax1.legend(loc="best", fontsize=9)
+    ax1.set_title(f"Trajectories, {report.distance:.1f} m")
+    ax2.plot(report.track["wheel_t"], np.degrees(report.track["wheel_yaw_error"]),
+             color="tab:orange",
+             label=f"wheel-only (RMSE {math.degrees(report.wheel_yaw_rmse):.2f} deg)")
+    ax2.plot(fused[:, 0], np.degrees(report.track["fused_yaw_error"]), color="tab:blue",
+             label=f"fused EKF (RMSE {math.degrees(report.fused_yaw_rmse):.2f} deg)")
+    ax2.axhline(0.0, color="k", lw=0.8)
+    ax2.set_xlabel("robot time (s)")
+    ax2.set_ylabel("yaw error (deg)")
+    ax2.grid(True, alpha=0.3)
+    ax2.legend(loc="best", fontsize=9)
+    ax2.set_title("Yaw error against the simulator's truth")
+    fig.suptitle("fusion demo: simulated miiboo chassis + MPU6050, live pipeline")
+    fig.tight_layout()
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial.png", dir=path.parent)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=110)
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+    return None
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "demo",
+        help="the live pipeline on a simulated robot (no hardware): report, MCAP and plot",
+        description=(
+            "Runs a one-minute scripted mission on a simulated miiboo STM32 chassis (on a "
+            "pseudo-terminal, through the real serial link) and a simulated MPU6050 (through "
+            "the real driver), sped up; fuses it live with the Mahony filter and the EKF; "
+            "prints distance, final position error and yaw RMSE of the fused and the "
+            "wheel-only odometry against the simulator's truth, frames and samples handled "
+            "and the latency; writes demo.mcap and demo.png."
+        ),
+    )
+    p.add_argument("--out", type=Path, default=Path("fusion-demo"),
+                   help="output folder (default ./fusion-demo/)")
+    p.add_argument("--speed", type=float, default=6.0,
+                   help="robot time per wall-clock second (default 6)")
+    p.add_argument("--no-plot", action="store_true", help="do not write demo.png")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if not 0.5 <= args.speed <= 20:
+        raise ValueError(f"--speed must be within 0.5..20, got {args.speed}")
+    report = run_demo(args.out, speed=args.speed, plot=not args.no_plot,
+                      log=lambda s: print(s, file=sys.stderr, flush=True))
+    for line in report.lines():
+        print(line)
+    for path in report.outputs:
+        print(f"wrote {path}")
+    for note in report.notes:
+        print(note)
+    return 0

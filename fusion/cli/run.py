@@ -1,0 +1,289 @@
+"""``fusion run``: the live fused-odometry publisher.
+
+Examples::
+
+    fusion run --config robot.toml                          # everything from the file
+    fusion run --imu i2c:1 --chassis /dev/ttyUSB0 --publish ros1 --config robot.toml
+    fusion run --imu sim --chassis sim --publish foxglove,mcap:run.mcap   # no hardware
+
+Sources: ``--imu i2c:N`` (an MPU6050 on /dev/i2c-N, read through its FIFO), ``sim`` (the
+simulated chip, moving with the simulated chassis) or ``none``; ``--chassis`` a serial port
+(device path, ``socket://host:port``, anything pyserial's ``serial_for_url`` opens), ``sim``
+(the simulated STM32 firmware on a pseudo-terminal) or ``none``. Sinks (``--publish``, comma
+separated): ``jsonl[:PATH]``, ``mcap:PATH``, ``rosbag2:PATH``, ``foxglove[:HOST:PORT]``,
+``ros1`` (seed 000's node: /odom, /tf, /imu/data, wheel speeds; /cmd_vel drives the wheels).
+
+Every option can come from the ``--config`` file (:mod:`fusion.config`, see
+:data:`fusion.config.RUN_OPTIONS`); an option on the command line wins. With ``sim`` for the
+chassis the robot drives ``fusion demo``'s mission in a loop (or follows /cmd_vel with
+``ros1``). Runs until Ctrl-C (or SIGTERM, or ``--duration``): the sources stop, the sinks are
+closed, and the files are complete. Status lines go to standard error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import math
+import signal
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from fusion.cli import CommandError
+
+__all__ = ["register", "run"]
+
+
+def register(subparsers: Any) -> None:
+    p = subparsers.add_parser(
+        "run",
+        help="live fused odometry from the IMU and the chassis, published to ROS 1, "
+             "Foxglove, MCAP or JSON lines",
+        description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Mahony + EKF -> "
+                    "sinks. Every option can come from --config (TOML, see fusion.config); "
+                    "the command line wins. Ctrl-C stops cleanly (files complete).",
+    )
+    p.add_argument("--config", type=Path, help="robot configuration file (TOML)")
+    p.add_argument("--imu", help="i2c:N (bus number), sim or none (default sim)")
+    p.add_argument("--address", type=lambda s: int(s, 0), help="MPU6050 address (0x68)")
+    p.add_argument("--rate", type=float, metavar="HZ", help="IMU sample rate (default 100)")
+    p.add_argument("--calibration", help="IMU calibration JSON (fusion imu-calibrate)")
+    p.add_argument("--chassis", metavar="URL",
+                   help="chassis DATA-uart2 port (device, socket://, ...), sim or none "
+                        "(default sim)")
+    p.add_argument("--baudrate", type=int, help="chassis baud rate (115200)")
+    p.add_argument("--publish", metavar="SINKS",
+                   help="comma-separated sinks: ros1, foxglove[:HOST:PORT], mcap:PATH, "
+                        "rosbag2:PATH, jsonl[:PATH] (default jsonl on stdout)")
+    p.add_argument("--publish-rate", type=float, metavar="HZ",
+                   help="records per second (0: one per wheel frame, the default)")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="stop after this many seconds (default: until Ctrl-C)")
+    p.add_argument("--speed", type=float, default=1.0,
+                   help="with --chassis sim: robot time per wall second (default 1)")
+    p.add_argument("--status", type=float, default=10.0, metavar="S",
+                   help="seconds between status lines on stderr (0: none)")
+    p.set_defaults(func=run)
+
+
+def _config(args: argparse.Namespace):
+    from fusion.config import RunConfig, _sinks, load_config
+
+    cfg = load_config(args.config) if args.config else RunConfig()
+    publish = None
+    if args.publish is not None:
+        try:
+            publish = _sinks(args.publish)
+        except ValueError as exc:
+            raise CommandError(f"--publish: {exc}") from None
+    rate = None
+    if args.publish_rate is not None:
+        if not args.publish_rate >= 0:
+            raise CommandError(f"--publish-rate must be >= 0 Hz, got {args.publish_rate}")
+        rate = args.publish_rate
+    cfg = cfg.with_overrides(imu=args.imu, imu_address=args.address, imu_rate_hz=args.rate,
+                             imu_calibration=args.calibration, chassis=args.chassis,
+                             baudrate=args.baudrate, publish=publish)
+    if rate is not None:
+        from dataclasses import replace
+
+        cfg = replace(cfg, publish_rate_hz=None if rate == 0 else rate)
+    from fusion.config import _imu_source
+
+    try:
+        _imu_source(cfg.imu)
+    except ValueError as exc:
+        raise CommandError(f"--imu {exc}") from None
+    if cfg.imu == "none" and cfg.chassis == "none":
+        raise CommandError("nothing to fuse: --imu and --chassis are both none")
+    if cfg.imu == "sim" and cfg.chassis != "sim":
+        raise CommandError("--imu sim needs --chassis sim (the simulated IMU moves with the "
+                           "simulated chassis)")
+    if cfg.chassis not in ("sim", "none") and args.config is None:
+        raise CommandError(f"--chassis {cfg.chassis} is a real robot: give --config "
+                           "robot.toml with its [chassis] table (wheel_distance, speed_ratio, "
+                           "encode_sampling_time), or the odometry would use made-up "
+                           "geometry")
+    return cfg
+
+
+def _sinks_for(cfg, cmd_vel) -> list:
+    from fusion.publish import Topics, open_sink
+
+    topics = Topics(**cfg.topics)
+    sinks = []
+    for spec in cfg.publish:
+        if spec.strip().lower() == "ros1":
+            try:
+                from fusion.ros1 import Ros1Sink
+            except ImportError as exc:
+                raise CommandError(f"--publish ros1: the ROS 1 sink is not available "
+                                   f"(fusion.ros1: {exc})") from None
+            sinks.append(Ros1Sink(topics=topics, cmd_vel_topic=cfg.cmd_vel_topic,
+                                  on_cmd_vel=cmd_vel,
+                                  frame_id=cfg.robot.odom_frame,
+                                  child_frame_id=cfg.robot.base_frame))
+        else:
+            sinks.append(open_sink(spec, topics=topics))
+    return sinks
+
+
+class _Stop(Exception):
+    """SIGTERM, turned into a clean stop like Ctrl-C."""
+
+
+def run(args: argparse.Namespace) -> int:
+    from drivers.chassis import WheelFrameParser
+    from drivers.serial_link import ChassisLink
+    from fusion.cli.demo import (
+        MISSION,
+        ScaledClock,
+        SimRobot,
+        SimRobotParams,
+        mission_command,
+        mission_duration,
+        send_twist,
+        warm_up,
+    )
+    from fusion.pipeline import FusionPipeline, LiveRunner
+
+    cfg = _config(args)
+    if args.duration is not None and not args.duration > 0:
+        raise CommandError(f"--duration must be > 0 s, got {args.duration}")
+    if not 0.1 <= args.speed <= 20:
+        raise CommandError(f"--speed must be within 0.1..20, got {args.speed}")
+    if args.speed != 1.0 and cfg.chassis != "sim":
+        raise CommandError("--speed only applies to --chassis sim")
+    chassis = cfg.robot.chassis
+
+    def err(msg: str) -> None:
+        print(f"fusion run: {msg}", file=sys.stderr, flush=True)
+
+    warm_up(cfg)  # load (or compile) the numba cores before any source starts
+    sim = cfg.chassis == "sim"
+    clock = ScaledClock(args.speed) if sim else time.monotonic
+    link_holder: dict[str, Any] = {}
+    cmd_state = {"t": -math.inf}
+
+    def on_cmd_vel(v: float, w: float) -> None:  # a rospy thread
+        link = link_holder.get("link")
+        cmd_state["t"] = clock()
+        if link is not None:
+            send_twist(link, chassis, v, w)
+
+    sinks = _sinks_for(cfg, on_cmd_vel)
+    window = 0.5 * chassis.encode_sampling_time + cfg.fifo_interval + 0.02
+    pipe = FusionPipeline(cfg.robot, sinks, publish_rate_hz=cfg.publish_rate_hz,
+                          reorder_window=cfg.reorder_window or window, imu_rate_hz=cfg.imu_rate_hz,
+                          tilt=cfg.tilt, clock=clock)
+    robot = link = imu = runner = None
+    complete = False
+    previous = signal.getsignal(signal.SIGTERM)
+    if threading.current_thread() is threading.main_thread():
+        def on_term(signum, frame):
+            raise _Stop()
+
+        signal.signal(signal.SIGTERM, on_term)
+    wall0 = time.monotonic()
+    try:
+        try:
+            pipe.open()
+        except ImportError as exc:
+            raise CommandError(str(exc)) from None
+        if sim:
+            robot = SimRobot(clock, SimRobotParams(), keep_truth=False)
+        port = robot.port if sim else cfg.chassis
+        if cfg.chassis != "none":
+            if math.isfinite(chassis.wheel_speed_max):
+                def factory():
+                    return WheelFrameParser.for_chassis(
+                        chassis.wheel_speed_max, chassis.speed_ratio,
+                        chassis.encode_sampling_time)
+            else:
+                factory = WheelFrameParser
+            link = ChassisLink(port, baudrate=cfg.baudrate,
+                               period=chassis.encode_sampling_time,
+                               command_timeout=cfg.command_timeout,
+                               silence_periods=cfg.silence_periods, clock=clock,
+                               parser_factory=factory,
+                               on_event=lambda ev: err(f"link {ev.kind}: {ev.message}"))
+            link.start(wait=5.0)
+            link_holder["link"] = link
+        if cfg.imu != "none":
+            imu = _open_imu(cfg, robot, clock)
+        if robot is not None:
+            robot.start()
+        runner = LiveRunner(pipe, link=link, imu=imu, fifo_interval=cfg.fifo_interval).start()
+        t0 = clock()
+        drive = sim and not any(s.strip().lower() == "ros1" for s in cfg.publish)
+        state = {"cmd": None, "sent": -1.0, "status": time.monotonic()}
+        period = mission_duration(MISSION)
+
+        def tick() -> bool:
+            now = clock()
+            if drive:
+                cmd = mission_command((now - t0) % period)
+                if cmd != state["cmd"] or now - state["sent"] > 0.2:
+                    send_twist(link, chassis, *cmd)
+                    state["cmd"], state["sent"] = cmd, now
+            if args.status and time.monotonic() - state["status"] >= args.status:
+                state["status"] = time.monotonic()
+                err(_status(pipe, runner))
+            return args.duration is not None and time.monotonic() - wall0 >= args.duration
+
+        err(f"running: imu {cfg.imu}, chassis {port if cfg.chassis != 'none' else 'none'}, "
+            f"publishing to {', '.join(cfg.publish) or 'nothing'} (Ctrl-C stops)")
+        try:
+            runner.run(until=tick, poll=0.02)
+        except (KeyboardInterrupt, _Stop):
+            err("stopping")
+        complete = True
+    finally:
+        with contextlib.suppress(Exception):
+            if runner is not None:
+                runner.stop()
+        if link is not None:
+            link.close()
+        if robot is not None:
+            robot.close()
+        if imu is not None:
+            imu.close()
+        if complete:
+            pipe.close()  # files complete
+        else:
+            pipe.abort()
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGTERM, previous)
+    err(_status(pipe, runner) + f"; done after {time.monotonic() - wall0:.1f} s")
+    return 0
+
+
+def _open_imu(cfg, robot, clock):
+    from drivers.mpu6050 import MPU6050
+
+    calibration = None
+    if cfg.imu_calibration:
+        from fusion.calibration import ImuCalibration
+
+        calibration = ImuCalibration.load(cfg.imu_calibration)
+    kw = dict(gyro_range_dps=cfg.gyro_range_dps, accel_range_g=cfg.accel_range_g,
+              dlpf=cfg.dlpf, sample_rate_hz=cfg.imu_rate_hz, calibration=calibration)
+    if cfg.imu == "sim":
+        return MPU6050(robot.bus, 0x68, clock=clock, **kw)  # the simulated chip's address
+    return MPU6050(int(cfg.imu.split(":")[1]), cfg.imu_address, **kw)
+
+
+def _status(pipe, runner) -> str:
+    s = pipe.finish_stats()
+    p50, p99 = pipe.latency_percentiles(50, 99)
+    parts = [f"{s.wheel_frames} frames, {s.imu_samples} IMU samples, {s.records} records",
+             f"{s.gap_count} wheel gaps ({s.frames_missing} frames missing)",
+             f"{s.slips} slips, {s.zupts} ZUPTs"]
+    if runner is not None and (runner.imu_errors or runner.imu_lost):
+        parts.append(f"{runner.imu_errors} failed IMU reads, {runner.imu_lost} samples lost")
+    if p50 == p50:
+        parts.append(f"latency p50 {p50 * 1e3:.1f} ms p99 {p99 * 1e3:.1f} ms")
+    return "; ".join(parts)
