@@ -24,6 +24,8 @@ _EXPORTS = {
     "OdometryState": "fusion.odometry",
     "OdometryNoise": "fusion.odometry",
     "FusedOdometry": "fusion.fused",
+    "open_sink": "fusion.publish",
+    "read_bag": "fusion.logs",
     "ImuCalibration": "fusion.calibration",
     "PlanarEKF": "fusion.ekf",
     "EkfNoise": "fusion.ekf",
