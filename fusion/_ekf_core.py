@@ -46,7 +46,8 @@ P_TWIST_V_STD = 21
 P_TWIST_W_STD = 22
 P_TWIST_ZERO_V = 23
 P_TWIST_ZERO_W = 24
-PAR_SIZE = 25
+P_GYRO_LIMIT = 25
+PAR_SIZE = 26
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -57,7 +58,8 @@ A_ZUPTS = 5
 A_LAST_D2 = 6
 A_UPDATES = 7
 A_ERROR = 8
-AUX_SIZE = 9
+A_SATURATED = 9
+AUX_SIZE = 10
 # event kinds
 EV_GYRO = 0
 EV_WHEELS = 1
@@ -293,7 +295,8 @@ def step_core(x, P, aux, par, kind, t, a, b):
     kind 3 (twist): ``a`` = forward speed m/s, ``b`` = yaw rate rad/s of an external wheel
     odometry (nav_msgs/Odometry twist), taken as instantaneous at ``t``.
 
-    Status: 0 applied, 1 applied down-weighted (slip), 2 gated out, 3 S not positive definite,
+    Status: 0 applied, 1 applied down-weighted (slip), 2 gated out (or a saturated gyro
+    sample skipped), 3 S not positive definite,
     4 zero-velocity update, 5 dropped as too late, 6 invalid input.
     """
     if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)):
@@ -303,6 +306,11 @@ def step_core(x, P, aux, par, kind, t, a, b):
         return 5
     S = np.zeros((2, 2))
     if kind == 0:
+        if abs(a) >= par[P_GYRO_LIMIT]:
+            # a saturated gyro reads the full-scale value, not the rate: skip it and let the
+            # wheels carry the yaw rate until the gyro is back in range
+            aux[A_SATURATED] += 1.0
+            return 2
         y = np.array([a - (x[4] + x[5])])
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
             # motion onset while standing still: a gyro reading the still model cannot

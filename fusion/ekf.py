@@ -133,6 +133,8 @@ class EkfNoise:
         twist_v_std, twist_w_std: noise of an external odometry twist (nav_msgs/Odometry
             from a ROS bag), m/s and rad/s.
         twist_zero_v, twist_zero_w: below both (m/s, rad/s) a twist counts as standing still.
+        gyro_limit: gyro samples with ``|rate| >= gyro_limit`` (rad/s) are saturated and
+            skipped (set it a little below the full scale: 4.3 for the MPU6050's +-250 deg/s).
         initial_bias_std: prior standard deviation of the gyro bias, rad/s.
         initial_speed_std: prior standard deviation of v (m/s) and w (rad/s).
     """
@@ -162,11 +164,17 @@ class EkfNoise:
     twist_w_std: float = 0.01
     twist_zero_v: float = 1e-3
     twist_zero_w: float = 1e-3
+    gyro_limit: float = math.inf
     initial_bias_std: float = math.radians(2.0)
     initial_speed_std: float = 0.05
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
+            if name == "gyro_limit":
+                if not (isinstance(value, (int, float)) and value > 0):
+                    raise ValueError(f"EkfNoise.gyro_limit must be > 0 rad/s (or inf), got "
+                                     f"{value!r}")
+                continue
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"EkfNoise.{name} must be finite and >= 0, got {value!r}")
         if self.gyro_std <= 0 or self.max_dt <= 0 or self.zupt_frames < 1:
@@ -366,7 +374,7 @@ class PlanarEKF(ExtendedKalmanFilter):
     Attributes:
         t: filter time, s (None before the first input).
         stats: counters: ``slips``, ``zupts``, ``late_dropped``, ``late_applied``,
-            ``invalid``, ``updates``.
+            ``invalid``, ``gyro_saturated``, ``updates``.
     """
 
     def __init__(
@@ -419,6 +427,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_TWIST_W_STD] = n.twist_w_std
         par[core.P_TWIST_ZERO_V] = n.twist_zero_v
         par[core.P_TWIST_ZERO_W] = n.twist_zero_w
+        par[core.P_GYRO_LIMIT] = n.gyro_limit
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
 
@@ -437,6 +446,7 @@ class PlanarEKF(ExtendedKalmanFilter):
             "late_dropped": int(a[core.A_LATE_DROPPED]),
             "late_applied": int(a[core.A_LATE_APPLIED]),
             "invalid": int(a[core.A_ERROR]),
+            "gyro_saturated": int(a[core.A_SATURATED]),
             "updates": int(a[core.A_UPDATES]),
         }
 
@@ -612,6 +622,9 @@ class PlanarEKF(ExtendedKalmanFilter):
             return 5
         status = 0
         if kind == core.EV_GYRO:
+            if abs(a) >= n.gyro_limit:
+                aux[core.A_SATURATED] += 1
+                return 2
             H = np.array([[0, 0, 0, 0, 1.0, 1.0, 0, 0]])
             if aux[core.A_ZERO_COUNT] >= n.zupt_frames:
                 s_g = float((H @ self.P @ H.T)[0, 0]) + n.gyro_std ** 2
