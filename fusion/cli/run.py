@@ -99,14 +99,14 @@ def _config(args: argparse.Namespace):
         raise CommandError(f"--imu {exc}") from None
     if cfg.imu == "none" and cfg.chassis == "none":
         raise CommandError("nothing to fuse: --imu and --chassis are both none")
-    if cfg.imu == "sim" and cfg.chassis != "sim":
-        raise CommandError("--imu sim needs --chassis sim (the simulated IMU moves with the "
-                           "simulated chassis)")
     if cfg.chassis not in ("sim", "none") and args.config is None:
         raise CommandError(f"--chassis {cfg.chassis} is a real robot: give --config "
                            "robot.toml with its [chassis] table (wheel_distance, speed_ratio, "
                            "encode_sampling_time), or the odometry would use made-up "
                            "geometry")
+    if cfg.imu == "sim" and cfg.chassis != "sim":
+        raise CommandError("--imu sim needs --chassis sim (the simulated IMU moves with the "
+                           "simulated chassis)")
     return cfg
 
 

@@ -1,0 +1,150 @@
+"""``fusion run``: the live publisher (simulated sources here; hardware has the same path)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from fusion.cli import main
+
+
+def _mcap_counts(path) -> dict[str, int]:
+    from mcap.reader import make_reader
+
+    counts: dict[str, int] = {}
+    with open(path, "rb") as fh:
+        for _s, channel, _m in make_reader(fh).iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    return counts
+
+
+def _records(path) -> list[dict]:
+    text = path.read_text()
+    assert text.endswith("\n")
+    return [json.loads(line) for line in text.splitlines()]
+
+
+def test_ctrl_c_stops_cleanly_with_complete_files(tmp_path):
+    jsonl, mcap = tmp_path / "run.jsonl", tmp_path / "run.mcap"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fusion", "run", "--imu", "sim", "--chassis", "sim",
+         "--publish", f"jsonl:{jsonl},mcap:{mcap}", "--speed", "4", "--status", "0.5"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"})
+    try:
+        deadline = time.monotonic() + 120
+        lines = []
+        while time.monotonic() < deadline:
+            line = proc.stderr.readline()
+            lines.append(line)
+            if "records" in line and "running" not in line:
+                n = int(line.split(" frames")[0].split()[-1])
+                if n > 150:  # the robot has been driving for a while
+                    break
+        proc.send_signal(signal.SIGINT)
+        _out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, "".join(lines) + err
+    assert "stopping" in err and "done after" in err
+    recs = _records(jsonl)  # every line complete
+    assert len(recs) > 150
+    counts = _mcap_counts(mcap)  # a readable MCAP with every record
+    assert counts["/odom"] == counts["/tf"] == len(recs)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.jsonl", "run.mcap"]
+    # the simulated robot drove the demo's mission: it moved, and the fused yaw followed
+    assert max(abs(r["v"]) for r in recs) > 0.3
+    t = np.array([r["t"] for r in recs])
+    assert np.all(np.diff(t) > 0)
+
+
+def test_options_come_from_the_config_and_the_command_line_wins(tmp_path, capsys):
+    out = tmp_path / "cfg.jsonl"
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text(f"""\
+[chassis]
+wheel_distance = 0.3
+speed_ratio = 5e-5
+encode_sampling_time = 0.04
+wheel_speed_max = 1.0
+
+[frames]
+base = "base_link"
+
+[publish]
+sinks = ["jsonl:{out}"]
+rate_hz = 10
+
+[link]
+port = "sim"
+
+[imu]
+source = "sim"
+""")
+    assert main(["run", "--config", str(cfg), "--duration", "2.5", "--speed", "4",
+                 "--status", "0"]) == 0
+    recs = _records(out)
+    t = np.array([r["t"] for r in recs])
+    assert recs[0]["child_frame_id"] == "base_link"
+    # 10 Hz of robot time: one record per 0.1 s grid cell
+    assert np.all(np.diff(np.floor(t * 10 + 1e-9)) >= 1)
+    assert 0.095 < np.median(np.diff(t)) < 0.125
+    # the command line wins: every wheel frame (25 Hz), IMU off
+    assert main(["run", "--config", str(cfg), "--duration", "2.5", "--speed", "4",
+                 "--status", "0", "--publish-rate", "0", "--imu", "none"]) == 0
+    recs = _records(out)
+    t = np.array([r["t"] for r in recs])
+    assert abs(np.median(np.diff(t)) - 0.04) < 0.005
+    assert recs[-1]["orientation"] is None  # no IMU: no attitude
+
+
+@pytest.mark.skipif(importlib.util.find_spec("rospy") is not None,
+                    reason="rospy is installed here: the ROS 1 test covers the sink")
+def test_ros1_without_rospy_names_what_is_missing(capsys):
+    assert main(["run", "--publish", "ros1", "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert "python3-rospy" in err and "ROS 1 sink" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["--chassis", "/dev/ttyUSB7"], "give --config robot.toml"),
+        (["--imu", "sim", "--chassis", "none"], "--imu sim needs --chassis sim"),
+        (["--imu", "spi:0"], "--imu must be 'i2c:N'"),
+        (["--imu", "none", "--chassis", "none"], "nothing to fuse"),
+        (["--publish", "mcap"], "give a path"),
+        (["--publish", "telepathy"], "unknown sink 'telepathy'"),
+    ],
+)
+def test_bad_options_are_errors_a_user_can_act_on(argv, message, capsys):
+    assert main(["run", *argv, "--duration", "1"]) == 2
+    assert message in capsys.readouterr().err
+
+
+def test_a_bad_config_is_named_with_its_line(tmp_path, capsys):
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text("[imu]\nrate_hz = 100\nsource = 'usb'\n")
+    assert main(["run", "--config", str(cfg), "--duration", "1"]) == 2
+    assert f"{cfg}:3: [imu] source" in capsys.readouterr().err
+
+
+def test_a_real_port_that_does_not_open_is_named(tmp_path, capsys):
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text("[chassis]\nwheel_distance = 0.3\nspeed_ratio = 5e-5\n"
+                   "encode_sampling_time = 0.04\n")
+    port = tmp_path / "ttyUSB-absent"
+    assert main(["run", "--config", str(cfg), "--chassis", str(port), "--imu", "none",
+                 "--publish", f"jsonl:{tmp_path / 'x.jsonl'}", "--duration", "1"]) == 2
+    err = capsys.readouterr().err
+    assert str(port) in err and "did not open" in err
+    assert not (tmp_path / "x.jsonl").exists()  # aborted: no partial output
