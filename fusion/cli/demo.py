@@ -167,7 +167,7 @@ class SimRobot:
         params: the true robot (:class:`SimRobotParams`).
         data_link: a symlink path for the data port (needed for :meth:`unplug`/:meth:`replug`).
         keep_truth: keep the whole true trajectory (for a report; bounded runs only). Without
-            it only the last 60 s of motion are kept (indefinite runs).
+            it only the last 10 s of motion are kept (indefinite runs).
 
     Attributes:
         port: the path the host opens (the symlink if given).
@@ -190,7 +190,7 @@ class SimRobot:
                                            slip_noise=p.slip_noise, seed=p.seed))
         self.period = self.sim.params.period
         self._mount_inv = quat.to_matrix(quat.from_euler(*p.imu_mount_rpy)).T
-        self._segments: deque[_Segment] = deque(maxlen=None if keep_truth else 1500)
+        self._segments: deque[_Segment] = deque(maxlen=None if keep_truth else 250)
         self._seg_lock = threading.Lock()
         self.keep_truth = keep_truth
         self.truth: list[tuple[float, float, float, float]] = [(0.0, 0.0, 0.0, 0.0)]
