@@ -91,6 +91,7 @@ def templates() -> list[FusedOdometry]:
 NODE = textwrap.dedent("""
     import json, sys, threading
     from fusion.fused import FusedOdometry
+    from fusion.publish import Topics
     from fusion.ros1 import Ros1Sink
 
     records = [FusedOdometry.from_dict(d) for d in json.loads(sys.argv[1])]
@@ -104,17 +105,21 @@ NODE = textwrap.dedent("""
     threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
     sink = Ros1Sink(stamp="record", on_cmd_vel=on_cmd_vel, node_name="fusion_test_node",
                     imu_frame_id="imu_link")
-    with sink:
+    # a second sink on the same node: defaults (stamp="now"), 2 Hz of record time
+    live = Ros1Sink(Topics(odom="/live/odom", tf=None, imu=None, wheel_left=None,
+                           wheel_right=None), cmd_vel_topic=None, rate_hz=2.0)
+    with sink, live:
         print(json.dumps({"ready": True}), flush=True)
         for i in range(4000):  # bounded: at most 200 s
             if stop.wait(0.05):
                 break
             sink.write(records[i % len(records)])
+            live.write(records[i % len(records)])
     print(json.dumps({"closed": sink.records_written}), flush=True)
 """)
 
 CHECKER = textwrap.dedent("""
-    import json, sys, threading
+    import json, sys, threading, time
     import genpy, rospy
     from geometry_msgs.msg import Twist
     from nav_msgs.msg import Odometry
@@ -127,15 +132,20 @@ CHECKER = textwrap.dedent("""
     def plain(m):
         if isinstance(m, genpy.Time):
             return [m.secs, m.nsecs]
-        if isinstance(m, genpy.Message):
-            return {s: plain(getattr(m, s)) for s in m.__slots__}
+        if isinstance(m, genpy.Message):  # Header.seq left out: it counts publications
+            return {s: plain(getattr(m, s)) for s in m.__slots__ if s != "seq"}
         if isinstance(m, (list, tuple)):
             return [plain(v) for v in m]
         return m
 
     got = {t: {} for t in want}
+    live = []  # /live/odom: [header stamp s, receipt wall time s, pose x]
     lock = threading.Lock()
     done = threading.Event()
+
+    def check_done():
+        if all(len(got[t]) >= n for t, n in want.items()) and len(live) >= 6:
+            done.set()
 
     def callback(topic):
         def cb(msg):
@@ -143,14 +153,19 @@ CHECKER = textwrap.dedent("""
             key = json.dumps(d, sort_keys=True)
             with lock:
                 got[topic].setdefault(key, d)
-                if all(len(got[t]) >= n for t, n in want.items()):
-                    done.set()
+                check_done()
         return cb
+
+    def live_cb(msg):
+        with lock:
+            live.append([msg.header.stamp.to_sec(), time.time(), msg.pose.pose.position.x])
+            check_done()
 
     rospy.init_node("fusion_test_checker", disable_signals=True)
     types = {"/odom": Odometry, "/tf": TFMessage, "/imu/data": Imu,
              "/wheel_left_speed": Float32, "/wheel_right_speed": Float32}
     subs = [rospy.Subscriber(t, types[t], callback(t)) for t in want]
+    subs.append(rospy.Subscriber("/live/odom", Odometry, live_cb))
     cmd = rospy.Publisher("/cmd_vel", Twist, queue_size=10)
     twist = Twist()
     twist.linear.x, twist.angular.z = 0.25, -0.5
@@ -161,7 +176,8 @@ CHECKER = textwrap.dedent("""
         cmd.publish(twist)
         if done.is_set() and not reported:
             with lock:
-                print(json.dumps({t: list(v.values()) for t, v in got.items()}), flush=True)
+                out = {t: list(v.values()) for t, v in got.items()}
+                print(json.dumps({**out, "/live/odom": live}), flush=True)
             reported = True
         if stop.wait(0.1):
             break
@@ -284,7 +300,14 @@ def test_ros1_node_publishes_seed_000_interface_and_hands_cmd_vel_over(tmp_path:
     assert cmd == {"cmd_vel": [0.25, -0.5]}
     assert closed["closed"] >= 4
 
+    live = got.pop("/live/odom")
     assert {t: len(v) for t, v in got.items()} == want  # nothing unexpected or duplicated
+    # the stamp="now" sink stamps with the wall clock at publication (the records say ~1000 s)
+    for stamp, received, _x in live:
+        assert abs(received - stamp) < 5.0
+    # ... and its 2 Hz limit, on record time (t = 1000.125 + 0.25 k, cycling), passes
+    # records 0 and 2 of each cycle only
+    assert {x for _s, _r, x in live} == {recs[0].x, recs[2].x}
     for m, rec in by_stamp(got["/odom"], recs):
         assert m["header"]["frame_id"] == "odom"
         assert m["child_frame_id"] == "base_footprint"
