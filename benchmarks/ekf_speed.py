@@ -6,6 +6,8 @@ Run: python benchmarks/ekf_speed.py [--seconds S]   (numba from the `fast` extra
 Rows (same events: a 60 s degraded mission, gyro 100 Hz + wheel frames 25 Hz, ZUPTs, slips):
 - ``PlanarEKF.process_batch``: the compiled loop over the compiled step (numba).
 - ``PlanarEKF.update_*`` streaming: one Python call per event into the same compiled step.
+- the same compiled step run interpreted (numba absent or ``FUSION_DISABLE_JIT=1``), in a
+  child process;
 - ``filterpy backend``: the same model on filterpy's own ``ExtendedKalmanFilter.predict`` /
   ``update`` (numpy 8x8 matrices, ``inv(S)``), i.e. a plain filterpy EKF.
 All three give the same state (tests/test_ekf.py checks core == filterpy to 1e-9).
@@ -14,6 +16,9 @@ All three give the same state (tests/test_ekf.py checks core == filterpy to 1e-9
 from __future__ import annotations
 
 import argparse
+import os
+import subprocess
+import sys
 import time
 from collections.abc import Callable
 
@@ -40,6 +45,7 @@ def rate(fn: Callable[[], int], seconds: float) -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=3.0, help="time per contender (CPU)")
+    ap.add_argument("--interpreted-child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
 
     run = degraded_mission(seed=0, duration=60.0)
@@ -49,11 +55,11 @@ def main() -> None:
     events = list(zip(kinds.tolist(), stamp.tolist(), a.tolist(), b.tolist(), strict=True))
 
     def batch() -> int:
-        PlanarEKF(EXAMPLE_ROBOT).process_batch(kinds, t_eff, a, b)
+        PlanarEKF(EXAMPLE_ROBOT, backend="core").process_batch(kinds, t_eff, a, b)
         return n
 
     def streaming() -> int:
-        f = PlanarEKF(EXAMPLE_ROBOT)
+        f = PlanarEKF(EXAMPLE_ROBOT, backend="core")
         gyro, wheels = f.update_gyro, f.update_wheels
         for k, t, x, y in events:
             if k == core.EV_GYRO:
@@ -69,9 +75,18 @@ def main() -> None:
         f.process_batch(kinds[:m], t_eff[:m], a[:m], b[:m])
         return m
 
+    if args.interpreted_child:
+        print(rate(batch, args.seconds))
+        return
+    env = dict(os.environ, FUSION_DISABLE_JIT="1")
+    child = subprocess.run([sys.executable, __file__, "--interpreted-child", "--seconds",
+                            str(args.seconds)], env=env, capture_output=True, text=True,
+                           check=True)
     rows = [
         ("PlanarEKF.process_batch (compiled loop)", rate(batch, args.seconds)),
         ("PlanarEKF.update_gyro/update_wheels (streaming)", rate(streaming, args.seconds)),
+        ("same core interpreted (no numba; backend='auto' then uses filterpy)",
+         float(child.stdout.strip().splitlines()[-1])),
         ("plain filterpy ExtendedKalmanFilter, same model", rate(filterpy, args.seconds)),
     ]
     ref = rows[-1][1]

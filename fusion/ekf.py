@@ -81,6 +81,7 @@ from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
 from fusion import _ekf_core as core
+from fusion._jit import HAVE_NUMBA
 from fusion.kinematics import DiffDriveParams
 
 __all__ = [
@@ -368,8 +369,10 @@ class PlanarEKF(ExtendedKalmanFilter):
         noise: :class:`EkfNoise`.
         x0: initial state ``[x, y, yaw, v, w, b]`` (default zeros).
         P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c from ``noise``).
-        backend: ``"core"`` (compiled core) or ``"filterpy"`` (the same model on filterpy's
-            ``predict``/``update``; slower, kept as the reference).
+        backend: ``"core"`` (the compiled core: ~500 k events/s with numba, but ~1 k/s
+            interpreted), ``"filterpy"`` (the same model on filterpy's ``predict``/``update``,
+            ~6 k events/s, the reference) or ``"auto"`` (default: ``"core"`` when numba is
+            installed, else ``"filterpy"``). Both agree to 1e-9 (tests).
 
     Attributes:
         t: filter time, s (None before the first input).
@@ -383,11 +386,13 @@ class PlanarEKF(ExtendedKalmanFilter):
         noise: EkfNoise | None = None,
         x0: ArrayLike | None = None,
         P0: ArrayLike | None = None,
-        backend: str = "core",
+        backend: str = "auto",
     ) -> None:
         super().__init__(dim_x=8, dim_z=2)
-        if backend not in ("core", "filterpy"):
-            raise ValueError(f"backend must be 'core' or 'filterpy', got {backend!r}")
+        if backend not in ("auto", "core", "filterpy"):
+            raise ValueError(f"backend must be 'auto', 'core' or 'filterpy', got {backend!r}")
+        if backend == "auto":
+            backend = "core" if HAVE_NUMBA else "filterpy"
         self.robot = robot
         self.noise = noise if noise is not None else EkfNoise()
         self.backend = backend

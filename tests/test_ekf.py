@@ -49,7 +49,7 @@ def test_core_equals_filterpy_predict_update(short_run):
     # and absolute yaw, including a yaw measurement across the +-pi seam.
     kinds, t, a, b, _ = _events(short_run, yaw_t=[10.0, 20.0, 30.0],
                                 yaw=[0.1, math.pi - 0.01, -math.pi + 0.02], yaw_std=0.05)
-    fast = PlanarEKF(ROBOT)
+    fast = PlanarEKF(ROBOT, backend="core")
     ref = PlanarEKF(ROBOT, backend="filterpy")
     out_f, st_f = fast.process_batch(kinds, t, a, b)
     out_r, st_r = ref.process_batch(kinds, t, a, b)
@@ -256,7 +256,7 @@ def test_twist_input_core_equals_filterpy_and_matches_the_tick_path():
     kinds, t, a, b, _ = merge_events(run.imu_t, run.gyro[:, 2], None, None, 0.04,
                                      twist_t=tt, twist_v=tv, twist_w=tw)
     assert set(kinds.tolist()) == {0, 3}
-    fast = PlanarEKF(ROBOT)
+    fast = PlanarEKF(ROBOT, backend="core")
     ref = PlanarEKF(ROBOT, backend="filterpy")
     out_f, st_f = fast.process_batch(kinds, t, a, b)
     out_r, st_r = ref.process_batch(kinds, t, a, b)
@@ -267,7 +267,7 @@ def test_twist_input_core_equals_filterpy_and_matches_the_tick_path():
     _, ticks_ekf = fuse(ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks)
     assert math.hypot(*(fast.x[:2] - ticks_ekf.x[:2])) < 0.002 * run.distance
     # streaming entry point
-    one = PlanarEKF(ROBOT)
+    one = PlanarEKF(ROBOT, backend="core")
     for k in range(len(kinds)):
         if kinds[k] == 0:
             one.update_gyro(t[k], a[k])
@@ -370,3 +370,10 @@ def test_saturated_gyro_samples_are_skipped():
             assert ekf.stats["gyro_saturated"] > 100
     assert yaw_err[math.radians(249.0)] < 3.0
     assert yaw_err[math.inf] > 30.0
+
+
+def test_auto_backend_uses_the_compiled_core_only_with_numba():
+    from fusion._jit import HAVE_NUMBA
+
+    assert PlanarEKF(ROBOT).backend == ("core" if HAVE_NUMBA else "filterpy")
+    assert PlanarEKF(ROBOT, backend="core").backend == "core"
