@@ -483,15 +483,24 @@ class Rosbag2Sink(Sink):
         storage: ``"mcap"`` (default) or ``"sqlite3"``.
         topics: topic names (:class:`Topics`).
         overwrite: replace an existing bag at ``path``.
+        compression: ``"zstd"`` compresses MCAP chunks (every MCAP reader, Foxglove and
+            ``ros2 bag`` included, reads them; files several times smaller); None does not;
+            ``"auto"`` (default) is zstd for MCAP, none for sqlite3.
     """
 
     def __init__(self, path: str | Path, *, storage: str = "mcap", topics: Topics | None = None,
-                 overwrite: bool = False) -> None:
+                 overwrite: bool = False, compression: str | None = "auto") -> None:
         super().__init__()
         if storage not in ("mcap", "sqlite3"):
             raise ValueError(f"storage must be 'mcap' or 'sqlite3', got {storage!r}")
+        if compression == "auto":
+            compression = "zstd" if storage == "mcap" else None
+        if compression not in (None, "zstd") or (compression and storage != "mcap"):
+            raise ValueError(f"compression must be None or 'zstd' (MCAP storage only), got "
+                             f"{compression!r} with {storage}")
         self.path = Path(path)
         self.storage = storage
+        self.compression = compression
         self.topics = topics or Topics()
         self.overwrite = overwrite
         self._tmpdir: Path | None = None
@@ -516,6 +525,9 @@ class Rosbag2Sink(Sink):
         try:
             self._writer = rosbag2.Writer(self._tmpdir / self.path.name, version=8,
                                           storage_plugin=plugin)
+            if self.compression == "zstd":  # zstd-compressed MCAP chunks
+                self._writer.set_compression(rosbag2.CompressionMode.STORAGE,
+                                             rosbag2.CompressionFormat.ZSTD)
             self._writer.open()
             for key, topic in self.topics.as_dict().items():
                 if topic is not None:
@@ -583,8 +595,9 @@ class McapSink(Rosbag2Sink):
     """
 
     def __init__(self, path: str | Path, *, topics: Topics | None = None,
-                 overwrite: bool = True) -> None:
-        super().__init__(path, storage="mcap", topics=topics, overwrite=overwrite)
+                 overwrite: bool = True, compression: str | None = "zstd") -> None:
+        super().__init__(path, storage="mcap", topics=topics, overwrite=overwrite,
+                         compression=compression)
 
     def _install(self, built: Path) -> None:
         self._check_target()

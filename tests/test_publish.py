@@ -193,10 +193,17 @@ def test_rosbag2_sink_reads_back_with_rosbags(tmp_path: Path, storage: str) -> N
     assert [p.name for p in tmp_path.iterdir()] == ["fused"]  # no temporary left behind
 
 
-def test_mcap_sink_reads_back_with_mcap_and_its_ros2_decoder(tmp_path: Path) -> None:
+@pytest.mark.parametrize("compression", ["zstd", None])
+def test_mcap_sink_reads_back_with_mcap_and_its_ros2_decoder(tmp_path: Path,
+                                                              compression) -> None:
+    from mcap.reader import make_reader
+
     recs = make_records()
     out = tmp_path / "fused.mcap"
-    write_all(McapSink(out), recs)
+    write_all(McapSink(out, compression=compression), recs)
+    with out.open("rb") as f:
+        chunks = make_reader(f).get_summary().chunk_indexes
+    assert chunks and {c.compression for c in chunks} == {compression or ""}
     msgs, types = read_mcap_independently(out)
     assert types == EXPECTED_TYPES
     assert len(msgs) == 5 * len(recs) - 2
@@ -258,6 +265,15 @@ def test_rosbag2_sink_refuses_existing_bag_unless_overwrite(tmp_path: Path) -> N
     write_all(Rosbag2Sink(bag, overwrite=True), make_records(3))
     assert len(read_rosbag2(bag)) == 15
     assert [p.name for p in tmp_path.iterdir()] == ["bag"]
+
+
+def test_compression_choices() -> None:
+    assert Rosbag2Sink("b").compression == "zstd"
+    assert Rosbag2Sink("b", storage="sqlite3").compression is None
+    with pytest.raises(ValueError, match="MCAP storage only"):
+        Rosbag2Sink("b", storage="sqlite3", compression="zstd")
+    with pytest.raises(ValueError, match="compression"):
+        McapSink("f.mcap", compression="lz4")
 
 
 def test_missing_output_folder_is_named(tmp_path: Path) -> None:
