@@ -520,7 +520,7 @@ class FusionPipeline:
     def _set_last(self, gi: int, wi: int, src, G, A, Q, TK) -> None:
         if gi >= 0:
             k = src[gi]
-            self._q, self._gyro, self._accel = Q[k].copy(), G[k].copy(), A[k].copy()
+            self._q, self._gyro, self._accel = Q[k], G[k], A[k]  # views; records copy
         if wi >= 0:
             k = src[wi]
             self._wheel_speeds = (int(TK[k, 0]) * self._m_per_s, int(TK[k, 1]) * self._m_per_s)
@@ -609,46 +609,63 @@ def _record_fields(t, x, P, q, gyro_xy, accel, wheel_speeds, frame_id,
              0.0, 0.0, 0.0, 0.0, u, 0.0,
              c34, 0.0, 0.0, 0.0, 0.0, p44]
     w = float(x[4])
-    return dict(
-        t=float(t), x=float(x[0]), y=float(x[1]), yaw=core.wrap_angle_scalar(float(x[2])),
-        v=float(x[3]), w=w,
-        pose_covariance=np.array(pose).reshape(6, 6),
-        twist_covariance=np.array(twist).reshape(6, 6),
-        orientation=None if q is None else [float(v) for v in q],
-        angular_velocity=(0.0, 0.0, w) if gyro_xy is None else (gyro_xy[0], gyro_xy[1], w),
-        linear_acceleration=None if accel is None else [float(v) for v in accel],
-        wheel_left_speed=None if wheel_speeds is None else float(wheel_speeds[0]),
-        wheel_right_speed=None if wheel_speeds is None else float(wheel_speeds[1]),
-        frame_id=frame_id, child_frame_id=child_frame_id,
-    ) | {"_sum": sum(pose) + sum(twist)}
+    if gyro_xy is None:
+        av = (0.0, 0.0, w)
+    else:
+        av = (gyro_xy[0], gyro_xy[1], w)
+    return {
+        "t": float(t), "x": float(x[0]), "y": float(x[1]),
+        "yaw": core.wrap_angle_scalar(float(x[2])), "v": float(x[3]), "w": w,
+        "pose_covariance": np.array(pose).reshape(6, 6),
+        "twist_covariance": np.array(twist).reshape(6, 6),
+        "orientation": None if q is None else np.asarray(q, dtype=np.float64).tolist(),
+        "angular_velocity": av,
+        "linear_acceleration": None if accel is None
+        else np.asarray(accel, dtype=np.float64).tolist(),
+        "wheel_left_speed": None if wheel_speeds is None else float(wheel_speeds[0]),
+        "wheel_right_speed": None if wheel_speeds is None else float(wheel_speeds[1]),
+        "frame_id": frame_id, "child_frame_id": child_frame_id,
+        "_sum": sum(pose) + sum(twist),
+    }
 
 
 def _fast_record(f: dict[str, Any]) -> FusedOdometry:
-    """``FusedOdometry(**f)`` for fields from :func:`_record_fields`, at a fraction of the
-    cost (tests/test_pipeline.py checks the two are equal): the covariances are symmetric by
-    construction there, so only finiteness is checked here, and a non-finite state goes
-    through the validating constructor, which raises naming the field."""
-    f = dict(f)
-    total = f.pop("_sum")
+    """``FusedOdometry(**f)`` for fields from :func:`_record_fields` (without its ``_sum``
+    key), at a fraction of the cost (tests/test_pipeline.py checks the two are equal): the
+    covariances are symmetric by construction there, so only finiteness is checked here, and
+    a non-finite state goes through the validating constructor, which raises naming the
+    field."""
     av, q, accel = f["angular_velocity"], f["orientation"], f["linear_acceleration"]
-    total += f["t"] + f["x"] + f["y"] + f["yaw"] + f["v"] + f["w"] + av[0] + av[1]
+    total = f["_sum"] + f["t"] + f["x"] + f["y"] + f["yaw"] + f["v"] + f["w"] + av[0] + av[1]
+    qn = 1.0
     if q is not None:
         qn = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
         total += qn
     if accel is not None:
         total += accel[0] + accel[1] + accel[2]
-    if not math.isfinite(total) or (q is not None and abs(qn - 1.0) > 1e-3):
-        return FusedOdometry(**f)  # raises, naming the field (or accepts a huge value)
+    if not math.isfinite(total) or abs(qn - 1.0) > 1e-3:
+        return FusedOdometry(**{k: v for k, v in f.items() if k != "_sum"})  # raises
     rec = object.__new__(FusedOdometry)
     put = object.__setattr__
-    for name in ("t", "x", "y", "yaw", "v", "w", "wheel_left_speed", "wheel_right_speed",
-                 "frame_id", "child_frame_id"):
-        put(rec, name, f[name])
-    put(rec, "pose_covariance", _frozen(f["pose_covariance"].copy()))
-    put(rec, "twist_covariance", _frozen(f["twist_covariance"].copy()))
+    put(rec, "t", f["t"])
+    put(rec, "x", f["x"])
+    put(rec, "y", f["y"])
+    put(rec, "yaw", f["yaw"])
+    put(rec, "v", f["v"])
+    put(rec, "w", f["w"])
+    put(rec, "wheel_left_speed", f["wheel_left_speed"])
+    put(rec, "wheel_right_speed", f["wheel_right_speed"])
+    put(rec, "frame_id", f["frame_id"])
+    put(rec, "child_frame_id", f["child_frame_id"])
+    pose, twist = f["pose_covariance"], f["twist_covariance"]
+    pose.setflags(write=False)  # fresh arrays from _record_fields
+    twist.setflags(write=False)
+    put(rec, "pose_covariance", pose)
+    put(rec, "twist_covariance", twist)
     if q is not None:
         qa = np.array(q, dtype=np.float64)
-        put(rec, "orientation", _frozen(qa / float(np.linalg.norm(qa))))
+        # what FusedOdometry does: q / np.linalg.norm(q), and norm is sqrt(q.dot(q))
+        put(rec, "orientation", _frozen(qa / math.sqrt(qa.dot(qa))))
     else:
         put(rec, "orientation", None)
     put(rec, "angular_velocity", _frozen(np.array(av, dtype=np.float64)))
