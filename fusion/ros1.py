@@ -138,6 +138,13 @@ class Ros1Sink(Sink):
         if not rospy.core.is_initialized():
             if not self.init_node:
                 raise RuntimeError("no ROS node in this process and init_node=False")
+            import rosgraph
+
+            # rospy would otherwise start and publish into the void, retrying in the background
+            if not rosgraph.is_master_online(self.master_uri):
+                uri = self.master_uri or rosgraph.get_master_uri()
+                raise ConnectionError(f"no ROS master at {uri}: start roscore, or set "
+                                      "ROS_MASTER_URI / master_uri")
             argv = [f"__master:={self.master_uri}"] if self.master_uri else None
             rospy.init_node(self.node_name, anonymous=False, disable_signals=True,
                             argv=argv)

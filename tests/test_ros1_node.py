@@ -462,3 +462,19 @@ def test_read_bag_matches_ros_own_rosbag_reader(datasets_dir) -> None:
     np.testing.assert_array_equal(log.odometry.w, [row[14] for row in odom])
     np.testing.assert_array_equal(log.odometry.pose_covariance, [row[15] for row in odom])
     np.testing.assert_array_equal(log.odometry.twist_covariance, [row[16] for row in odom])
+
+
+def test_ros1_sink_without_a_master_says_so(tmp_path: Path) -> None:
+    py = ros_python()
+    port = free_port()  # nothing listens there
+    env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}/",
+           "ROS_IP": "127.0.0.1", "ROS_HOME": str(tmp_path)}
+    script = ("from fusion.ros1 import Ros1Sink\n"
+              "try:\n"
+              "    Ros1Sink().open()\n"
+              "except ConnectionError as exc:\n"
+              "    print('ConnectionError:', exc)\n")
+    r = subprocess.run([py, "-c", script], env=env, capture_output=True, text=True,
+                       timeout=TIMEOUT)
+    assert r.returncode == 0, r.stderr
+    assert f"ConnectionError: no ROS master at http://127.0.0.1:{port}/" in r.stdout
