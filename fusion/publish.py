@@ -472,8 +472,9 @@ class Rosbag2Sink(Sink):
     """A rosbag2 recording (folder with ``metadata.yaml``) of the topics of :class:`Topics`.
 
     Written with the ``rosbags`` package in ROS 2 CDR encoding (Jazzy message definitions; the
-    five message types are identical in every ROS 2 distribution), bag format version 8
-    (the oldest ``rosbags`` writes; ROS 2 Jazzy and later replay it). The bag is built in a
+    five message types are identical in every ROS 2 distribution) with bag metadata version 8,
+    the oldest that ``rosbags`` writes (a ROS 2 release older than that metadata version may
+    refuse ``metadata.yaml``; the MCAP data file inside is self-contained). The bag is built in a
     temporary folder next to ``path`` and renamed into place on close; an existing bag at
     ``path`` is a FileExistsError at ``open()`` unless ``overwrite=True``, and is replaced only
     by a complete one.
@@ -587,7 +588,7 @@ class Rosbag2Sink(Sink):
 
 class McapSink(Rosbag2Sink):
     """One self-contained ``.mcap`` file (ROS 2 profile, CDR messages with their ``ros2msg``
-    schemas) that Foxglove opens directly and ``ros2 bag`` plays with ``-s mcap``.
+    schemas) that Foxglove and any MCAP reader open directly.
 
     It is the data file of a :class:`Rosbag2Sink` bag with MCAP storage, moved to ``path`` by an
     atomic rename on close: an existing file at ``path`` is replaced only by a complete one
