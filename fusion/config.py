@@ -41,6 +41,11 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
     reorder_window = 0.06         # s events are held to be put in time order (default: enough
                                   # for the IMU FIFO interval plus half a wheel period)
 
+    [run]                         # the session (fusion run's --duration, --speed, --status)
+    duration = 0                  # s, 0 = until Ctrl-C
+    speed = 1.0                   # robot time per wall second, simulated chassis only
+    status = 10.0                 # s between status lines on stderr, 0 = none
+
     [topics]                      # ROS topic names (fusion.publish.Topics), "" leaves one out
     odom = "/odom"
     tf = "/tf"
@@ -113,6 +118,8 @@ class RunConfig:
         reorder_window: s (None: the pipeline's default for the IMU FIFO interval).
         topics: topic names (odom, tf, imu, wheel_left, wheel_right; None leaves one out).
         cmd_vel_topic: velocity command topic of the ROS 1 sink, or None.
+        duration: s to run, None until stopped; speed: robot time per wall second
+            (simulated chassis); status: s between status lines, 0 none.
         source: the file this came from, or None.
     """
 
@@ -137,6 +144,9 @@ class RunConfig:
         "odom": "/odom", "tf": "/tf", "imu": "/imu/data",
         "wheel_left": "/wheel_left_speed", "wheel_right": "/wheel_right_speed"})
     cmd_vel_topic: str | None = "/cmd_vel"
+    duration: float | None = None
+    speed: float = 1.0
+    status: float = 10.0
     source: Path | None = None
 
     def with_overrides(self, **changes: Any) -> RunConfig:
@@ -248,6 +258,11 @@ SCHEMA: dict[str, dict[str, tuple[str, Check]]] = {
         "rate_hz": ("publish_rate_hz", _rate),
         "reorder_window": ("reorder_window", _number(0.0, 1.0)),
     },
+    "run": {
+        "duration": ("duration", _rate),
+        "speed": ("speed", _number(0.1, 20.0)),
+        "status": ("status", _number(0.0)),
+    },
     "topics": {
         "odom": ("topics.odom", _topic),
         "tf": ("topics.tf", _topic),
@@ -269,6 +284,9 @@ RUN_OPTIONS: dict[str, tuple[str, str]] = {
     "baudrate": ("link", "baudrate"),
     "publish": ("publish", "sinks"),
     "publish_rate": ("publish", "rate_hz"),
+    "duration": ("run", "duration"),
+    "speed": ("run", "speed"),
+    "status": ("run", "status"),
 }
 
 

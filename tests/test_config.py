@@ -49,6 +49,11 @@ sinks = ["jsonl", "mcap:out.mcap"]
 rate_hz = 10
 reorder_window = 0.08
 
+[run]
+duration = 30
+speed = 2
+status = 0
+
 [topics]
 odom = "/wheel/odom"
 imu = ""
@@ -83,6 +88,7 @@ def test_full_file_reads_every_key(tmp_path):
     assert cfg.topics["odom"] == "/wheel/odom" and cfg.topics["imu"] is None
     assert cfg.topics["tf"] == "/tf"  # default kept
     assert cfg.cmd_vel_topic == "/cmd"
+    assert (cfg.duration, cfg.speed, cfg.status) == (30.0, 2.0, 0.0)
 
 
 def test_robot_tables_parse_like_a_log_directory_robot_toml(tmp_path):
@@ -112,6 +118,18 @@ def test_overrides_ignore_options_not_given():
 def test_every_run_option_has_a_key_in_the_schema():
     for option, (table, key) in RUN_OPTIONS.items():
         assert key in SCHEMA[table], option
+
+
+def test_every_fusion_run_option_can_come_from_the_file():
+    """The command's own parser: each option but --config is mapped to a table and key."""
+    import argparse
+
+    from fusion.cli import build_parser
+
+    sub = next(a for a in build_parser()._actions
+               if isinstance(a, argparse._SubParsersAction))
+    dests = {a.dest for a in sub.choices["run"]._actions} - {"help", "config"}
+    assert dests == set(RUN_OPTIONS)
 
 
 @pytest.mark.parametrize(

@@ -89,9 +89,13 @@ port = "sim"
 
 [imu]
 source = "sim"
+
+[run]
+duration = 2.5
+speed = 4
+status = 0
 """)
-    assert main(["run", "--config", str(cfg), "--duration", "2.5", "--speed", "4",
-                 "--status", "0"]) == 0
+    assert main(["run", "--config", str(cfg)]) == 0
     recs = _records(out)
     t = np.array([r["t"] for r in recs])
     assert recs[0]["child_frame_id"] == "base_link"

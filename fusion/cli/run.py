@@ -62,10 +62,10 @@ def register(subparsers: Any) -> None:
                    help="records per second (0: one per wheel frame, the default)")
     p.add_argument("--duration", type=float, metavar="S",
                    help="stop after this many seconds (default: until Ctrl-C)")
-    p.add_argument("--speed", type=float, default=1.0,
+    p.add_argument("--speed", type=float,
                    help="with --chassis sim: robot time per wall second (default 1)")
-    p.add_argument("--status", type=float, default=10.0, metavar="S",
-                   help="seconds between status lines on stderr (0: none)")
+    p.add_argument("--status", type=float, metavar="S",
+                   help="seconds between status lines on stderr (0: none; default 10)")
     p.set_defaults(func=run)
 
 
@@ -86,7 +86,8 @@ def _config(args: argparse.Namespace):
         rate = args.publish_rate
     cfg = cfg.with_overrides(imu=args.imu, imu_address=args.address, imu_rate_hz=args.rate,
                              imu_calibration=args.calibration, chassis=args.chassis,
-                             baudrate=args.baudrate, publish=publish)
+                             baudrate=args.baudrate, publish=publish, duration=args.duration,
+                             speed=args.speed, status=args.status)
     if rate is not None:
         from dataclasses import replace
 
@@ -153,10 +154,13 @@ def run(args: argparse.Namespace) -> int:
     cfg = _config(args)
     if args.duration is not None and not args.duration > 0:
         raise CommandError(f"--duration must be > 0 s, got {args.duration}")
-    if not 0.1 <= args.speed <= 20:
-        raise CommandError(f"--speed must be within 0.1..20, got {args.speed}")
-    if args.speed != 1.0 and cfg.chassis != "sim":
+    if not 0.1 <= cfg.speed <= 20:
+        raise CommandError(f"--speed must be within 0.1..20, got {cfg.speed}")
+    if cfg.speed != 1.0 and cfg.chassis != "sim":
         raise CommandError("--speed only applies to --chassis sim")
+    if cfg.status < 0:
+        raise CommandError(f"--status must be >= 0 s, got {cfg.status}")
+    duration, status = cfg.duration, cfg.status
     chassis = cfg.robot.chassis
 
     def err(msg: str) -> None:
@@ -164,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
 
     warm_up(cfg)  # load (or compile) the numba cores before any source starts
     sim = cfg.chassis == "sim"
-    clock = ScaledClock(args.speed) if sim else time.monotonic
+    clock = ScaledClock(cfg.speed) if sim else time.monotonic
     link_holder: dict[str, Any] = {}
     cmd_state = {"t": -math.inf}
 
@@ -229,10 +233,10 @@ def run(args: argparse.Namespace) -> int:
                 if cmd != state["cmd"] or now - state["sent"] > 0.2:
                     send_twist(link, chassis, *cmd)
                     state["cmd"], state["sent"] = cmd, now
-            if args.status and time.monotonic() - state["status"] >= args.status:
+            if status and time.monotonic() - state["status"] >= status:
                 state["status"] = time.monotonic()
                 err(_status(pipe, runner))
-            return args.duration is not None and time.monotonic() - wall0 >= args.duration
+            return duration is not None and time.monotonic() - wall0 >= duration
 
         err(f"running: imu {cfg.imu}, chassis {port if cfg.chassis != 'none' else 'none'}, "
             f"publishing to {', '.join(cfg.publish) or 'nothing'} (Ctrl-C stops)")
