@@ -33,6 +33,9 @@ _EXPORTS = {
     "write_logdir": "fusion.logdir",
     "calibrate_odometry": "fusion.odometry_calibration",
     "umbmark": "fusion.odometry_calibration",
+    "FusionPipeline": "fusion.pipeline",
+    "LiveRunner": "fusion.pipeline",
+    "load_config": "fusion.config",
 }
 
 __all__ = ["__version__", *_EXPORTS]
