@@ -524,7 +524,7 @@ class Rosbag2Sink(Sink):
         plugin = {"mcap": rosbag2.StoragePlugin.MCAP,
                   "sqlite3": rosbag2.StoragePlugin.SQLITE3}[self.storage]
         try:
-            self._writer = rosbag2.Writer(self._tmpdir / self.path.name, version=8,
+            self._writer = rosbag2.Writer(self._tmpdir / self._bag_name(), version=8,
                                           storage_plugin=plugin)
             if self.compression == "zstd":  # zstd-compressed MCAP chunks
                 self._writer.set_compression(rosbag2.CompressionMode.STORAGE,
@@ -547,7 +547,10 @@ class Rosbag2Sink(Sink):
         assert self._writer is not None and self._tmpdir is not None
         writer, self._writer = self._writer, None
         writer.close()
-        return self._tmpdir / self.path.name
+        return self._tmpdir / self._bag_name()
+
+    def _bag_name(self) -> str:
+        return self.path.name
 
     def _close(self) -> None:
         try:
@@ -599,6 +602,12 @@ class McapSink(Rosbag2Sink):
                  overwrite: bool = True, compression: str | None = "zstd") -> None:
         super().__init__(path, storage="mcap", topics=topics, overwrite=overwrite,
                          compression=compression)
+
+    def _bag_name(self) -> str:
+        # rosbags names the data file "<bag>.mcap" and records that name inside the file:
+        # a bag named after the stem makes it the final name (and the bytes independent of
+        # the temporary folder, so equal records give byte-identical files)
+        return self.path.stem if self.path.suffix == ".mcap" else self.path.name
 
     def _install(self, built: Path) -> None:
         self._check_target()
