@@ -152,3 +152,25 @@ def test_cli_umbmark(tmp_path, capsys):
     out = capsys.readouterr().out
     assert _value(out, "wheel_distance") == pytest.approx(0.3 * 1.03, rel=0.01)
     assert "E_d = D_R/D_L = 1.005" in out
+
+
+def test_calibration_with_dropped_frames_jitter_and_latency():
+    # 5 % of the frames lost (windows must be consecutive frames, so about half the windows
+    # survive), 2 ms stamp jitter, 5 ms latency (given), slips. Measured when written:
+    # L -0.07..+0.07 %, ratio within 0.01 %, speed_ratio (from the truth) within 0.04 %.
+    from fusion.synthetic import SlipPatch, random_mission
+
+    patches = tuple(SlipPatch(t0, t0 + 1, wheel="left", ratio=0.3) for t0 in (60, 150, 240))
+    imu = ImuModel(gyro_bias=(0.002, -0.002, math.radians(0.5)), gyro_bias_walk=2e-5,
+                   vibration=0.5, jitter=5e-4)
+    enc = EncoderModel(separation_error=0.03, left_scale_error=-0.0025, right_scale_error=0.0025,
+                       slip_patches=patches, drop_probability=0.05, jitter=0.002, latency=0.005)
+    run = simulate(random_mission(300, seed=2), ROBOT, imu, enc, seed=2)
+    cal = calibrate_odometry(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, ROBOT,
+                             latency=0.005, truth_t=run.truth_t, truth=run.truth)
+    assert cal.wheel_distance == pytest.approx(run.true_wheel_distance, rel=0.003)
+    assert cal.radius_ratio == pytest.approx(run.true_right_ratio / run.true_left_ratio,
+                                             rel=0.003)
+    true_mean = 0.5 * (run.true_left_ratio + run.true_right_ratio)
+    assert cal.speed_ratio == pytest.approx(true_mean, rel=0.003)
+    assert cal.windows_used > 100
