@@ -136,6 +136,16 @@ def test_cli_calibrate_odometry(tmp_path, capsys):
     assert _value(out, "speed_ratio") == pytest.approx(true_mean, rel=0.003)
     assert main(["calibrate", "odometry", str(tmp_path / "none")]) == 2
     assert "not a log directory" in capsys.readouterr().err
+    # --write: a corrected robot.toml that the log-directory reader accepts
+    from fusion.logdir import read_robot_toml
+
+    assert main(["calibrate", "odometry", str(d), "--write", str(tmp_path / "new.toml")]) == 0
+    capsys.readouterr()
+    cfg = read_robot_toml(tmp_path / "new.toml")
+    assert cfg.chassis.wheel_distance == pytest.approx(run.true_wheel_distance, rel=0.003)
+    assert cfg.chassis.encode_sampling_time == ROBOT.encode_sampling_time
+    assert main(["calibrate", "odometry", str(d), "--write", str(d / "robot.toml")]) == 2
+    assert "refusing to overwrite" in capsys.readouterr().err
 
 
 def test_cli_umbmark(tmp_path, capsys):

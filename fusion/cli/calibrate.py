@@ -49,6 +49,10 @@ def register(subparsers) -> None:
                    help="wheel frames per fitting window (default 25, one second at 40 ms)")
     o.add_argument("--level", action="store_true",
                    help="use the gyro z axis (default: tilt-compensated with Mahony)")
+    o.add_argument("--write", type=Path, metavar="TOML",
+                   help="also write a robot.toml with the corrected [chassis] (frames and "
+                        "[ekf] copied from the log's robot.toml); refuses to overwrite the "
+                        "log's own")
     o.set_defaults(func=run_odometry)
     u = sub.add_parser(
         "umbmark",
@@ -102,6 +106,17 @@ def run_odometry(args: argparse.Namespace) -> int:
     )
     print(f"{args.input}: odometry calibration with the gyro as reference")
     print(cal.report())
+    if args.write is not None:
+        from dataclasses import replace
+
+        from fusion.logdir import write_robot_toml
+
+        target = args.write
+        if target.resolve() == (args.input / "robot.toml").resolve():
+            raise CommandError(f"{target}: refusing to overwrite the log's own robot.toml "
+                               "(it describes how the log was recorded)")
+        write_robot_toml(target, replace(log.robot, chassis=cal.params()))
+        print(f"wrote {target}")
     return 0
 
 
