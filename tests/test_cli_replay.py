@@ -163,3 +163,34 @@ def test_tilt_compensation_of_an_unknown_imu_tilt(tmp_path):
         )
     assert result[True][0] <= 0.5 and result[True][1] <= 1.5
     assert result[False][0] > 1.0 and result[False][1] > 3.0
+
+
+def test_synth_then_replay_and_calibrate(tmp_path, capsys):
+    d = tmp_path / "run"
+    assert main(["synth", str(d), "--seed", "5", "--duration", "120"]) == 0
+    out = capsys.readouterr().out
+    assert "true wheel_distance 0.309 m (robot.toml says 0.3)" in out
+    assert sorted(p.name for p in d.iterdir()) == [
+        "imu.csv", "robot.toml", "truth.csv", "wheels.csv"]
+    # identical to the library's degraded mission with the same seed
+    again = degraded_mission(seed=5, duration=120.0).write_logdir(tmp_path / "again")
+    for name in ("imu.csv", "wheels.csv", "truth.csv", "robot.toml"):
+        assert (d / name).read_bytes() == (again / name).read_bytes()
+    assert main(["replay", str(d), "-o", str(tmp_path / "f.csv")]) == 0
+    assert "fused:      final position error" in capsys.readouterr().out
+    assert main(["calibrate", "odometry", str(d)]) == 0
+    assert "wheel_distance = 0.309" in capsys.readouterr().out
+    assert main(["synth", str(d)]) == 2  # not empty
+    assert "not empty" in capsys.readouterr().err
+
+
+def test_synth_squares_feed_umbmark(tmp_path, capsys):
+    dirs = {}
+    for direction in ("cw", "ccw"):
+        dirs[direction] = str(tmp_path / direction)
+        assert main(["synth", dirs[direction], "--scenario", "square", "--direction",
+                     direction]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", "umbmark", "--cw", dirs["cw"], "--ccw", dirs["ccw"]]) == 0
+    out = capsys.readouterr().out
+    assert "E_d = D_R/D_L = 1.005" in out
