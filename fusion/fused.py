@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -36,25 +37,35 @@ def _vector(name: str, value: ArrayLike, size: int) -> NDArray[np.float64]:
     a = np.array(value, dtype=np.float64).reshape(-1)
     if a.shape != (size,):
         raise ValueError(f"{name} must have {size} elements, got shape {np.shape(value)}")
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():
         raise ValueError(f"{name} must be finite, got {a.tolist()}")
     return _frozen(a)
 
 
+def _default_covariance(observed: tuple[int, ...]) -> NDArray[np.float64]:
+    diag = np.full(6, UNOBSERVED_VARIANCE)
+    diag[list(observed)] = 0.0
+    return _frozen(np.diag(diag))
+
+
+# shared read-only defaults: building them per record would cost more than the record
+_DEFAULT_POSE_COV = _default_covariance((0, 1, 5))
+_DEFAULT_TWIST_COV = _default_covariance((0, 5))
+
+
 def _covariance(
-    name: str, value: ArrayLike | None, observed: tuple[int, ...]
+    name: str, value: ArrayLike | None, default: NDArray[np.float64]
 ) -> NDArray[np.float64]:
     if value is None:
-        diag = np.full(6, UNOBSERVED_VARIANCE)
-        diag[list(observed)] = 0.0
-        return _frozen(np.diag(diag))
+        return default
     a = np.array(value, dtype=np.float64)
     if a.size != 36 or a.ndim not in (1, 2) or (a.ndim == 2 and a.shape != (6, 6)):
         raise ValueError(f"{name} must be 6x6 or 36 elements (row major), got shape {a.shape}")
     a = a.reshape(6, 6)
-    if not np.all(np.isfinite(a)):
+    if not np.isfinite(a).all():
         raise ValueError(f"{name} must be finite")
-    if not np.allclose(a, a.T, rtol=1e-9, atol=1e-12):
+    # symmetric to rounding: |a - a.T| <= 1e-9 * max|a| (+ 1e-12 absolute); exact is common
+    if not (a == a.T).all() and np.abs(a - a.T).max() > 1e-9 * np.abs(a).max() + 1e-12:
         raise ValueError(f"{name} must be symmetric, got\n{a}")
     return _frozen(a)
 
@@ -104,21 +115,24 @@ class FusedOdometry:
     imu_frame_id: str | None = field(default=None)
 
     def __post_init__(self) -> None:
-        def put(name: str, value: Any) -> None:
-            object.__setattr__(self, name, value)
-
-        for name in ("t", "x", "y", "yaw", "v", "w"):
-            value = float(getattr(self, name))
-            if not math.isfinite(value):
-                raise ValueError(f"FusedOdometry.{name} must be finite, got {value}")
+        put = partial(object.__setattr__, self)  # the dataclass is frozen
+        scalars = (float(self.t), float(self.x), float(self.y), float(self.yaw), float(self.v),
+                   float(self.w))
+        if not math.isfinite(sum(scalars)):  # any inf or nan makes the sum non-finite
+            for name, value in zip(("t", "x", "y", "yaw", "v", "w"), scalars):
+                if not math.isfinite(value):
+                    raise ValueError(f"FusedOdometry.{name} must be finite, got {value}")
+        for name, value in zip(("t", "x", "y", "yaw", "v", "w"), scalars):
             put(name, value)
-        put("pose_covariance", _covariance("pose_covariance", self.pose_covariance, (0, 1, 5)))
-        put("twist_covariance", _covariance("twist_covariance", self.twist_covariance, (0, 5)))
+        put("pose_covariance",
+            _covariance("pose_covariance", self.pose_covariance, _DEFAULT_POSE_COV))
+        put("twist_covariance",
+            _covariance("twist_covariance", self.twist_covariance, _DEFAULT_TWIST_COV))
         if self.orientation is not None:
             q = np.array(self.orientation, dtype=np.float64).reshape(-1)
-            if q.shape != (4,) or not np.all(np.isfinite(q)):
+            if q.shape != (4,) or not np.isfinite(q).all():
                 raise ValueError(f"orientation must be a finite [w, x, y, z], got {q.tolist()}")
-            n = float(np.linalg.norm(q))
+            n = math.sqrt(float(q @ q))
             if abs(n - 1.0) > 1e-3:
                 raise ValueError(f"orientation must be a unit quaternion, norm is {n:.6g}")
             put("orientation", _frozen(q / n))

@@ -87,6 +87,7 @@ def test_json_round_trip() -> None:
     ("kwargs", "match"),
     [
         ({"x": float("nan")}, "x must be finite"),
+        ({"t": float("inf"), "w": -float("inf")}, "t must be finite"),
         ({"pose_covariance": np.eye(5)}, "6x6 or 36"),
         ({"pose_covariance": np.triu(np.ones((6, 6)))}, "symmetric"),
         ({"twist_covariance": np.full(36, np.inf)}, "finite"),
