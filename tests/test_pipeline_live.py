@@ -14,13 +14,14 @@ from fusion.cli.demo import (
     ScaledClock,
     SimRobot,
     SimRobotParams,
+    freeze_heap,
     nominal_config,
     send_twist,
     warm_up,
 )
 from fusion.pipeline import FusionPipeline, LiveRunner
 
-SPEED = 4.0
+SPEED = 2.0  # robot time per wall second (low: a loaded machine must keep up)
 
 
 class Live:
@@ -30,6 +31,7 @@ class Live:
         params = SimRobotParams(slip_patches=())
         self.cfg = nominal_config(params)
         warm_up(self.cfg)
+        freeze_heap()  # as the commands do: no long GC pauses of the source threads
         self.clock = ScaledClock(SPEED)
         self.robot = SimRobot(self.clock, params, data_link=link_path)
         ch = self.cfg.robot.chassis
@@ -92,8 +94,11 @@ def test_serial_port_pulled_and_restored_mid_run(tmp_path):
     assert live.link.reconnects == 1
     # the pipeline reports the gap: about 2 s of 40 ms frames
     stats = live.pipe.finish_stats()
-    assert stats.gap_count == 1
-    gap = stats.gaps[0]
+    pulled = [g for g in stats.gaps if g.t_start < t_back and g.t_end > t_pull]
+    assert len(pulled) == 1, stats.gaps
+    gap = pulled[0]
+    # (other gaps can only be scheduling hiccups of a loaded machine: a few frames at most)
+    assert all(g.missing <= 5 for g in stats.gaps if g is not gap), stats.gaps
     assert t_pull - 0.2 < gap.t_start < t_pull + 0.05 and t_back - 0.05 < gap.t_end < t_back + 0.5
     assert abs(gap.missing - (gap.t_end - gap.t_start) / 0.04) <= 2 and gap.missing > 40
     # and keeps going: records after the port came back, the IMU never stopped

@@ -144,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
         ScaledClock,
         SimRobot,
         SimRobotParams,
+        freeze_heap,
         mission_command,
         mission_duration,
         send_twist,
@@ -192,6 +193,9 @@ def run(args: argparse.Namespace) -> int:
 
         signal.signal(signal.SIGTERM, on_term)
     wall0 = time.monotonic()
+    freeze_heap()  # keep full garbage collections short (no long pauses of the sources)
+    switch = sys.getswitchinterval()
+    sys.setswitchinterval(0.001)  # source threads get the GIL within 1 ms
     try:
         try:
             pipe.open()
@@ -261,6 +265,10 @@ def run(args: argparse.Namespace) -> int:
             pipe.abort()
         if threading.current_thread() is threading.main_thread():
             signal.signal(signal.SIGTERM, previous)
+        sys.setswitchinterval(switch)
+        import gc
+
+        gc.unfreeze()
     err(_status(pipe, runner) + f"; done after {time.monotonic() - wall0:.1f} s")
     return 0
 
