@@ -40,6 +40,7 @@ import shutil
 import struct
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -660,16 +661,25 @@ class FoxgloveSink(Sink):
     Every message is logged with ``log_time`` = the record's stamp in ns. Open Foxglove and
     connect to ``ws://HOST:PORT``.
 
+    Velocity commands: the server accepts client publishing (JSON) and hands each
+    geometry_msgs/Twist a client sends on ``cmd_vel_topic`` (Foxglove's Teleop panel does) to
+    ``on_cmd_vel(linear.x m/s, angular.z rad/s)``, like the ROS 1 node's /cmd_vel. It runs on
+    the server's thread; malformed messages are counted in :attr:`cmd_vel_rejected`.
+
     Args:
         host: address to bind; default loopback. Binding to all interfaces (``0.0.0.0``)
-            exposes the stream to the network: do it deliberately.
+            exposes the stream, and the command channel, to the network: do it deliberately.
         port: TCP port; 0 picks a free one (read it from :attr:`port` after ``open()``).
         topics: channel names.
         name: server name shown in the client.
+        cmd_vel_topic: topic of client velocity commands, or None to refuse client publishing.
+        on_cmd_vel: ``callback(v, w)`` for each valid command.
     """
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8765, *,
-                 topics: Topics | None = None, name: str = "diffbot-fusion") -> None:
+                 topics: Topics | None = None, name: str = "diffbot-fusion",
+                 cmd_vel_topic: str | None = "/cmd_vel",
+                 on_cmd_vel: Callable[[float, float], None] | None = None) -> None:
         super().__init__()
         if not 0 <= int(port) <= 65535:
             raise ValueError(f"port must be 0..65535, got {port}")
@@ -677,6 +687,11 @@ class FoxgloveSink(Sink):
         self._port = int(port)
         self.topics = topics or Topics()
         self.name = name
+        self.cmd_vel_topic = cmd_vel_topic
+        self.on_cmd_vel = on_cmd_vel
+        self.cmd_vel_received = 0
+        self.cmd_vel_rejected = 0
+        self._client_channels: dict[tuple[int, int], tuple[str, str]] = {}
         self._server: Any = None
         self._channels: dict[str, Any] = {}
 
@@ -692,9 +707,16 @@ class FoxgloveSink(Sink):
         foxglove = _need("foxglove", "foxglove")
         channels = _need("foxglove.channels", "foxglove")
         ctx = foxglove.Context()
+        extra: dict[str, Any] = {}
+        if self.cmd_vel_topic is not None:
+            from foxglove.websocket import Capability
+
+            extra = {"capabilities": [Capability.ClientPublish],
+                     "supported_encodings": ["json"],
+                     "server_listener": _CommandListener(self)}
         try:
             self._server = foxglove.start_server(name=self.name, host=self.host,
-                                                 port=self._port, context=ctx)
+                                                 port=self._port, context=ctx, **extra)
         except Exception as exc:
             raise OSError(f"Foxglove server on {self.host}:{self._port}: {exc}") from exc
         t = self.topics
@@ -742,6 +764,24 @@ class FoxgloveSink(Sink):
                 ch[key].log(_json_header(fields) if "header" in fields else fields,
                             log_time=ns)
 
+    def _client_message(self, client_id: int, channel_id: int, data: bytes) -> None:
+        topic, encoding = self._client_channels.get((client_id, channel_id), ("", ""))
+        if topic != self.cmd_vel_topic:
+            return
+        try:
+            if encoding != "json":
+                raise ValueError(encoding)
+            msg = json.loads(data)
+            v, w = float(msg["linear"]["x"]), float(msg["angular"]["z"])
+            if not (math.isfinite(v) and math.isfinite(w)):
+                raise ValueError((v, w))
+        except (ValueError, KeyError, TypeError):
+            self.cmd_vel_rejected += 1
+            return
+        self.cmd_vel_received += 1
+        if self.on_cmd_vel is not None:
+            self.on_cmd_vel(v, w)
+
     def _close(self) -> None:
         for channel in self._channels.values():
             with contextlib.suppress(Exception):
@@ -751,6 +791,22 @@ class FoxgloveSink(Sink):
             server, self._server = self._server, None
             self._port = server.port
             server.stop()
+
+
+class _CommandListener:
+    """foxglove-sdk ServerListener: tracks client channels, forwards their messages."""
+
+    def __init__(self, sink: FoxgloveSink) -> None:
+        self.sink = sink
+
+    def on_client_advertise(self, client: Any, channel: Any) -> None:
+        self.sink._client_channels[(client.id, channel.id)] = (channel.topic, channel.encoding)
+
+    def on_client_unadvertise(self, client: Any, client_channel_id: int) -> None:
+        self.sink._client_channels.pop((client.id, client_channel_id), None)
+
+    def on_message_data(self, client: Any, client_channel_id: int, data: bytes) -> None:
+        self.sink._client_message(client.id, client_channel_id, data)
 
 
 def open_sink(spec: str, *, topics: Topics | None = None) -> Sink:

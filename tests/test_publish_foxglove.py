@@ -174,3 +174,55 @@ def test_port_in_use_is_an_oserror_naming_it() -> None:
     with FoxgloveSink(port=0) as first:
         with pytest.raises(OSError, match=f"127.0.0.1:{first.port}"):
             FoxgloveSink(port=first.port).open()
+
+
+def test_client_velocity_commands_reach_the_callback() -> None:
+    """A client publishes geometry_msgs/Twist as JSON on /cmd_vel (what Foxglove's Teleop
+    panel does): each valid one reaches on_cmd_vel(linear.x, angular.z)."""
+    import queue
+
+    got: queue.Queue = queue.Queue()
+    sink = FoxgloveSink(port=0, on_cmd_vel=lambda v, w: got.put((v, w)))
+
+    def frame(channel: int, payload: bytes) -> bytes:
+        # client "message data": opcode 0x01, client channel id u32 LE, payload
+        return struct.pack("<BI", 1, channel) + payload
+
+    def twist(vx: float, wz: float) -> bytes:
+        return json.dumps({"linear": {"x": vx, "y": 0.0, "z": 0.0},
+                           "angular": {"x": 0.0, "y": 0.0, "z": wz}}).encode()
+
+    async def client() -> dict:
+        async with websockets.connect(f"ws://127.0.0.1:{sink.port}",
+                                      subprotocols=["foxglove.sdk.v1"]) as ws:
+            info = json.loads(await asyncio.wait_for(ws.recv(), TIMEOUT))
+            assert info["op"] == "serverInfo"
+            await ws.send(json.dumps({"op": "advertise", "channels": [
+                {"id": 7, "topic": "/cmd_vel", "encoding": "json",
+                 "schemaName": "geometry_msgs/Twist"},
+                {"id": 8, "topic": "/other", "encoding": "json", "schemaName": "x"}]}))
+            await ws.send(frame(8, twist(9.0, 9.0)))   # another topic: ignored
+            await ws.send(frame(7, b"{not json"))      # malformed: rejected
+            await ws.send(frame(7, twist(0.25, -0.5)))
+            await ws.send(frame(7, twist(0.0, 1.5)))
+            first = await asyncio.get_running_loop().run_in_executor(
+                None, lambda: [got.get(timeout=TIMEOUT), got.get(timeout=TIMEOUT)])
+            return {"info": info, "first": first}
+
+    with sink:
+        result = asyncio.run(client())
+    assert "clientPublish" in result["info"]["capabilities"]
+    assert result["first"] == [(0.25, -0.5), (0.0, 1.5)]
+    assert got.empty()
+    assert (sink.cmd_vel_received, sink.cmd_vel_rejected) == (2, 1)
+
+
+def test_without_cmd_vel_the_server_refuses_client_publishing() -> None:
+    async def client(port: int) -> dict:
+        async with websockets.connect(f"ws://127.0.0.1:{port}",
+                                      subprotocols=["foxglove.sdk.v1"]) as ws:
+            return json.loads(await asyncio.wait_for(ws.recv(), TIMEOUT))
+
+    with FoxgloveSink(port=0, cmd_vel_topic=None) as sink:
+        info = asyncio.run(client(sink.port))
+    assert "clientPublish" not in info["capabilities"]
