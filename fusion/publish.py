@@ -23,7 +23,10 @@ topic                  type                    content
 =====================  ======================  =================================================
 
 Stamps are the record's ``t`` (s) as integer nanoseconds; ROS time cannot be negative, so a
-record with ``t < 0`` is a ValueError in the ROS-shaped sinks.
+record with ``t < 0`` is a ValueError in the ROS-shaped sinks. The two live sinks (the ROS 1
+node and the Foxglove server) also take velocity commands on ``/cmd_vel``
+(geometry_msgs/Twist) and hand ``(linear.x m/s, angular.z rad/s)`` to an ``on_cmd_vel``
+callback.
 
 Optional dependencies: ``rosbags`` for the bag sinks (``pip install 'diffbot-fusion[ros]'``),
 ``foxglove-sdk`` for the live server (``[foxglove]``), Debian's ``python3-rospy`` and message
