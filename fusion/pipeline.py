@@ -22,11 +22,15 @@ Event-time model, stated once:
 - The EKF's own policy orders the inputs: each event is keyed by its *effective* time (a wheel
   frame's is ``stamp - encode_sampling_time/2 - wheel_latency``, the middle of its period; an
   IMU sample's is its stamp) and held in a :class:`fusion.ekf.ReorderBuffer` until it is
-  ``reorder_window`` s older than the newest event; what is released still late is handled by
-  the EKF's late-input policy (fused at the filter time within ``late_tolerance``, else
-  dropped and counted in :attr:`PipelineStats.late_dropped`). The default window,
+  ``reorder_window`` s older than the newest event, or earlier, as soon as every source has
+  delivered an event at least as new (the *watermark*: each source is in time order, so
+  nothing older can still come); what is released still late is handled by the EKF's
+  late-input policy (fused at the filter time within ``late_tolerance``, else dropped and
+  counted in :attr:`PipelineStats.late_dropped`). The default window,
   ``encode_sampling_time/2 + wheel_latency``, is exactly enough for host-ordered replay; live
-  sources that deliver in batches (the MPU6050 FIFO) need their batch interval on top.
+  sources that deliver in batches (the MPU6050 FIFO) need their batch interval on top. The
+  window only matters when a source stalls: with both sources flowing, the watermark releases
+  a wheel frame as soon as the IMU samples up to the middle of its period are in.
 - Output: with ``publish_rate_hz=None`` one record per wheel frame, stamped with the filter
   time after that frame (the middle of its period); with a rate, one record each time the
   filter time crosses a multiple of ``1/publish_rate_hz`` (seed 000 publishes at 10 Hz).
@@ -147,9 +151,12 @@ class FusionPipeline:
             block raises, so file sinks leave no partial output).
         publish_rate_hz: None: one record per wheel frame; else records at this rate of
             filter time (Hz).
-        reorder_window: s an event is held for reordering (default: half a wheel period plus
-            the EKF's ``wheel_latency``, enough for host-ordered replay; add the largest batch
-            delay of live sources).
+        reorder_window: s an event is held for reordering at most (default: half a wheel
+            period plus the EKF's ``wheel_latency``, enough for host-ordered replay; add the
+            largest batch delay of live sources).
+        sources: the sources whose watermark releases events early: ``"imu"``,
+            ``"wheels"`` (default both; give only the ones that will deliver, e.g.
+            ``("wheels",)`` without an IMU, else only the window releases).
         imu_rate_hz: nominal IMU rate, Hz (the Mahony filter's first step).
         tilt: tilt-compensate the gyro with the Mahony attitude (False: the gyro's z axis is
             the yaw rate, a level robot).
@@ -171,6 +178,7 @@ class FusionPipeline:
         *,
         publish_rate_hz: float | None = None,
         reorder_window: float | None = None,
+        sources: Sequence[str] = ("imu", "wheels"),
         imu_rate_hz: float = 100.0,
         tilt: bool = True,
         mahony: Mahony | None = None,
@@ -202,7 +210,12 @@ class FusionPipeline:
         self.mahony = mahony if mahony is not None else Mahony(axes=6,
                                                                sample_period=1.0 / imu_rate_hz)
         self._mount = _matrix_or_none(robot.imu_to_base())
-        self._buffer = ReorderBuffer(self.reorder_window)
+        self._buffer = _WatermarkBuffer(self.reorder_window)
+        bad = set(sources) - {"imu", "wheels"}
+        if bad or not sources:
+            raise ValueError(f"sources must be 'imu' and/or 'wheels', got {list(sources)}")
+        self._marks = {name: -math.inf for name in sources}
+        self._watermark = -math.inf
         self._clock = clock
         self._gap_periods = float(gap_periods)
         self._on_record = on_record
@@ -321,6 +334,9 @@ class FusionPipeline:
         else:
             rate = float(g[2])
         self._buffer.push(t, (_EV_GYRO, t, rate, q, g, a))
+        if "imu" in self._marks:
+            self._marks["imu"] = t
+            self._watermark = min(self._marks.values())
         self._release()
 
     def push_wheels(self, frame: WheelTicks) -> None:
@@ -340,6 +356,9 @@ class FusionPipeline:
         self.stats.wheel_frames += 1
         t_eff = t - 0.5 * self.period - self.ekf.noise.wheel_latency
         self._buffer.push(t_eff, (_EV_WHEELS, t, int(frame.left), int(frame.right)))
+        if "wheels" in self._marks:
+            self._marks["wheels"] = t_eff
+            self._watermark = min(self._marks.values())
         self._release()
 
     def flush(self) -> None:
@@ -349,7 +368,10 @@ class FusionPipeline:
 
     # -- core -------------------------------------------------------------------------------
     def _release(self) -> None:
-        for _t, ev in self._buffer.pop_ready():
+        buf = self._buffer
+        for _t, ev in buf.pop_through(self._watermark):
+            self._apply(ev)
+        for _t, ev in buf.pop_ready():
             self._apply(ev)
 
     def _apply(self, ev: tuple) -> None:
@@ -560,6 +582,19 @@ class FusionPipeline:
             return [math.nan for _ in qs]
         a = np.fromiter(self.latencies, dtype=float)
         return [float(v) for v in np.percentile(a, qs)]
+
+
+class _WatermarkBuffer(ReorderBuffer):
+    """The EKF's :class:`fusion.ekf.ReorderBuffer` with one more way out: :meth:`pop_through`
+    releases, in order, everything not newer than a time every source has passed."""
+
+    def pop_through(self, t: float) -> list:
+        out = []
+        heap = self._heap
+        while heap and heap[0][0] <= t:
+            tt, _, ev = heapq.heappop(heap)
+            out.append((tt, ev))
+        return out
 
 
 def _increasing(t: NDArray[np.float64]) -> NDArray[np.bool_]:

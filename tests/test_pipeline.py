@@ -240,3 +240,33 @@ def test_logdir_replay_keeps_the_imu_frame_for_the_pipeline(tmp_path, run):
     replay(FusionPipeline(RobotConfig(chassis=run.robot), on_record=ref.append), events(run))
     assert len(recs) == len(ref)
     assert abs(recs[-1].x - ref[-1].x) < 1e-6 and abs(recs[-1].y - ref[-1].y) < 1e-6
+
+
+def test_watermark_releases_a_wheel_frame_once_the_imu_has_passed_its_period_middle():
+    """Live latency: a frame is fused as soon as every source has delivered events at least
+    as new as its effective time (each source is in order: nothing older can come); the
+    window is only the bound for a stalled source."""
+    robot = RobotConfig(chassis=EXAMPLE_ROBOT)
+    g, a = np.zeros(3), np.array([0.0, 0.0, 9.80665])
+    recs = []
+    pipe = FusionPipeline(robot, reorder_window=0.5, on_record=recs.append)
+    with pipe:
+        for k in range(1, 4):  # IMU up to 0.03 s
+            pipe.push(ImuSample(0.01 * k, g, a))
+        pipe.push(WheelTicks(0.04, 0, 0))  # middle of its period: 0.02 <= 0.03: out at once
+        assert len(recs) == 1 and recs[0].t == 0.02
+        pipe.push(WheelTicks(0.08, 0, 0))  # middle 0.06: the IMU is at 0.03, it waits
+        assert len(recs) == 1
+        pipe.push(ImuSample(0.05, g, a))
+        assert len(recs) == 1
+        pipe.push(ImuSample(0.06, g, a))  # now the IMU has passed 0.06
+        assert len(recs) == 2 and recs[1].t == 0.06
+    # with the wheels as the only source a frame goes out on arrival
+    recs.clear()
+    pipe = FusionPipeline(robot, reorder_window=0.5, sources=("wheels",),
+                          on_record=recs.append)
+    with pipe:
+        pipe.push(WheelTicks(0.04, 0, 0))
+        assert len(recs) == 1
+    with pytest.raises(ValueError, match="sources"):
+        FusionPipeline(robot, sources=("gps",))

@@ -183,7 +183,10 @@ def run(args: argparse.Namespace) -> int:
     window = 0.5 * chassis.encode_sampling_time + cfg.fifo_interval + 0.02
     pipe = FusionPipeline(cfg.robot, sinks, publish_rate_hz=cfg.publish_rate_hz,
                           reorder_window=cfg.reorder_window or window, imu_rate_hz=cfg.imu_rate_hz,
-                          tilt=cfg.tilt, clock=clock)
+                          tilt=cfg.tilt, clock=clock,
+                          sources=[name for name, on in (("imu", cfg.imu != "none"),
+                                                         ("wheels", cfg.chassis != "none"))
+                                   if on])
     robot = link = imu = runner = None
     complete = False
     previous = signal.getsignal(signal.SIGTERM)
