@@ -57,6 +57,7 @@ def test_demo_command_runs_the_live_pipeline_and_fused_beats_wheel_only(tmp_path
     counts = _mcap_topics(out / "demo.mcap")
     assert counts["/odom"] == counts["/tf"] == counts["/imu/data"] == records
     assert counts["/wheel_left_speed"] == records
+    assert (out / "demo.png").stat().st_mode & 0o044  # an ordinary readable file
     png = (out / "demo.png").read_bytes()
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 20_000
     assert sorted(p.name for p in out.iterdir()) == ["demo.mcap", "demo.png"]

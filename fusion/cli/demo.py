@@ -707,6 +707,9 @@ def _plot(report: DemoReport, path: Path) -> str | None:
     os.close(fd)
     try:
         fig.savefig(tmp, dpi=110)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp made it private; a plot is an ordinary file
         os.replace(tmp, path)
     finally:
         plt.close(fig)
