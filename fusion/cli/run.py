@@ -171,11 +171,9 @@ def run(args: argparse.Namespace) -> int:
     sim = cfg.chassis == "sim"
     clock = ScaledClock(cfg.speed) if sim else time.monotonic
     link_holder: dict[str, Any] = {}
-    cmd_state = {"t": -math.inf}
 
-    def on_cmd_vel(v: float, w: float) -> None:  # a rospy thread
+    def on_cmd_vel(v: float, w: float) -> None:  # a rospy thread; seed 000's command path
         link = link_holder.get("link")
-        cmd_state["t"] = clock()
         if link is not None:
             send_twist(link, chassis, v, w)
 
