@@ -202,6 +202,9 @@ def run(args: argparse.Namespace) -> int:
             pipe.open()
         except ImportError as exc:
             raise CommandError(str(exc)) from None
+        for sink in sinks:
+            if hasattr(sink, "host") and hasattr(sink, "port"):
+                err(f"Foxglove server: connect to ws://{sink.host}:{sink.port}")
         if sim:
             robot = SimRobot(clock, SimRobotParams(), keep_truth=False)
         port = robot.port if sim else cfg.chassis
