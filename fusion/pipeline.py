@@ -39,8 +39,8 @@ Determinism: nothing here reads a clock except to measure latency (``clock``), s
 the same events gives the same records bit for bit (tests/test_pipeline_golden.py).
 
 Replay sources: :func:`logdir_events` (a log directory, ``datasets/LOGDIR.md``),
-:func:`read_uart2_capture` (raw DATA-uart2 bytes through :class:`drivers.chassis.WheelFrameParser`,
-optionally with the arrival time of each read), :func:`imu_csv_events`. Live sources are
+:func:`capture_events` (a DATA-uart2 capture through :func:`fusion.logs.read_uart2_capture`,
+stamped as the live link stamps), :func:`imu_csv_events`. Live sources are
 :class:`drivers.serial_link.ChassisLink` and :class:`drivers.mpu6050.MPU6050` (see
 ``fusion/cli/run.py``).
 """
@@ -48,7 +48,6 @@ optionally with the arrival time of each read), :func:`imu_csv_events`. Live sou
 from __future__ import annotations
 
 import collections
-import csv
 import heapq
 import math
 import queue
@@ -75,10 +74,10 @@ __all__ = [
     "LiveRunner",
     "PipelineStats",
     "WheelGap",
+    "capture_events",
     "imu_csv_events",
     "logdir_events",
     "merge_by_time",
-    "read_uart2_capture",
     "replay",
 ]
 
@@ -883,8 +882,8 @@ def logdir_events(path: str | Path) -> tuple[RobotConfig, Iterator[ImuSample | W
     """``(robot, events)`` of a log directory (``datasets/LOGDIR.md``).
 
     IMU samples stay in the IMU frame (the pipeline applies ``imu_mount_rpy``). The wheel
-    frames come from ``wheels.csv`` or, without it, from a raw capture ``wheels.uart2``
-    (with ``wheels.uart2.times`` when present, see :func:`read_uart2_capture`).
+    frames come from ``wheels.csv`` or, without it, from a DATA-uart2 capture ``wheels.uart2``
+    (timed or raw, see :func:`capture_events`).
     """
     from fusion.logdir import read_robot_toml, read_wheels_csv
 
@@ -900,84 +899,27 @@ def logdir_events(path: str | Path) -> tuple[RobotConfig, Iterator[ImuSample | W
         streams.append([WheelTicks(float(t), int(l), int(r))
                         for t, (l, r) in zip(wt.tolist(), ticks.tolist())])
     elif (path / "wheels.uart2").is_file():
-        frames, _ = read_uart2_capture(path / "wheels.uart2", robot.chassis.encode_sampling_time)
+        frames, _ = capture_events(path / "wheels.uart2", robot.chassis.encode_sampling_time)
         streams.append(frames)
     if not streams:
         raise LogFormatError(f"{path}: no imu.csv, wheels.csv or wheels.uart2")
     return robot, merge_by_time(*streams)
 
 
-def read_uart2_capture(
-    path: str | Path,
-    period: float,
-    *,
-    t0: float = 0.0,
-    times: str | Path | None = None,
-    max_ticks: int | None = None,
-) -> tuple[list[WheelTicks], dict[str, int]]:
-    """Wheel frames of a raw DATA-uart2 capture (bytes as read from the chassis port).
+def capture_events(path: str | Path, period: float, *, t0: float = 0.0,
+                   max_ticks: int | None = None) -> tuple[list[WheelTicks], dict[str, int]]:
+    """Wheel frames of a DATA-uart2 capture (:func:`fusion.logs.read_uart2_capture`).
 
-    Args:
-        path: the capture file.
-        period: ``encode_sampling_time``, s.
-        t0: without ``times``, frame k (0-based, in stream order) is stamped
-            ``t0 + (k + 1) * period`` (a capture has no clock; dropped frames cannot be seen).
-        times: optional CSV ``t,nbytes`` (header line, then one row per read: the host time
-            the read returned, s, and how many bytes it returned, summing to the file size);
-            a frame is stamped with the time of the read that delivered its last byte.
-            Default: ``PATH.times`` when that file exists.
-        max_ticks: plausibility bound of the parser (default the parser's).
-
-    Returns:
-        ``(frames, parser_counters)``.
-
-    Raises:
-        LogFormatError: a times file that is malformed or does not add up to the capture
-            (the message names the file and line).
+    A timed capture (``t,data`` rows, :class:`fusion.logs.Uart2CaptureWriter`) gives each
+    frame the stamp the live link would have given it. A raw capture has no clock: frame k
+    (0-based, stream order) is stamped ``t0 + (k + 1) * period`` (dropped frames cannot be
+    seen). Returns ``(frames, parser_counters)``.
     """
-    from drivers.chassis import WheelFrameParser
+    from fusion.logs import read_uart2_capture
 
-    path = Path(path)
-    data = path.read_bytes()
-    parser = WheelFrameParser() if max_ticks is None else WheelFrameParser(max_ticks=max_ticks)
-    off1, l1, r1 = parser.feed_arrays(data)
-    off2, l2, r2 = parser.flush_arrays()
-    parser.finish()
-    offsets = np.concatenate([off1, off2])
-    left = np.concatenate([l1, l2]).tolist()
-    right = np.concatenate([r1, r2]).tolist()
-    if times is None and Path(str(path) + ".times").is_file():
-        times = Path(str(path) + ".times")
-    if times is None:
-        stamps = (t0 + (np.arange(len(left)) + 1) * period).tolist()
-    else:
-        read_t, read_end = _read_times(Path(times), len(data))
-        idx = np.searchsorted(read_end, offsets + 11, side="left")
-        stamps = read_t[idx].tolist()
-    frames = [WheelTicks(stamps[i], int(left[i]), int(right[i])) for i in range(len(left))]
-    return frames, parser.stats.as_dict()
-
-
-def _read_times(path: Path, size: int) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
-    ts, ends = [], []
-    total = 0
-    with path.open(newline="") as fh:
-        rows = csv.reader(fh)
-        header = next(rows, None)
-        if header is None or [h.strip() for h in header] != ["t", "nbytes"]:
-            raise LogFormatError(f"{path}:1: header must be t,nbytes, got {header!r}")
-        for lineno, row in enumerate(rows, start=2):
-            if not row:
-                continue
-            try:
-                t, n = float(row[0]), int(row[1])
-            except (ValueError, IndexError):
-                raise LogFormatError(f"{path}:{lineno}: want t,nbytes, got {row!r}") from None
-            if not math.isfinite(t) or n < 0 or (ts and t < ts[-1]):
-                raise LogFormatError(f"{path}:{lineno}: bad or decreasing read time {row!r}")
-            total += n
-            ts.append(t)
-            ends.append(total)
-    if total != size:
-        raise LogFormatError(f"{path}: reads add up to {total} bytes, the capture has {size}")
-    return np.array(ts), np.array(ends, dtype=np.int64)
+    cap = read_uart2_capture(path, period=period, max_ticks=max_ticks)
+    if cap.t is not None:
+        return cap.wheel_ticks(), cap.stats
+    stamps = (t0 + (np.arange(len(cap)) + 1) * period).tolist()
+    return [WheelTicks(stamps[k], int(cap.left[k]), int(cap.right[k]))
+            for k in range(len(cap))], cap.stats

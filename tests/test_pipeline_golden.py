@@ -1,11 +1,11 @@
 """Golden-output regression: replaying a raw capture gives the same bytes every time.
 
 Inputs (committed, ``tests/data/golden_replay/``): ``robot.toml`` (a tilted IMU mount and EKF
-tuning), ``imu.csv`` (IMU frame) and ``wheels.uart2``, the raw DATA-uart2 bytes of the wheel
-frames with line noise between some of them, with ``wheels.uart2.times`` (the host time and
-size of each read). They were made by :func:`make_inputs` from fusion.synthetic with a fixed
-seed. The expected output ``fused.jsonl`` (JSON lines, 10 Hz as seed 000 publishes) is
-compared byte for byte.
+tuning), ``imu.csv`` (IMU frame) and ``wheels.uart2``, a timed DATA-uart2 capture
+(:class:`fusion.logs.Uart2CaptureWriter`: the host time and the bytes of each read) of the
+wheel frames with line noise between some of them. They were made by :func:`make_inputs` from
+fusion.synthetic with a fixed seed. The expected output ``fused.jsonl`` (JSON lines, 10 Hz as
+seed 000 publishes) is compared byte for byte.
 
 To change the output *intentionally* (a deliberate change of the filters or of the record
 format), regenerate it and review the diff before committing::
@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.logdir import RobotConfig
-from fusion.pipeline import FusionPipeline, logdir_events, read_uart2_capture, replay
+from fusion.pipeline import FusionPipeline, capture_events, logdir_events, replay
 from fusion.publish import JsonLinesSink
 
 DATA = Path(__file__).parent / "data" / "golden_replay"
@@ -68,18 +68,16 @@ def make_inputs(folder: Path = DATA) -> None:
     write_logdir(folder, robot, run.imu_t, gyro, accel, truth_t=run.truth_t[::10],
                  truth=run.truth[::10])
     rng = np.random.default_rng(2026)
-    data = bytearray()
-    reads = []
-    for k, (left, right) in enumerate(run.ticks.tolist()):
-        if k % 17 == 5:
-            data += bytes(rng.integers(0, 256, int(rng.integers(1, 6)), dtype=np.uint8))
-        data += encode_wheel_frame(left, right)
-        # one read per frame, 1-3 ms after the period ended
-        reads.append((round(float(run.wheel_t[k]) + float(rng.uniform(0.001, 0.003)), 6),
-                      len(data) - sum(n for _, n in reads)))
-    (folder / "wheels.uart2").write_bytes(bytes(data))
-    (folder / "wheels.uart2.times").write_text(
-        "t,nbytes\n" + "".join(f"{t!r},{n}\n" for t, n in reads))
+    from fusion.logs import Uart2CaptureWriter
+
+    with Uart2CaptureWriter(folder / "wheels.uart2", overwrite=True) as cap:
+        for k, (left, right) in enumerate(run.ticks.tolist()):
+            data = b""
+            if k % 17 == 5:
+                data += bytes(rng.integers(0, 256, int(rng.integers(1, 6)), dtype=np.uint8))
+            data += encode_wheel_frame(left, right)
+            # one read per frame, returning 1-3 ms after the period ended
+            cap.write(round(float(run.wheel_t[k]) + float(rng.uniform(0.001, 0.003)), 6), data)
 
 
 def replay_bytes(batch: bool = False) -> str:
@@ -90,8 +88,7 @@ def replay_bytes(batch: bool = False) -> str:
         from fusion.logs import read_imu_csv
 
         imu = read_imu_csv(DATA / "imu.csv")
-        frames, _ = read_uart2_capture(DATA / "wheels.uart2",
-                                       robot.chassis.encode_sampling_time)
+        frames, _ = capture_events(DATA / "wheels.uart2", robot.chassis.encode_sampling_time)
         with pipe:
             pipe.push_arrays(imu.t, imu.gyro, imu.accel, [f.t for f in frames],
                              [(f.left, f.right) for f in frames])
@@ -137,8 +134,8 @@ def test_the_golden_output_follows_the_simulated_truth():
 
 def test_the_capture_decodes_to_every_frame():
     """The noise between frames costs no frame (one read per frame was recorded)."""
-    frames, stats = read_uart2_capture(DATA / "wheels.uart2", 0.04)
-    sent = len((DATA / "wheels.uart2.times").read_text().splitlines()) - 1
+    frames, stats = capture_events(DATA / "wheels.uart2", 0.04)
+    sent = len((DATA / "wheels.uart2").read_text().splitlines()) - 1
     assert len(frames) == stats["frames"] == sent > 250
     assert stats["bytes_skipped"] > 0
 
