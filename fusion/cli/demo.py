@@ -395,22 +395,10 @@ def nominal_config(sim: SimRobotParams):
                      imu="sim", chassis="sim", publish=())
 
 
-def send_twist(link: Any, chassis: Any, v: float, w: float) -> tuple[int, int]:
-    """Seed 000's command path: clamp (v, w), keep the curvature within the wheel limit,
-    convert to target ticks per period and send them. Returns the ticks sent."""
-    from fusion.kinematics import (
-        clamp_twist,
-        limit_wheel_speeds,
-        twist_to_wheel_speeds,
-        wheel_speeds_to_ticks,
-    )
-
-    v, w = clamp_twist(v, w, chassis)
-    vl, vr = twist_to_wheel_speeds(v, w, chassis.wheel_distance)
-    vl, vr = limit_wheel_speeds(vl, vr, chassis.wheel_speed_max)
-    left, right = wheel_speeds_to_ticks(vl, vr, chassis)
-    link.send_ticks(int(left), int(right))
-    return int(left), int(right)
+def send_twist(link: Any, chassis: Any, v: float, w: float) -> bool:
+    """Seed 000's command path (:meth:`drivers.serial_link.ChassisLink.send_twist`: clamp
+    (v m/s, w rad/s), keep the curvature within the wheel limit, target ticks per period)."""
+    return link.send_twist(v, w, chassis)
 
 
 @dataclass
