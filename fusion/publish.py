@@ -39,6 +39,7 @@ import contextlib
 import json
 import math
 import os
+import secrets
 import shutil
 import struct
 import sys
@@ -60,6 +61,7 @@ __all__ = [
     "Sink",
     "SinkError",
     "Topics",
+    "create_temp_file",
     "encode_cdr",
     "open_sink",
     "ros_messages",
@@ -255,10 +257,25 @@ def _temp_sibling(path: Path, *, directory: bool) -> Path:
         raise FileNotFoundError(f"{path}: the folder {parent} does not exist")
     prefix = f".{path.name}."
     if directory:
+        # private while being built; only the bag folder made inside it is moved into place
         return Path(tempfile.mkdtemp(prefix=prefix, suffix=".partial", dir=parent))
-    fd, name = tempfile.mkstemp(prefix=prefix, suffix=".partial", dir=parent)
-    os.close(fd)
-    return Path(name)
+    return create_temp_file(path)
+
+
+def create_temp_file(path: Path) -> Path:
+    """Create a fresh empty file next to ``path`` (``.<name>.<random>.partial``) with the
+    permissions an ordinary ``open(path, "w")`` would give (0666 minus the umask: 0644 under
+    umask 022), so the renamed output is not private the way a :func:`tempfile.mkstemp` file
+    (0600) would be."""
+    for _ in range(100):
+        name = path.parent / f".{path.name}.{secrets.token_hex(6)}.partial"
+        try:
+            fd = os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return name
+    raise FileExistsError(f"{path}: could not create a temporary file next to it")
 
 
 class JsonLinesSink(Sink):

@@ -32,7 +32,6 @@ import math
 import os
 import select
 import sys
-import tempfile
 import threading
 import time
 import tty
@@ -691,13 +690,13 @@ def _plot(report: DemoReport, path: Path) -> str | None:
     ax2.set_title("Yaw error against the simulator's truth")
     fig.suptitle("fusion demo: simulated miiboo chassis + MPU6050, live pipeline")
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".partial.png", dir=path.parent)
-    os.close(fd)
+    from fusion.publish import create_temp_file
+
+    # created with the umask's permissions (mkstemp's would be 0600; changing the process
+    # umask to read it would race the link's and the sinks' threads)
+    tmp = create_temp_file(path)
     try:
-        fig.savefig(tmp, dpi=110)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)  # mkstemp made it private; a plot is an ordinary file
+        fig.savefig(tmp, dpi=110, format="png")
         os.replace(tmp, path)
     finally:
         plt.close(fig)
