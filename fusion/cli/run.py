@@ -12,12 +12,14 @@ simulated chip, moving with the simulated chassis) or ``none``; ``--chassis`` a 
 (the simulated STM32 firmware on a pseudo-terminal) or ``none``. Sinks (``--publish``, comma
 separated): ``jsonl[:PATH]``, ``mcap:PATH``, ``rosbag2:PATH``, ``foxglove[:HOST:PORT]``,
 ``ros1`` (seed 000's node: /odom, /tf, /imu/data, wheel speeds; /cmd_vel drives the wheels).
+A Foxglove client's geometry_msgs/Twist on /cmd_vel (the Teleop panel) drives the wheels too.
 
 Every option can come from the ``--config`` file (:mod:`fusion.config`, see
 :data:`fusion.config.RUN_OPTIONS`); an option on the command line wins. With ``sim`` for the
 chassis the robot drives ``fusion demo``'s mission in a loop (or follows /cmd_vel with
-``ros1``). Runs until Ctrl-C (or SIGTERM, or ``--duration``): the sources stop, the sinks are
-closed, and the files are complete. Status lines go to standard error.
+``ros1``; with ``foxglove`` until the first /cmd_vel from a client). Runs until Ctrl-C
+(or SIGTERM, or ``--duration``): the sources stop, the sinks are closed, and the files are
+complete. Status lines go to standard error.
 """
 
 from __future__ import annotations
@@ -117,18 +119,20 @@ def _sinks_for(cfg, cmd_vel) -> list:
     topics = Topics(**cfg.topics)
     sinks = []
     for spec in cfg.publish:
-        if spec.strip().lower() == "ros1":
-            try:
-                from fusion.ros1 import Ros1Sink
-            except ImportError as exc:
-                raise CommandError(f"--publish ros1: the ROS 1 sink is not available "
-                                   f"(fusion.ros1: {exc})") from None
+        kind = spec.strip().lower().partition(":")[0]
+        if kind == "ros1":
+            from fusion.ros1 import Ros1Sink  # rospy itself is imported at open()
+
             sinks.append(Ros1Sink(topics=topics, cmd_vel_topic=cfg.cmd_vel_topic,
                                   on_cmd_vel=cmd_vel,
                                   frame_id=cfg.robot.odom_frame,
                                   child_frame_id=cfg.robot.base_frame))
         else:
-            sinks.append(open_sink(spec, topics=topics))
+            sink = open_sink(spec, topics=topics)
+            if kind == "foxglove":  # the Teleop panel's /cmd_vel drives the robot like ROS's
+                sink.cmd_vel_topic = cfg.cmd_vel_topic
+                sink.on_cmd_vel = cmd_vel
+            sinks.append(sink)
     return sinks
 
 
@@ -172,10 +176,11 @@ def run(args: argparse.Namespace) -> int:
     clock = ScaledClock(cfg.speed) if sim else time.monotonic
     link_holder: dict[str, Any] = {}
 
-    def on_cmd_vel(v: float, w: float) -> None:  # a rospy thread; seed 000's command path
+    def on_cmd_vel(v: float, w: float) -> None:  # a rospy / Foxglove server thread
         link = link_holder.get("link")
         if link is not None:
-            send_twist(link, chassis, v, w)
+            link_holder["external"] = True  # a client drives now: the mission stops
+            send_twist(link, chassis, v, w)  # seed 000's command path
 
     sinks = _sinks_for(cfg, on_cmd_vel)
     window = 0.5 * chassis.encode_sampling_time + cfg.fifo_interval + 0.02
@@ -236,7 +241,7 @@ def run(args: argparse.Namespace) -> int:
 
         def tick() -> bool:
             now = clock()
-            if drive:
+            if drive and not link_holder.get("external"):
                 cmd = mission_command((now - t0) % period)
                 if cmd != state["cmd"] or now - state["sent"] > 0.2:
                     send_twist(link, chassis, *cmd)
