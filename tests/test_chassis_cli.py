@@ -103,7 +103,7 @@ def test_monitor_prints_speeds_and_odometry(chassis, capsys):
     assert len(rows) >= 5
     ticks = [(int(a), int(b)) for a, b in rows[:, 1:3]]
     # the printed ticks are a contiguous run of what the firmware sent
-    sent = chassis.sim.ticks_sent
+    sent = list(chassis.sim.ticks_sent)
     k = next(i for i in range(len(sent)) if sent[i : i + len(ticks)] == ticks)
     assert k > 0
     # speeds: ticks * speed_ratio / period (printed to 4 decimals)

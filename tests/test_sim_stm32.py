@@ -79,7 +79,7 @@ def test_closed_loop_reaches_target():
     sim.target = (400, -250)
     for _ in range(50):  # 2 s
         sim.step()
-    last = np.array(sim.ticks_counted[-10:])
+    last = np.array(list(sim.ticks_counted)[-10:])
     assert np.all(np.abs(last[:, 0] - 400) <= 1)
     assert np.all(np.abs(last[:, 1] + 250) <= 1)
     # zero target brakes: PWM 0 at once
@@ -157,13 +157,13 @@ def test_end_to_end_odometry_matches_truth(chassis):
             f = link.get(0.1)
             if f is not None:
                 frames.append(f)
-    sent = chassis.sim.ticks_sent
+    sent = list(chassis.sim.ticks_sent)
     got = [(f.left, f.right) for f in frames]
     assert len(got) == len(sent), (len(got), len(sent), got[-3:], sent[-3:])
     assert got == sent  # none lost, none invented
     # the commanded wheels really turned: after 30 periods of the command, counts within
     # 2 ticks of the targets (periods counted by the firmware, whatever the host load)
-    tg = chassis.sim.targets
+    tg = list(chassis.sim.targets)
     on = [i for i in range(30, len(tg)) if all(t == (left, right) for t in tg[i - 30 : i + 1])]
     assert len(on) >= 10
     steady = np.array([chassis.sim.ticks_counted[i] for i in on])
@@ -224,3 +224,47 @@ def test_module_runs_as_a_program(tmp_path):
     assert out.returncode == 0, out.stderr
     assert str(tmp_path / "data") in out.stdout
     assert str(tmp_path / "debug") in out.stdout
+
+
+def _traced_growth(history: int | None, warm: int, more: int) -> int:
+    """Bytes still allocated after ``more`` periods, beyond what ``warm`` periods held."""
+    import tracemalloc
+
+    from drivers.chassis import encode_wheel_frame as frame
+
+    sim = Stm32Sim(Stm32SimParams(history=history, substeps=1, drop_prob=0.1, seed=1))
+    sim.command_bytes(frame(300, -200))
+    tracemalloc.start()
+    try:
+        for _ in range(warm):
+            sim.step()
+        before = tracemalloc.get_traced_memory()[0]
+        for _ in range(more):
+            sim.step()
+        after = tracemalloc.get_traced_memory()[0]
+    finally:
+        tracemalloc.stop()
+    assert sim.periods == warm + more
+    return after - before
+
+
+def test_a_long_run_keeps_flat_memory():
+    # 20000 periods (13 min of firmware time at 40 ms) after the history has filled: with the
+    # default ring buffers nothing accumulates; the unbounded records (history=None) grow by a
+    # few hundred bytes per period (a pose array and tuples), which is what ran the memory up
+    growth = _traced_growth(200, 1000, 20000)
+    unbounded = _traced_growth(None, 1000, 20000)
+    assert unbounded > 20000 * 200
+    assert growth < 20_000  # noise of the allocator, not a per-period leak
+
+
+def test_history_keeps_the_newest_periods():
+    sim = Stm32Sim(Stm32SimParams(history=5, substeps=1))
+    for k in range(12):
+        sim.target = (k, -k)
+        sim.step()
+    assert list(sim.targets) == [(k, -k) for k in range(7, 12)]
+    assert len(sim.ticks_counted) == len(sim.pose_at_read) == 5
+    assert sim.periods == 12
+    with pytest.raises(ValueError, match="history"):
+        Stm32SimParams(history=0)

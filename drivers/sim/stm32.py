@@ -32,6 +32,7 @@ real time on ptys with :class:`PtyStm32` (a thread), or from a shell::
 from __future__ import annotations
 
 import argparse
+import collections
 import contextlib
 import math
 import os
@@ -81,6 +82,9 @@ class Stm32SimParams:
         echo_targets: print ``enc1_target:%d``/``enc2_target:%d`` on DEBUG-uart1 for every
             speed command (the seed's listing has these printf lines near a commented block).
         seed: random seed for slip noise and dropped frames.
+        history: periods kept in the per-period records of :class:`Stm32Sim`
+            (``ticks_counted``, ``targets``, ...; the newest), and frame times kept by
+            :class:`PtyStm32`; None keeps everything (memory grows with the run).
     """
 
     period: float = 0.04
@@ -101,6 +105,14 @@ class Stm32SimParams:
     firmware_version: tuple[int, int, int] = (1, 0, 0)
     echo_targets: bool = False
     seed: int = 0
+    history: int | None = 10_000
+
+    def __post_init__(self) -> None:
+        if self.history is not None and (isinstance(self.history, bool)
+                                         or not isinstance(self.history, int)
+                                         or self.history < 1):
+            raise ValueError(f"history must be a positive number of periods or None, got "
+                             f"{self.history!r}")
 
 
 @dataclass
@@ -141,6 +153,10 @@ class Stm32Sim:
     Commands go in with :meth:`command_bytes` (DATA-uart2 bytes) and :meth:`debug_bytes`
     (DEBUG-uart1 bytes); :meth:`step` returns the DATA-uart2 bytes to send, and
     :meth:`take_debug_output` the pending DEBUG-uart1 text.
+
+    The per-period records (``ticks_sent``, ``ticks_counted``, ``pose_at_read``,
+    ``pose_at_sent``, ``targets``) are deques of the newest ``params.history`` periods, so a
+    simulator running for hours keeps flat memory.
     """
 
     def __init__(self, params: Stm32SimParams | None = None) -> None:
@@ -151,11 +167,13 @@ class Stm32Sim:
         self.right = _Wheel()
         self.target = (0, 0)
         self.pose = np.zeros(3)  # true x, y, theta (odom frame), m, m, rad
-        self.ticks_sent: list[tuple[int, int]] = []  # feedback frames actually sent
-        self.ticks_counted: list[tuple[int, int]] = []  # every period's count
-        self.pose_at_read: list[np.ndarray] = []  # true pose when each count was read
-        self.pose_at_sent: list[np.ndarray] = []  # true pose for each frame sent
-        self.targets: list[tuple[int, int]] = []  # the target in force at each period
+        n = p.history
+        # the newest n periods (a ring buffer each)
+        self.ticks_sent: collections.deque[tuple[int, int]] = collections.deque(maxlen=n)
+        self.ticks_counted: collections.deque[tuple[int, int]] = collections.deque(maxlen=n)
+        self.pose_at_read: collections.deque[np.ndarray] = collections.deque(maxlen=n)
+        self.pose_at_sent: collections.deque[np.ndarray] = collections.deque(maxlen=n)
+        self.targets: collections.deque[tuple[int, int]] = collections.deque(maxlen=n)
         self.pwm = (0, 0)
         self.periods = 0
         self.dropped = 0
@@ -310,7 +328,9 @@ class PtyStm32:
         self._stop = threading.Event()
         self._io = threading.Lock()
         self._thread: threading.Thread | None = None
-        self.frame_times: list[float] = []  # monotonic time each frame was written
+        # monotonic time each frame was written (the newest params.history)
+        self.frame_times: collections.deque[float] = collections.deque(
+            maxlen=self.sim.params.history)
 
     def start(self) -> PtyStm32:
         self._thread = threading.Thread(target=self._run, name="PtyStm32", daemon=True)

@@ -188,7 +188,7 @@ class SimRobot:
         self.sim = Stm32Sim(Stm32SimParams(wheel_distance=p.wheel_distance,
                                            speed_ratio=p.speed_ratio, slip=self._base_slip,
                                            slip_noise=p.slip_noise, seed=p.seed,
-                                           substeps=10))
+                                           substeps=10, history=100))
         self.period = self.sim.params.period
         self._mount_inv = quat.to_matrix(quat.from_euler(*p.imu_mount_rpy)).T
         # the last 2 s of true motion, as arrays rebuilt once per period (the IMU reads only
@@ -318,11 +318,6 @@ class SimRobot:
         if self.keep_truth:
             self.truth.append((t + self.period, float(pose1[0]), float(pose1[1]),
                                float(pose1[2])))
-        # the simulator keeps per-period lists for its own tests: keep them short
-        for name in ("ticks_sent", "ticks_counted", "pose_at_read", "pose_at_sent", "targets"):
-            lst = getattr(sim, name, None)
-            if isinstance(lst, list) and len(lst) > 100:
-                del lst[:-10]
         # the gyro bias walks
         walk = self.params.gyro_bias_walk_dps
         if walk:
