@@ -1,5 +1,5 @@
-"""Soak test: the demo's live pipeline at 4x real time for a bounded 30 s of wall time
-(2 minutes of robot time: ~3000 wheel frames, ~12000 IMU samples through the real pty,
+"""Soak test: the demo's live pipeline at 2x real time for a bounded 30 s of wall time
+(1 minute of robot time: ~1500 wheel frames, ~6000 IMU samples through the real pty,
 link, driver, Mahony, EKF and a JSON lines file sink), checking that memory stays flat
 (tracemalloc, after a warm-up) and that latency does not creep up."""
 
@@ -28,7 +28,7 @@ from fusion.cli.demo import (
 from fusion.pipeline import FusionPipeline, LiveRunner
 from fusion.publish import JsonLinesSink
 
-SPEED = 4.0
+SPEED = 2.0  # headroom: tracemalloc slows Python ~2x and CI machines may be shared
 WARM_S, SOAK_S = 6.0, 24.0  # wall seconds
 
 
