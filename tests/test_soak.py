@@ -92,7 +92,7 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     assert sum(1 for _ in out.open()) == stats.records  # the file sink got every record
 
     # memory: traced Python memory from the second mark (12 s wall) to the end (30 s) grows
-    # by less than 1 MB over ~72 s of robot time (~1800 wheel frames, ~7200 IMU samples):
+    # by less than 1 MB over ~48 s of robot time (~1200 wheel frames, ~4800 IMU samples):
     # about 100 bytes per event, while the latency history alone takes ~30 bytes per frame.
     # A leak of one small object per event (a sample, a record) would exceed it.
     mem = [m[0] for m in marks]
