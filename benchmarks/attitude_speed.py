@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import argparse
 import importlib.util
-import time
-from collections.abc import Callable
 
 import numpy as np
+from _timing import cpu_rate  # benchmarks/_timing.py (scripts run from benchmarks/)
 
 from fusion._jit import HAVE_NUMBA
 from fusion.mahony import Mahony
@@ -25,24 +24,6 @@ def data(n: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     gyro = rng.normal(0.0, 0.3, (n, 3))
     accel = np.array([0.0, 0.0, 9.81]) + rng.normal(0.0, 0.3, (n, 3))
     return gyro, accel
-
-
-def rate(fn: Callable[[], int], seconds: float) -> float:
-    """Samples per CPU second of ``fn`` (returns how many samples it processed), best of runs.
-
-    CPU time of this process (not wall time), so other load on the machine disturbs the
-    figures less; the best of repeated runs filters the rest.
-    """
-    fn()  # warm-up (JIT compilation, caches)
-    best = 0.0
-    deadline = time.perf_counter() + seconds
-    while time.perf_counter() < deadline:
-        t0 = time.process_time()
-        n = fn()
-        elapsed = time.process_time() - t0
-        if elapsed > 0:
-            best = max(best, n / elapsed)
-    return best
 
 
 def streaming_loops(gyro, accel):
@@ -145,7 +126,7 @@ def main() -> None:
     for title, table in (("streaming, one call per sample", streaming_loops(gyro, accel)),
                          ("batch over arrays", batch_calls(*data(1_000_000)))):
         print(f"\n{title}:")
-        results = {name: rate(fn, args.seconds) for name, fn in table.items()}
+        results = {name: cpu_rate(fn, args.seconds) for name, fn in table.items()}
         ours = next(iter(results.values()))
         for name, r in results.items():
             print(f"  {name:42s} {r / 1e6:8.3f} M samples/s   ours/this = {ours / r:6.2f}")

@@ -19,27 +19,13 @@ import argparse
 import os
 import subprocess
 import sys
-import time
-from collections.abc import Callable
+
+from _timing import cpu_rate  # benchmarks/_timing.py (scripts run from benchmarks/)
 
 from fusion import _ekf_core as core
 from fusion._jit import HAVE_NUMBA
 from fusion.ekf import PlanarEKF, merge_events
 from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
-
-
-def rate(fn: Callable[[], int], seconds: float) -> float:
-    """Events per CPU second of ``fn`` (returns how many it processed), best of repeated runs."""
-    fn()  # warm-up (JIT compilation, caches)
-    best = 0.0
-    deadline = time.perf_counter() + seconds
-    while time.perf_counter() < deadline:
-        t0 = time.process_time()
-        n = fn()
-        elapsed = time.process_time() - t0
-        if elapsed > 0:
-            best = max(best, n / elapsed)
-    return best
 
 
 def main() -> None:
@@ -76,18 +62,18 @@ def main() -> None:
         return m
 
     if args.interpreted_child:
-        print(rate(batch, args.seconds))
+        print(cpu_rate(batch, args.seconds))
         return
     env = dict(os.environ, FUSION_DISABLE_JIT="1")
     child = subprocess.run([sys.executable, __file__, "--interpreted-child", "--seconds",
                             str(args.seconds)], env=env, capture_output=True, text=True,
                            check=True)
     rows = [
-        ("PlanarEKF.process_batch (compiled loop)", rate(batch, args.seconds)),
-        ("PlanarEKF.update_gyro/update_wheels (streaming)", rate(streaming, args.seconds)),
+        ("PlanarEKF.process_batch (compiled loop)", cpu_rate(batch, args.seconds)),
+        ("PlanarEKF.update_gyro/update_wheels (streaming)", cpu_rate(streaming, args.seconds)),
         ("same core interpreted (no numba; backend='auto' then uses filterpy)",
          float(child.stdout.strip().splitlines()[-1])),
-        ("plain filterpy ExtendedKalmanFilter, same model", rate(filterpy, args.seconds)),
+        ("plain filterpy ExtendedKalmanFilter, same model", cpu_rate(filterpy, args.seconds)),
     ]
     ref = rows[-1][1]
     print(f"EKF events per CPU second ({n} events: 100 Hz gyro + 25 Hz wheels; numba "
