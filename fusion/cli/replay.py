@@ -1,14 +1,29 @@
-"""``fusion replay``: run the fused-odometry EKF over a log directory or a ROS bag.
+"""``fusion replay``: run the fusion pipeline over recorded logs.
 
 Inputs:
 
-- a log directory (``datasets/LOGDIR.md``): wheel ticks + IMU (+ truth);
+- a log directory (``datasets/LOGDIR.md``): robot.toml, imu.csv and wheels.csv (or a
+  DATA-uart2 capture ``wheels.uart2``), optional truth.csv;
+- a folder whose subfolders are log directories: every log is replayed in a worker process
+  (``--jobs``), one output per log in the ``-o`` folder, and a summary table is printed;
+- a DATA-uart2 capture (``*.uart2``, raw bytes or timed ``t,data`` rows, see
+  :func:`fusion.logs.read_uart2_capture`) with ``--robot robot.toml``: wheel odometry only;
 - a ROS 1 ``.bag``, a ROS 2 bag folder or an ``.mcap`` file with ``--imu-topic``
   (sensor_msgs/Imu) and ``--odom-topic`` (nav_msgs/Odometry, whose twist is the wheel
   odometry, fused as an external twist), ``--imu-mount-rpy`` taking IMU-frame vectors into the
   base frame (URDF rpy, rad). Needs the ``ros`` extra (``rosbags``).
 
-Output CSV (one row per IMU sample, or per wheel frame when the log has no IMU), header::
+Log directories and captures run through :class:`fusion.pipeline.FusionPipeline` (its batch
+entry point :meth:`~fusion.pipeline.FusionPipeline.push_arrays`), the object ``fusion run``
+uses live. Bags carry the wheel odometry as twists, which the pipeline has no input for: they
+go through :func:`fusion.ekf.fuse` (the same EKF core).
+
+Outputs (``-o``/``--output``, chosen by suffix): ``.csv`` is the replay CSV below, one row per
+IMU sample (or per wheel frame when the log has no IMU), the whole run; ``.mcap``
+(nav_msgs/Odometry, tf, sensor_msgs/Imu, wheel speeds; the ``ros`` extra) and ``.jsonl``
+(:meth:`fusion.fused.FusedOdometry.to_dict` per line) get the pipeline's records, one per
+wheel frame, through :func:`fusion.publish.open_sink`. An existing file is only ever replaced
+by a complete one. The replay CSV header::
 
     t,x,y,yaw,v,w,gyro_bias_z,wheel_rate_scale,wheel_rate_per_speed,
     var_x,var_y,var_yaw,cov_xy,cov_x_yaw,cov_y_yaw
@@ -16,46 +31,89 @@ Output CSV (one row per IMU sample, or per wheel frame when the log has no IMU),
 ``t`` s (host clock), pose of base_footprint in odom (m, m, rad wrapped to (-pi, pi]), v m/s,
 w rad/s, gyro bias rad/s, the wheel calibration states k (1) and c (rad/m) of
 :mod:`fusion.ekf`, and the pose covariance (m^2, m*rad, rad^2).
+
+``--plot out.png`` draws the fused, wheel-only and (when present) true trajectories and the
+yaw error (matplotlib, the ``demo`` extra). Progress goes to standard error when it is a
+terminal (or with ``--progress``): a tqdm bar (the ``progress`` extra) or a plain line.
 """
 
 from __future__ import annotations
 
 import argparse
 import math
+import os
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fusion.cli import CommandError
 
-__all__ = ["FUSED_CSV_COLUMNS", "fuse_logdir", "register", "write_fused_csv"]
+__all__ = [
+    "FUSED_CSV_COLUMNS",
+    "OUTPUT_FORMATS",
+    "ReplayResult",
+    "find_log_dirs",
+    "fuse_logdir",
+    "register",
+    "replay_capture",
+    "replay_logdir",
+    "write_fused_csv",
+]
 
 FUSED_CSV_COLUMNS = (
     "t", "x", "y", "yaw", "v", "w", "gyro_bias_z", "wheel_rate_scale", "wheel_rate_per_speed",
     "var_x", "var_y", "var_yaw", "cov_xy", "cov_x_yaw", "cov_y_yaw",
 )
 
+#: Output suffix -> format.
+OUTPUT_FORMATS = {".csv": "csv", ".mcap": "mcap", ".jsonl": "jsonl"}
+
+CAPTURE_SUFFIXES = (".uart2",)
+
 
 def register(subparsers) -> None:
     p = subparsers.add_parser(
         "replay",
-        help="fused wheel + gyro odometry (EKF) of a log directory",
+        help="fused wheel + gyro odometry (EKF) of recorded logs",
         description=(
-            "Run the planar EKF (wheel odometry + gyro yaw rate with a gyro-bias state) over a "
-            "log directory (robot.toml, imu.csv and/or wheels.csv, optional truth.csv; see "
-            "datasets/LOGDIR.md) and write the fused odometry as CSV with the header "
-            + ",".join(FUSED_CSV_COLUMNS)
-            + ". Prints a summary; with truth.csv, the errors of the fused and of the "
-            "wheel-only odometry."
+            "Run the fusion pipeline (Mahony attitude + planar EKF: wheel odometry and the "
+            "gyro yaw rate with a gyro-bias state) over a log directory (robot.toml, imu.csv "
+            "and/or wheels.csv or wheels.uart2, optional truth.csv; see datasets/LOGDIR.md), "
+            "a folder of log directories (in parallel worker processes), a DATA-uart2 "
+            "capture (*.uart2, with --robot) or a ROS bag, and write the fused odometry: "
+            ".csv (the header " + ",".join(FUSED_CSV_COLUMNS) + ", one row per IMU sample), "
+            ".mcap or .jsonl (the pipeline's records, one per wheel frame). Prints a "
+            "summary; with truth.csv, the errors of the fused and of the wheel-only odometry."
         ),
     )
     p.add_argument("input", type=Path,
-                   help="log directory, or a ROS 1 .bag / ROS 2 bag folder / .mcap file")
-    p.add_argument("-o", "--output", type=Path, required=True, help="fused CSV to write")
+                   help="log directory, folder of log directories, *.uart2 capture, or a "
+                        "ROS 1 .bag / ROS 2 bag folder / .mcap file")
+    p.add_argument("-o", "--output", type=Path, required=True,
+                   help="fused.csv | fused.mcap | fused.jsonl (format by suffix); for a folder "
+                        "of logs, the folder to write one output per log into")
+    p.add_argument("--format", choices=sorted(set(OUTPUT_FORMATS.values())), default="csv",
+                   help="output format of each log of a folder of logs (default csv)")
     p.add_argument("--level", action="store_true",
                    help="take the robot as level: use the gyro's z axis as the yaw rate "
                         "(default: tilt-compensate with the Mahony attitude)")
+    p.add_argument("--plot", type=Path, metavar="PNG",
+                   help="draw fused vs wheel-only (vs truth) trajectories and the yaw error to "
+                        "this PNG (for a folder of logs: a folder, one PNG per log); needs "
+                        "matplotlib (pip install 'diffbot-fusion[demo]')")
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="progress on stderr (default: only when stderr is a terminal)")
+    p.add_argument("-j", "--jobs", type=int, default=None,
+                   help="worker processes for a folder of logs (default: the CPU count)")
+    p.add_argument("--robot", type=Path,
+                   help="robot.toml for a capture (required) or a bag (wheel_distance and "
+                        "[ekf] tuning; optional)")
     bag = p.add_argument_group("ROS bags")
     bag.add_argument("--imu-topic", help="sensor_msgs/Imu topic (bags only)")
     bag.add_argument("--odom-topic", help="nav_msgs/Odometry topic of the wheel odometry "
@@ -64,13 +122,12 @@ def register(subparsers) -> None:
                      default=(0.0, 0.0, 0.0),
                      help="URDF roll pitch yaw (rad) taking IMU-frame vectors into the base "
                           "frame (bags only; a log directory has it in robot.toml)")
-    bag.add_argument("--robot", type=Path,
-                     help="robot.toml for a bag (wheel_distance and [ekf] tuning; optional)")
     p.set_defaults(func=run)
 
 
 def fuse_logdir(log, tilt: bool = True):
-    """Fuse a :class:`fusion.logdir.LogDir`; returns ``(track, filter, rows)``.
+    """Fuse a :class:`fusion.logdir.LogDir` with :func:`fusion.ekf.fuse` (the batch filter
+    alone, without the pipeline); returns ``(track, filter, rows)``.
 
     With ``tilt`` and an IMU, the yaw rate is the gyro rate about the world vertical, using
     the Mahony filter's attitude (6-axis); otherwise the gyro's z axis. ``rows`` is the mask of
@@ -92,12 +149,17 @@ def fuse_logdir(log, tilt: bool = True):
     return track, ekf, track.output_rows()
 
 
-def write_fused_csv(path: Path, t: NDArray[np.float64], states: NDArray[np.float64]) -> None:
-    """Write the rows of :func:`fuse_logdir` (``states``: process_batch rows) atomically."""
+def _table(t: NDArray[np.float64], states: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Replay CSV rows from :meth:`fusion.ekf.PlanarEKF.process_batch` rows (yaw wrapped)."""
     yaw = np.pi - np.mod(np.pi - states[:, 2], 2 * np.pi)
-    table = np.column_stack([t, states[:, 0:2], yaw, states[:, 3:8], states[:, 8:11],
-                             states[:, 16:19]])
-    tmp = path.with_name(path.name + ".partial")
+    return np.column_stack([t, states[:, 0:2], yaw, states[:, 3:8], states[:, 8:11],
+                            states[:, 16:19]])
+
+
+def _write_table(path: Path, table: NDArray[np.float64]) -> None:
+    from fusion.publish import create_temp_file
+
+    tmp = create_temp_file(path)  # the umask's permissions, a unique name
     try:
         np.savetxt(tmp, table, delimiter=",", header=",".join(FUSED_CSV_COLUMNS), comments="",
                    fmt="%.10g")
@@ -106,15 +168,528 @@ def write_fused_csv(path: Path, t: NDArray[np.float64], states: NDArray[np.float
         tmp.unlink(missing_ok=True)
 
 
-def run(args: argparse.Namespace) -> int:
-    from fusion.logdir import read_logdir
-    from fusion.odometry import WheelOdometry
-    from fusion.trajectory_metrics import (
-        final_position_error_percent,
-        path_length,
-        yaw_rmse,
-    )
+def write_fused_csv(path: Path, t: NDArray[np.float64], states: NDArray[np.float64]) -> None:
+    """Write ``t`` and process_batch rows ``states`` as the replay CSV, atomically (an
+    existing file is replaced only by a complete one)."""
+    _write_table(Path(path), _table(t, states))
 
+
+# -- progress -----------------------------------------------------------------------------------
+
+
+class _Progress:
+    """Progress of one replay on stderr: a tqdm bar if tqdm is installed, else a plain line
+    at most every ``interval`` s; nothing when disabled."""
+
+    def __init__(self, total: float, desc: str, unit: str, enabled: bool,
+                 interval: float = 1.0) -> None:
+        self.total = max(float(total), 0.0)
+        self.desc = desc
+        self.unit = unit
+        self.enabled = enabled
+        self.interval = interval
+        self._bar = None
+        self._done = 0.0
+        self._last = -math.inf
+        if enabled:
+            try:
+                from tqdm import tqdm
+            except ImportError:
+                tqdm = None
+            if tqdm is not None:
+                self._bar = tqdm(total=math.ceil(self.total), desc=desc, unit=unit,
+                                 file=sys.stderr, leave=False, dynamic_ncols=True)
+
+    def update_to(self, done: float) -> None:
+        if not self.enabled:
+            return
+        done = min(max(float(done), self._done), self.total)
+        self._done = done
+        if self._bar is not None:
+            step = int(done) - self._bar.n  # whole units
+            if step > 0:
+                self._bar.update(step)
+            return
+        now = time.monotonic()
+        if now - self._last >= self.interval:
+            self._last = now
+            self._line()
+
+    def _line(self) -> None:
+        pct = 100.0 * self._done / self.total if self.total > 0 else 100.0
+        print(f"{self.desc}: {pct:3.0f}% ({self._done:.1f}/{self.total:.1f} {self.unit})",
+              file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        if not self.enabled:
+            return
+        if self._bar is not None:
+            self._bar.close()
+        else:
+            self._done = self.total
+            self._line()
+
+
+def _progress_enabled(flag: bool | None) -> bool:
+    if flag is not None:
+        return flag
+    try:
+        return sys.stderr.isatty()
+    except (AttributeError, ValueError):
+        return False
+
+
+# -- replay through the pipeline ------------------------------------------------------------------
+
+
+@dataclass
+class ReplayResult:
+    """What a replay did (picklable: a worker process returns it).
+
+    Attributes:
+        source, output: input and output paths.
+        span: s of log time; n_imu, n_wheels: IMU samples and wheel frames read.
+        rows: rows of the replay CSV (the fused state at every IMU sample, or wheel frame
+            without an IMU); records: pipeline records (one per wheel frame).
+        final: last fused pose (x m, y m, yaw rad wrapped); distance: integral of |v|, m.
+        gyro_bias: rad/s; k (1), c (rad/m): the EKF's wheel yaw-rate calibration states.
+        stats: the pipeline's counters (:meth:`fusion.pipeline.PipelineStats.as_dict`).
+        truth: with truth, ``distance`` m and the fused/wheel-only final position error (% of
+            distance) and yaw RMSE (deg); else None.
+        notes: warnings for the user.
+    """
+
+    source: str
+    output: str
+    span: float
+    n_imu: int
+    n_wheels: int
+    rows: int
+    records: int
+    final: tuple[float, float, float]
+    distance: float
+    gyro_bias: float
+    k: float
+    c: float
+    stats: dict[str, Any]
+    wheel_distance: float
+    truth: dict[str, float] | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+class _StateTap:
+    """Keeps the replay CSV rows from the EKF's batch calls inside the pipeline.
+
+    Installed as the pipeline's filter (:class:`_TappedEKF`): every ``process_batch`` the
+    pipeline makes hands over its events' kinds, effective times and state rows; the rows of
+    ``keep_kind`` become the CSV (the state after every IMU sample, or every wheel frame).
+    """
+
+    def __init__(self, keep_kind: int, on_time: Callable[[float], None] | None) -> None:
+        self.keep_kind = keep_kind
+        self.on_time = on_time
+        self._pending: list[tuple[NDArray, NDArray, NDArray]] = []
+        self._chunks: list[NDArray[np.float64]] = []
+
+    def __call__(self, kinds, t_eff, states) -> None:
+        self._pending.append((np.asarray(kinds), np.asarray(t_eff), states))
+        if len(self._pending) >= 256:
+            self._compact()
+        if self.on_time is not None and len(t_eff):
+            self.on_time(float(t_eff[-1]))
+
+    def _compact(self) -> None:
+        if not self._pending:
+            return
+        kinds = np.concatenate([p[0] for p in self._pending])
+        t = np.concatenate([p[1] for p in self._pending])
+        states = np.concatenate([p[2] for p in self._pending])
+        self._pending.clear()
+        keep = kinds == self.keep_kind
+        self._chunks.append(_table(t[keep], states[keep]))
+
+    def table(self) -> NDArray[np.float64]:
+        self._compact()
+        if not self._chunks:
+            return np.zeros((0, len(FUSED_CSV_COLUMNS)))
+        return np.concatenate(self._chunks)
+
+
+def _tapped_ekf(chassis, noise, tap: _StateTap):
+    from fusion.ekf import PlanarEKF
+
+    class _TappedEKF(PlanarEKF):
+        def process_batch(self, kinds, t_eff, a, b):
+            states, status = super().process_batch(kinds, t_eff, a, b)
+            tap(kinds, t_eff, states)
+            return states, status
+
+    return _TappedEKF(chassis, noise)
+
+
+def _output_format(path: Path) -> str:
+    fmt = OUTPUT_FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise CommandError(f"{path}: unknown output type {path.suffix or '(no suffix)'!r}; "
+                           "give a .csv, .mcap or .jsonl file")
+    if not path.parent.is_dir():
+        raise CommandError(f"{path}: the folder {path.parent} does not exist")
+    if path.is_dir():
+        raise CommandError(f"{path}: is a folder; give a file path")
+    return fmt
+
+
+def _check_plot_available() -> None:
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise CommandError("--plot needs matplotlib: pip install 'diffbot-fusion[demo]'") \
+            from None
+
+
+def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Path,
+                           progress: bool, desc: str):
+    """Run the arrays through a :class:`fusion.pipeline.FusionPipeline` (batch path) into the
+    output; returns ``(table, pipeline, stats)``."""
+    from fusion import _ekf_core as core
+    from fusion.mahony import Mahony
+    from fusion.pipeline import FusionPipeline
+    from fusion.publish import open_sink
+
+    fmt = _output_format(output)
+    has_imu = imu is not None and imu.t.size > 0
+    streams = [a for a in ((imu.t if has_imu else None), wheel_t) if a is not None and a.size]
+    t0 = min(float(a[0]) for a in streams)
+    t1 = max(float(a[-1]) for a in streams)
+    bar = _Progress(t1 - t0, desc, "s", progress)
+    tap = _StateTap(core.EV_GYRO if has_imu else core.EV_WHEELS,
+                    lambda t: bar.update_to(t - t0))
+    sinks = [] if fmt == "csv" else [open_sink(f"{fmt}:{output}")]
+    sources = [name for name, on in (("imu", has_imu), ("wheels", wheel_t.size > 0)) if on]
+    pipe = FusionPipeline(robot, sinks, tilt=tilt, sources=sources, mahony=Mahony(axes=6))
+    pipe.ekf = _tapped_ekf(robot.chassis, robot.ekf, tap)  # before any event: same filter
+    try:
+        try:
+            pipe.open()
+        except ImportError as exc:
+            raise CommandError(f"{output}: {exc}") from None
+        with pipe:
+            pipe.push_arrays(imu.t if has_imu else None, imu.gyro if has_imu else None,
+                             imu.accel if has_imu else None, wheel_t, ticks)
+        table = tap.table()
+        if fmt == "csv":
+            _write_table(output, table)
+    finally:
+        bar.close()
+    return table, pipe, pipe.finish_stats()
+
+
+def _load_logdir(path: Path):
+    """``(robot, imu or None, wheel_t, ticks, truth_t, truth, capture_stats)``; the IMU in
+    its own frame (the pipeline applies ``imu_mount_rpy``)."""
+    from fusion.logdir import read_robot_toml, read_truth_csv, read_wheels_csv
+    from fusion.logs import read_imu_csv
+    from fusion.pipeline import capture_events
+
+    toml_path = path / "robot.toml"
+    if not toml_path.is_file():
+        raise FileNotFoundError(f"{toml_path}: missing; a log directory needs robot.toml "
+                                "with a [chassis] table")
+    robot = read_robot_toml(toml_path)
+    imu = read_imu_csv(path / "imu.csv") if (path / "imu.csv").is_file() else None
+    cap_stats = None
+    if (path / "wheels.csv").is_file():
+        wheel_t, ticks = read_wheels_csv(path / "wheels.csv")
+    elif (path / "wheels.uart2").is_file():
+        frames, cap_stats = capture_events(path / "wheels.uart2",
+                                           robot.chassis.encode_sampling_time)
+        wheel_t, ticks = _frame_arrays(frames)
+    else:
+        wheel_t, ticks = np.zeros(0), np.zeros((0, 2), np.int64)
+    if wheel_t.size == 0:
+        raise CommandError(f"{path}: wheels.csv is missing or empty; the fused odometry needs "
+                           "the wheel encoder frames")
+    truth_t = truth = None
+    if (path / "truth.csv").is_file():
+        truth_t, truth = read_truth_csv(path / "truth.csv")
+    return robot, imu, wheel_t, ticks, truth_t, truth, cap_stats
+
+
+def _frame_arrays(frames) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    t = np.array([f.t for f in frames], dtype=np.float64)
+    ticks = np.array([(f.left, f.right) for f in frames], dtype=np.int64).reshape(-1, 2)
+    return t, ticks
+
+
+def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
+                  plot: str | Path | None = None, progress: bool = False) -> ReplayResult:
+    """Replay a log directory through the pipeline into ``output`` (.csv/.mcap/.jsonl);
+    optionally draw ``plot`` (PNG). Raises on bad input, leaving no partial output."""
+    path, output = Path(path), Path(output)
+    robot, imu, wheel_t, ticks, truth_t, truth, cap_stats = _load_logdir(path)
+    return _finish(path, output, robot, imu, wheel_t, ticks, truth_t, truth, tilt=tilt,
+                   plot=plot, progress=progress, capture_stats=cap_stats)
+
+
+def replay_capture(path: str | Path, output: str | Path, robot_toml: str | Path, *,
+                   plot: str | Path | None = None, progress: bool = False) -> ReplayResult:
+    """Replay a DATA-uart2 capture (wheel odometry only) with the chassis of ``robot_toml``.
+
+    A timed capture is stamped as the live link stamps; a raw one on the firmware period
+    (:func:`fusion.pipeline.capture_events`)."""
+    from fusion.logdir import read_robot_toml
+    from fusion.pipeline import capture_events
+
+    path, output = Path(path), Path(output)
+    robot = read_robot_toml(robot_toml)
+    frames, stats = capture_events(path, robot.chassis.encode_sampling_time)
+    if not frames:
+        raise CommandError(f"{path}: no DATA-uart2 frame in the capture "
+                           f"(parser counters: {stats})")
+    wheel_t, ticks = _frame_arrays(frames)
+    return _finish(path, output, robot, None, wheel_t, ticks, None, None, tilt=True,
+                   plot=plot, progress=progress, capture_stats=stats)
+
+
+def _finish(path, output, robot, imu, wheel_t, ticks, truth_t, truth, *, tilt, plot, progress,
+            capture_stats) -> ReplayResult:
+    from fusion.odometry import WheelOdometry
+    from fusion.trajectory_metrics import final_position_error_percent, path_length, yaw_rmse
+
+    if plot is not None:
+        _check_plot_available()
+    table, pipe, stats = _fuse_through_pipeline(robot, imu, wheel_t, ticks, tilt=tilt,
+                                                output=output, progress=progress,
+                                                desc=path.name)
+    chassis = robot.chassis
+    ekf = pipe.ekf
+    n_imu = 0 if imu is None else int(imu.t.size)
+    times = [a for a in ((imu.t if n_imu else None), wheel_t) if a is not None and a.size]
+    span = max(float(a[-1]) for a in times) - min(float(a[0]) for a in times)
+    notes = []
+    if capture_stats is not None:
+        bad = {k: v for k, v in capture_stats.items() if k != "frames" and v}
+        if bad:
+            notes.append(f"capture parser counters: {bad}")
+    if n_imu and (wheel_t[-1] > imu.t[-1] + chassis.encode_sampling_time
+                  or wheel_t[0] < imu.t[0] - chassis.encode_sampling_time):
+        notes.append(f"wheel frames span {wheel_t[0]:.3f}-{wheel_t[-1]:.3f} s, the IMU "
+                     f"{imu.t[0]:.3f}-{imu.t[-1]:.3f} s; rows are written at IMU samples "
+                     "only, so the output covers the IMU's span")
+    t_out, states_xy, yaw_out = table[:, 0], table[:, 1:3], table[:, 3]
+    wheel = WheelOdometry(chassis).update_batch(ticks[:, 0], ticks[:, 1])
+    truth_res = None
+    if truth_t is not None and truth_t.size:
+        tr = _truth_at(truth_t, truth, t_out)
+        dist = path_length(truth)
+        inside = (t_out >= truth_t[0]) & (t_out <= truth_t[-1])
+        wtruth = _truth_at(truth_t, truth, wheel_t)
+        w_in = (wheel_t >= truth_t[0]) & (wheel_t <= truth_t[-1])
+        truth_res = {
+            "distance": dist,
+            "fused_pct": final_position_error_percent(states_xy[inside], tr[inside, :2], dist),
+            "fused_yaw_deg": math.degrees(yaw_rmse(yaw_out[inside], tr[inside, 2])),
+            "wheel_pct": final_position_error_percent(wheel[w_in, :2], wtruth[w_in, :2], dist),
+            "wheel_yaw_deg": math.degrees(yaw_rmse(wheel[w_in, 2], wtruth[w_in, 2])),
+        }
+    if plot is not None:
+        _plot(Path(plot), path.name, table, wheel_t, wheel, truth_t, truth)
+    last = table[-1]
+    return ReplayResult(
+        source=str(path), output=str(output), span=span, n_imu=n_imu,
+        n_wheels=int(wheel_t.size), rows=int(table.shape[0]), records=stats.records,
+        final=(float(last[1]), float(last[2]), float(last[3])),
+        distance=_distance(t_out, table[:, 4]), gyro_bias=float(ekf.gyro_bias),
+        k=float(ekf.x[6]), c=float(ekf.x[7]),
+        stats={**stats.as_dict(), "invalid": ekf.stats["invalid"]},
+        wheel_distance=chassis.wheel_distance, truth=truth_res, notes=notes)
+
+
+def _plot(path: Path, title: str, table, wheel_t, wheel, truth_t, truth) -> None:
+    """Trajectories (fused, wheel-only, truth) and yaw error (or yaw without truth) to a PNG,
+    written atomically with the umask's permissions."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from fusion.publish import create_temp_file
+
+    t = table[:, 0]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5.5))
+    try:
+        if truth is not None:
+            ax1.plot(truth[:, 0], truth[:, 1], "k-", lw=2, label="truth")
+        ax1.plot(wheel[:, 0], wheel[:, 1], "-", color="tab:orange", lw=1, label="wheel only")
+        ax1.plot(table[:, 1], table[:, 2], "-", color="tab:blue", lw=1, label="fused EKF")
+        ax1.set_aspect("equal", adjustable="datalim")
+        ax1.set_xlabel("x (m)")
+        ax1.set_ylabel("y (m)")
+        ax1.grid(True, alpha=0.3)
+        ax1.legend(loc="best", fontsize=9)
+        ax1.set_title("Trajectory in odom")
+        if truth is not None:
+            def err(ts, yaw):
+                ref = np.interp(ts, truth_t, np.unwrap(truth[:, 2]))
+                return np.degrees(np.angle(np.exp(1j * (yaw - ref))))
+
+            inside = (t >= truth_t[0]) & (t <= truth_t[-1])
+            w_in = (wheel_t >= truth_t[0]) & (wheel_t <= truth_t[-1])
+            ax2.plot(wheel_t[w_in], err(wheel_t[w_in], wheel[w_in, 2]), color="tab:orange",
+                     lw=1, label="wheel only")
+            ax2.plot(t[inside], err(t[inside], table[inside, 3]), color="tab:blue", lw=1,
+                     label="fused EKF")
+            ax2.axhline(0.0, color="k", lw=0.8)
+            ax2.set_ylabel("yaw error (deg)")
+            ax2.set_title("Yaw error against the truth")
+        else:
+            ax2.plot(wheel_t, np.degrees(np.angle(np.exp(1j * wheel[:, 2]))),
+                     color="tab:orange", lw=1, label="wheel only")
+            ax2.plot(t, np.degrees(table[:, 3]), color="tab:blue", lw=1, label="fused EKF")
+            ax2.set_ylabel("yaw (deg)")
+            ax2.set_title("Yaw (no truth in the log)")
+        ax2.set_xlabel("t (s)")
+        ax2.grid(True, alpha=0.3)
+        ax2.legend(loc="best", fontsize=9)
+        fig.suptitle(f"fusion replay: {title}")
+        fig.tight_layout()
+        tmp = create_temp_file(path)
+        try:
+            fig.savefig(tmp, dpi=100, format="png")
+            tmp.replace(path)
+        finally:
+            tmp.unlink(missing_ok=True)
+    finally:
+        plt.close(fig)
+
+
+def _print_result(r: ReplayResult, level_note: bool = True) -> None:
+    s = r.stats
+    print(f"{r.source}: {r.span:.1f} s, {r.n_imu} IMU samples, {r.n_wheels} wheel frames "
+          f"-> {r.output} ({r.rows} rows, {r.records} records)")
+    x, y, yaw = r.final
+    print(f"final pose: x {x:.3f} m, y {y:.3f} m, yaw {math.degrees(yaw):.2f} deg; path "
+          f"{r.distance:.2f} m")
+    print(f"gyro bias {math.degrees(r.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, "
+          f"slip frames {s['slips']}, late inputs fused {s['late_applied']}, dropped "
+          f"{s['late_dropped']}, invalid {s['invalid']}; wheel gaps {s['gap_count']} "
+          f"({s['frames_missing']} frames missing)")
+    for note in r.notes:
+        print(f"warning: {note}")
+    if r.n_imu:
+        print(f"wheel yaw-rate calibration seen by the gyro: k {r.k:+.4f} "
+              f"(wheel_distance ~ {r.wheel_distance * (1 + r.k):.4f} m), "
+              f"c {r.c:+.5f} rad/m; see `fusion calibrate odometry` for corrected parameters")
+    elif level_note:
+        print("no imu.csv: wheel odometry only (no gyro to fuse)")
+    if r.truth is not None:
+        tr = r.truth
+        print(f"truth: {tr['distance']:.2f} m travelled")
+        print(f"  fused:      final position error {tr['fused_pct']:.3f} % of distance, "
+              f"yaw RMSE {tr['fused_yaw_deg']:.3f} deg")
+        print(f"  wheel only: final position error {tr['wheel_pct']:.3f} % of distance, "
+              f"yaw RMSE {tr['wheel_yaw_deg']:.3f} deg")
+
+
+# -- folders of logs ------------------------------------------------------------------------------
+
+
+def find_log_dirs(path: Path) -> list[Path]:
+    """The subfolders of ``path`` that are log directories (have robot.toml), sorted."""
+    return sorted(p for p in path.iterdir() if p.is_dir() and (p / "robot.toml").is_file())
+
+
+def _replay_job(job: tuple[str, str, bool, str | None]) -> tuple[str, Any]:
+    """Worker: replay one log; ``("ok", ReplayResult)`` or ``("error", message)``."""
+    path, output, tilt, plot = job
+    try:
+        return "ok", replay_logdir(path, output, tilt=tilt, plot=plot, progress=False)
+    except Exception as exc:  # reported in the summary; the other logs go on
+        msg = str(exc) or type(exc).__name__
+        if path not in msg:
+            msg = f"{path}: {msg}"
+        return "error", f"{msg} ({type(exc).__name__})"
+
+
+def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    out_dir: Path = args.output
+    if out_dir.suffix.lower() in OUTPUT_FORMATS and not out_dir.is_dir():
+        raise CommandError(f"{out_dir}: for a folder of logs, -o is the folder to write one "
+                           f"output per log into (choose the type with --format)")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise CommandError(f"{out_dir}: exists and is not a folder")
+    if args.plot is not None:
+        _check_plot_available()
+        if args.plot.exists() and not args.plot.is_dir():
+            raise CommandError(f"{args.plot}: for a folder of logs, --plot is a folder")
+    jobs = args.jobs if args.jobs is not None else (os.cpu_count() or 1)
+    if jobs < 1:
+        raise CommandError(f"--jobs must be >= 1, got {jobs}")
+    jobs = min(jobs, len(logs))
+    out_dir.mkdir(parents=True, exist_ok=True)
+    if args.plot is not None:
+        args.plot.mkdir(parents=True, exist_ok=True)
+    ext = {"csv": ".csv", "mcap": ".mcap", "jsonl": ".jsonl"}[args.format]
+    work = [(str(p), str(out_dir / (p.name + ext)), not args.level,
+             None if args.plot is None else str(args.plot / (p.name + ".png"))) for p in logs]
+    results: dict[str, tuple[str, Any]] = {}
+    bar = _Progress(len(work), f"replay {len(work)} logs", "logs",
+                    _progress_enabled(args.progress), interval=0.0)
+    try:
+        if jobs == 1:
+            for w in work:
+                results[w[0]] = _replay_job(w)
+                bar.update_to(len(results))
+        else:
+            with ProcessPoolExecutor(max_workers=jobs) as pool:
+                futures = {pool.submit(_replay_job, w): w[0] for w in work}
+                for fut in as_completed(futures):
+                    try:
+                        results[futures[fut]] = fut.result()
+                    except Exception as exc:  # a worker died (killed, out of memory)
+                        results[futures[fut]] = ("error",
+                                                 f"{futures[fut]}: worker failed: {exc!r}")
+                    bar.update_to(len(results))
+    finally:
+        bar.close()
+    failed = _print_table(work, results, jobs)
+    return 1 if failed else 0
+
+
+def _print_table(work, results, jobs: int) -> int:
+    head = (f"{'log':<24} {'status':<6} {'time s':>8} {'IMU':>8} {'wheels':>7} "
+            f"{'final x':>8} {'final y':>8} {'yaw deg':>8} {'fused %':>8} {'wheel %':>8}  output")
+    print(head)
+    failed = 0
+    for path, output, _tilt, _plot in work:
+        status, value = results[path]
+        name = Path(path).name
+        if status != "ok":
+            failed += 1
+            print(f"{name:<24} {'FAILED':<6} {value}")
+            continue
+        r: ReplayResult = value
+        fp = wp = "-"
+        if r.truth is not None:
+            fp, wp = f"{r.truth['fused_pct']:.3f}", f"{r.truth['wheel_pct']:.3f}"
+        print(f"{name:<24} {'ok':<6} {r.span:>8.1f} {r.n_imu:>8} {r.n_wheels:>7} "
+              f"{r.final[0]:>8.3f} {r.final[1]:>8.3f} {math.degrees(r.final[2]):>8.2f} "
+              f"{fp:>8} {wp:>8}  {output}")
+    print(f"{len(work) - failed} of {len(work)} logs replayed ({jobs} worker process"
+          f"{'es' if jobs != 1 else ''}); {failed} failed")
+    for path, _o, _t, _p in work:
+        status, value = results[path]
+        if status != "ok":
+            print(f"fusion replay: {value}", file=sys.stderr)
+    return failed
+
+
+# -- command --------------------------------------------------------------------------------------
+
+
+def run(args: argparse.Namespace) -> int:
     path: Path = args.input
     if not path.exists():
         raise CommandError(f"{path}: no such log directory or bag")
@@ -123,68 +698,34 @@ def run(args: argparse.Namespace) -> int:
     if args.imu_topic or args.odom_topic:
         raise CommandError(f"{path}: --imu-topic/--odom-topic are for ROS bags; this is not "
                            "a .bag, .mcap or ROS 2 bag folder")
+    progress = _progress_enabled(args.progress)
     if path.is_file():
-        raise CommandError(f"{path}: is a file; replay takes a log directory "
-                           "(robot.toml, imu.csv, wheels.csv; see datasets/LOGDIR.md) or a "
-                           "ROS bag (.bag, .mcap, ROS 2 folder)")
-    log = read_logdir(path)
-    if log.wheel_t is None or log.wheel_t.size == 0:
-        raise CommandError(f"{path}: wheels.csv is missing or empty; the fused odometry needs "
-                           "the wheel encoder frames")
-    track, ekf, rows = fuse_logdir(log, tilt=not args.level)
-    gyro_rows = track.kind[rows] == 0
-    t_out = np.where(gyro_rows, track.t[rows], track.t_filter[rows])
-    states = track.states[rows]
-    write_fused_csv(args.output, t_out, states)
-
-    chassis = log.robot.chassis
-    t0, t1 = log.time_span
-    n_imu = 0 if log.imu_t is None else log.imu_t.size
-    print(f"{path}: {t1 - t0:.1f} s, {n_imu} IMU samples, {log.wheel_t.size} wheel frames "
-          f"-> {args.output} ({len(t_out)} rows)")
-    x, y, yaw = states[-1, 0], states[-1, 1], math.degrees(math.remainder(states[-1, 2],
-                                                                          2 * math.pi))
-    print(f"final pose: x {x:.3f} m, y {y:.3f} m, yaw {yaw:.2f} deg; path "
-          f"{_distance(t_out, states):.2f} m")
-    s = ekf.stats
-    print(f"gyro bias {math.degrees(ekf.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, "
-          f"slip frames {s['slips']}, late inputs fused {s['late_applied']}, dropped "
-          f"{s['late_dropped']}, invalid {s['invalid']}")
-    if n_imu and (log.wheel_t[-1] > log.imu_t[-1] + chassis.encode_sampling_time
-                  or log.wheel_t[0] < log.imu_t[0] - chassis.encode_sampling_time):
-        print(f"warning: wheel frames span {log.wheel_t[0]:.3f}-{log.wheel_t[-1]:.3f} s, the "
-              f"IMU {log.imu_t[0]:.3f}-{log.imu_t[-1]:.3f} s; rows are written at IMU samples "
-              "only, so the output covers the IMU's span")
-    if n_imu:
-        k, c = ekf.x[6], ekf.x[7]
-        print(f"wheel yaw-rate calibration seen by the gyro: k {k:+.4f} "
-              f"(wheel_distance ~ {chassis.wheel_distance * (1 + k):.4f} m), "
-              f"c {c:+.5f} rad/m; see `fusion calibrate odometry` for corrected parameters")
-    else:
-        print("no imu.csv: wheel odometry only (no gyro to fuse)")
-    if log.truth_t is not None and log.truth_t.size:
-        truth = _truth_at(log.truth_t, log.truth, t_out)
-        dist = path_length(log.truth)
-        inside = (t_out >= log.truth_t[0]) & (t_out <= log.truth_t[-1])
-        fused_pct = final_position_error_percent(states[inside, :2], truth[inside], dist)
-        fused_yaw = math.degrees(yaw_rmse(states[inside, 2], truth[inside, 2]))
-        wheel = WheelOdometry(chassis).update_batch(log.ticks[:, 0], log.ticks[:, 1])
-        wtruth = _truth_at(log.truth_t, log.truth, log.wheel_t)
-        w_in = (log.wheel_t >= log.truth_t[0]) & (log.wheel_t <= log.truth_t[-1])
-        wheel_pct = final_position_error_percent(wheel[w_in, :2], wtruth[w_in], dist)
-        wheel_yaw = math.degrees(yaw_rmse(wheel[w_in, 2], wtruth[w_in, 2]))
-        print(f"truth: {dist:.2f} m travelled")
-        print(f"  fused:      final position error {fused_pct:.3f} % of distance, "
-              f"yaw RMSE {fused_yaw:.3f} deg")
-        print(f"  wheel only: final position error {wheel_pct:.3f} % of distance, "
-              f"yaw RMSE {wheel_yaw:.3f} deg")
+        if path.suffix.lower() not in CAPTURE_SUFFIXES:
+            raise CommandError(f"{path}: is a file; replay takes a log directory "
+                               "(robot.toml, imu.csv, wheels.csv; see datasets/LOGDIR.md), a "
+                               "folder of them, a DATA-uart2 capture (.uart2) or a ROS bag "
+                               "(.bag, .mcap, ROS 2 folder)")
+        if args.robot is None:
+            raise CommandError(f"{path}: a capture needs --robot robot.toml (the chassis "
+                               "geometry and encode_sampling_time)")
+        r = replay_capture(path, args.output, args.robot, plot=args.plot, progress=progress)
+        _print_result(r, level_note=False)
+        print("DATA-uart2 capture: wheel odometry only (no gyro to fuse)")
+        return 0
+    if not (path / "robot.toml").is_file():
+        logs = find_log_dirs(path)
+        if logs:
+            return _run_folder(args, logs)
+    r = replay_logdir(path, args.output, tilt=not args.level, plot=args.plot,
+                      progress=progress)
+    _print_result(r)
     return 0
 
 
-def _distance(t: NDArray[np.float64], states: NDArray[np.float64]) -> float:
+def _distance(t: NDArray[np.float64], v: NDArray[np.float64]) -> float:
     """Distance travelled, m: the integral of the fused |v| (the polyline through 100 Hz
     position estimates would add their noise)."""
-    v = np.abs(states[:, 3])
+    v = np.abs(v)
     return float(np.sum(0.5 * (v[1:] + v[:-1]) * np.diff(t)))
 
 
@@ -195,7 +736,8 @@ def _is_bag(path: Path) -> bool:
 
 
 def run_bag(args: argparse.Namespace) -> int:
-    """``fusion replay BAG --imu-topic T --odom-topic T``."""
+    """``fusion replay BAG --imu-topic T --odom-topic T`` (through :func:`fusion.ekf.fuse`:
+    the pipeline has no input for the bag's odometry twists)."""
     from fusion import quaternion as quat
     from fusion.ekf import fuse, vertical_rate
     from fusion.kinematics import DiffDriveParams
@@ -206,6 +748,12 @@ def run_bag(args: argparse.Namespace) -> int:
     if not (args.imu_topic and args.odom_topic):
         raise CommandError(f"{path}: a bag needs --imu-topic (sensor_msgs/Imu) and "
                            "--odom-topic (nav_msgs/Odometry)")
+    if _output_format(args.output) != "csv":
+        raise CommandError(f"{args.output}: a bag replays to .csv only (its wheel odometry "
+                           "is a twist, which the pipeline that writes .mcap/.jsonl has no "
+                           "input for)")
+    if args.plot is not None:
+        raise CommandError("--plot is for log directories and captures, not bags")
     if args.robot is not None:
         robot = read_robot_toml(args.robot)
     else:
@@ -239,7 +787,7 @@ def run_bag(args: argparse.Namespace) -> int:
               f"odometry {odom.out_of_order}")
     yaw = math.degrees(math.remainder(states[-1, 2], 2 * math.pi))
     print(f"final pose: x {states[-1, 0]:.3f} m, y {states[-1, 1]:.3f} m, yaw {yaw:.2f} deg; "
-          f"path {_distance(t_out, states):.2f} m")
+          f"path {_distance(t_out, states[:, 3]):.2f} m")
     s = ekf.stats
     print(f"gyro bias {math.degrees(ekf.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, slip "
           f"(twist/gyro disagreement) {s['slips']}, invalid {s['invalid']}")
