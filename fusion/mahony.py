@@ -483,10 +483,12 @@ class Mahony:
             raise ValueError(f"params must be a MahonyParams, got {type(params).__name__}")
         self._params = params
         self._default_dt = params.sample_period
+        self._fast6 = None
         if hasattr(self, "_B"):
             self._P[:] = params.packed()
 
     def _new_buffer(self) -> None:
+        self._fast6 = None  # re-armed by the next general update
         self._B = np.zeros(_B_LEN)
         self._S = self._B[_B_S:_B_P]
         self._P = self._B[_B_P:_B_C]
@@ -607,11 +609,20 @@ class Mahony:
                 and the previous timestamp, else ``params.sample_period``.
             timestamp: sample time, s (optional; see ``dt``).
         """
-        # Inline fast path for float64 (3,) arrays: this is the hot loop of live use.
-        g = gyro if (type(gyro) is _NDARRAY and gyro.dtype is _F64 and gyro.shape == _SHAPE3
-                     ) else _vec3("gyro", gyro)
-        a = accel if (type(accel) is _NDARRAY and accel.dtype is _F64 and accel.shape == _SHAPE3
-                      ) else _vec3("accel", accel)
+        # Hot path of live use (float64 (3,) arrays, no magnetometer, the default period):
+        # the fewest Python operations around one compiled call.
+        fast = self._fast6
+        if (fast is not None and mag is None and dt is None and timestamp is None
+                and type(gyro) is _NDARRAY and type(accel) is _NDARRAY
+                and gyro.dtype is _F64 and accel.dtype is _F64
+                and gyro.shape == _SHAPE3 and accel.shape == _SHAPE3):
+            fast(self._B, gyro, accel, self._default_dt)
+            return self._q.copy()
+        return self._update_general(gyro, accel, mag, dt, timestamp)
+
+    def _update_general(self, gyro, accel, mag, dt, timestamp) -> NDArray[np.float64]:
+        g = _vec3("gyro", gyro)
+        a = _vec3("accel", accel)
         if dt is None and timestamp is None and self._default_dt is not None:
             dt = self._default_dt  # already validated
         else:
@@ -624,6 +635,7 @@ class Mahony:
             if _run_one6_fast is None:
                 _run_one6_fast = _entry_point(_run_one6, 2)
             _run_one6_fast(self._B, g, a, dt)
+            self._arm_fast_path()
         else:
             m = _vec3("mag", mag)
             if not self._initialised and not self._initialise(a, m):
@@ -633,6 +645,11 @@ class Mahony:
                 _run_one9_fast = _entry_point(_run_one9, 3)
             _run_one9_fast(self._B, g, a, m, dt)
         return self._q.copy()
+
+    def _arm_fast_path(self) -> None:
+        """Enable the hot path once it is valid: initialised, with a default period."""
+        if self._initialised and self._default_dt is not None:
+            self._fast6 = _run_one6_fast
 
     def _resolve_dt(self, dt: float | None, timestamp: float | None) -> float:
         if timestamp is not None:
