@@ -339,12 +339,14 @@ def _output_format(path: Path) -> str:
     return fmt
 
 
-def _check_plot_available() -> None:
+def _check_plot_available(path: Path | None = None) -> None:
     try:
         import matplotlib  # noqa: F401
     except ImportError:
         raise CommandError("--plot needs matplotlib: pip install 'diffbot-fusion[demo]'") \
             from None
+    if path is not None and not path.parent.is_dir():
+        raise CommandError(f"{path}: the folder {path.parent} does not exist")
 
 
 def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Path,
@@ -352,7 +354,6 @@ def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Pa
     """Run the arrays through a :class:`fusion.pipeline.FusionPipeline` (batch path) into the
     output; returns ``(table, pipeline, stats)``."""
     from fusion import _ekf_core as core
-    from fusion.mahony import Mahony
     from fusion.pipeline import FusionPipeline
     from fusion.publish import open_sink
 
@@ -366,7 +367,12 @@ def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Pa
                     lambda t: bar.update_to(t - t0))
     sinks = [] if fmt == "csv" else [open_sink(f"{fmt}:{output}")]
     sources = [name for name, on in (("imu", has_imu), ("wheels", wheel_t.size > 0)) if on]
-    pipe = FusionPipeline(robot, sinks, tilt=tilt, sources=sources, mahony=Mahony(axes=6))
+    rate = 100.0  # the IMU's rate, Hz: the Mahony filter's first step (as live)
+    if has_imu and imu.t.size >= 2:
+        dt = float(np.median(np.diff(imu.t)))
+        if math.isfinite(dt) and dt > 0:
+            rate = round(1.0 / dt, 3)  # nominal: 100.0, not 99.99999 from jittered stamps
+    pipe = FusionPipeline(robot, sinks, tilt=tilt, sources=sources, imu_rate_hz=rate)
     pipe.ekf = _tapped_ekf(robot.chassis, robot.ekf, tap)  # before any event: same filter
     try:
         try:
@@ -457,7 +463,7 @@ def _finish(path, output, robot, imu, wheel_t, ticks, truth_t, truth, *, tilt, p
     from fusion.trajectory_metrics import final_position_error_percent, path_length, yaw_rmse
 
     if plot is not None:
-        _check_plot_available()
+        _check_plot_available(Path(plot))
     table, pipe, stats = _fuse_through_pipeline(robot, imu, wheel_t, ticks, tilt=tilt,
                                                 output=output, progress=progress,
                                                 desc=path.name)
@@ -485,11 +491,14 @@ def _finish(path, output, robot, imu, wheel_t, ticks, truth_t, truth, *, tilt, p
         inside = (t_out >= truth_t[0]) & (t_out <= truth_t[-1])
         wtruth = _truth_at(truth_t, truth, wheel_t)
         w_in = (wheel_t >= truth_t[0]) & (wheel_t <= truth_t[-1])
+        nan = math.nan  # a robot that did not move has no error per distance
         truth_res = {
             "distance": dist,
-            "fused_pct": final_position_error_percent(states_xy[inside], tr[inside, :2], dist),
+            "fused_pct": final_position_error_percent(states_xy[inside], tr[inside, :2], dist)
+            if dist > 0 else nan,
             "fused_yaw_deg": math.degrees(yaw_rmse(yaw_out[inside], tr[inside, 2])),
-            "wheel_pct": final_position_error_percent(wheel[w_in, :2], wtruth[w_in, :2], dist),
+            "wheel_pct": final_position_error_percent(wheel[w_in, :2], wtruth[w_in, :2], dist)
+            if dist > 0 else nan,
             "wheel_yaw_deg": math.degrees(yaw_rmse(wheel[w_in, 2], wtruth[w_in, 2])),
         }
     if plot is not None:

@@ -1,0 +1,231 @@
+"""``fusion replay`` through the pipeline: outputs by suffix, captures, folders of logs in
+worker processes, progress, plots, and outputs that are never left partial.
+
+Oracles: the pipeline fed one event at a time from :func:`fusion.pipeline.logdir_events`
+(the streaming path; tests/test_pipeline.py shows it equals the filters composed by hand),
+independent readers of the outputs (the mcap package, json), and the replay of the same
+ticks written as a log directory.
+"""
+
+from __future__ import annotations
+
+import fcntl
+import io
+import json
+import os
+import stat
+import struct
+import subprocess
+import sys
+import termios
+
+import numpy as np
+import pytest
+
+from drivers.chassis import encode_wheel_frame
+from fusion.cli import main
+from fusion.logdir import write_logdir
+from fusion.pipeline import FusionPipeline, logdir_events, replay
+from fusion.publish import JsonLinesSink
+from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    """Three short synthetic logs (20 s each) in one folder, and one robot.toml."""
+    root = tmp_path_factory.mktemp("fleet")
+    for seed in (1, 2, 3):
+        degraded_mission(seed=seed, duration=20.0).write_logdir(root / f"run{seed}")
+    return root
+
+
+def _cli(*argv: str, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "fusion", "replay", *argv],
+                          capture_output=True, text=True, timeout=300, **kw)
+
+
+def _py(code: str, *argv: str) -> subprocess.CompletedProcess:
+    """A real interpreter running ``code`` then fusion's main with ``argv``."""
+    script = f"{code}\nimport sys\nfrom fusion.cli import main\nsys.exit(main({list(argv)!r}))"
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          timeout=300)
+
+
+def test_jsonl_output_is_the_pipeline_fed_event_by_event(logs, tmp_path):
+    log = logs / "run1"
+    out = tmp_path / "fused.jsonl"
+    assert main(["replay", str(log), "-o", str(out)]) == 0
+    robot, events = logdir_events(log)
+    buf = io.StringIO()
+    replay(FusionPipeline(robot, [JsonLinesSink(buf, flush=False)], imu_rate_hz=100.0), events)
+    assert out.read_text() == buf.getvalue()  # byte for byte
+    recs = [json.loads(x) for x in buf.getvalue().splitlines()]
+    wheels = np.loadtxt(log / "wheels.csv", delimiter=",", skiprows=1, ndmin=2)
+    assert len(recs) == wheels.shape[0]  # one record per wheel frame
+
+
+def test_csv_and_records_come_from_one_filter(logs, tmp_path):
+    # the CSV (state at each IMU sample) and the records (state after each wheel frame) are
+    # two views of one filter run: the synthetic missions end standing still, where both
+    # must hold the same final pose (the filter only predicts between them, at zero speed)
+    log = logs / "run2"
+    assert main(["replay", str(log), "-o", str(tmp_path / "f.csv")]) == 0
+    assert main(["replay", str(log), "-o", str(tmp_path / "f.jsonl")]) == 0
+    csv = np.loadtxt(tmp_path / "f.csv", delimiter=",", skiprows=1)
+    last = json.loads((tmp_path / "f.jsonl").read_text().splitlines()[-1])
+    assert abs(last["v"]) < 1e-3 and abs(csv[-1, 4]) < 1e-3
+    np.testing.assert_allclose(csv[-1, 1:4], [last["x"], last["y"], last["yaw"]], atol=1e-6)
+
+
+def test_mcap_output_reads_back(logs, tmp_path):
+    pytest.importorskip("rosbags")
+    from mcap.reader import make_reader
+
+    out = tmp_path / "fused.mcap"
+    assert main(["replay", str(logs / "run3"), "-o", str(out)]) == 0
+    counts: dict[str, int] = {}
+    with open(out, "rb") as fh:
+        for _s, channel, _m in make_reader(fh).iter_messages():
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    n = np.loadtxt(logs / "run3" / "wheels.csv", delimiter=",", skiprows=1).shape[0]
+    assert counts["/odom"] == counts["/tf"] == n
+    assert stat.S_IMODE(out.stat().st_mode) == 0o666 & ~_umask()
+
+
+def _umask() -> int:
+    m = os.umask(0)
+    os.umask(m)
+    return m
+
+
+@pytest.mark.parametrize("suffix", [".csv", ".jsonl", ".mcap"])
+def test_a_failing_replay_leaves_an_existing_output_untouched(tmp_path, capsys, suffix):
+    run = degraded_mission(seed=6, duration=10.0)
+    d = run.write_logdir(tmp_path / "bad")
+    lines = (d / "wheels.csv").read_text().splitlines()
+    lines[40] = "12.5,3,notanumber"
+    (d / "wheels.csv").write_text("\n".join(lines) + "\n")
+    out = tmp_path / f"out{suffix}"
+    out.write_bytes(b"the previous, complete output")
+    assert main(["replay", str(d), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "wheels.csv:41" in err
+    assert out.read_bytes() == b"the previous, complete output"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad", out.name]
+
+
+def test_output_errors_name_the_path(logs, tmp_path, capsys):
+    assert main(["replay", str(logs / "run1"), "-o", str(tmp_path / "f.txt")]) == 2
+    assert "f.txt: unknown output type '.txt'" in capsys.readouterr().err
+    assert main(["replay", str(logs / "run1"), "-o", str(tmp_path / "no" / "f.csv")]) == 2
+    assert "the folder" in capsys.readouterr().err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_raw_capture_replays_like_its_ticks(tmp_path, capsys):
+    # the frames of a raw DATA-uart2 capture are stamped (k+1)*period; replaying the capture
+    # must give the wheel-only replay of the same ticks at those stamps, byte for byte
+    run = degraded_mission(seed=7, duration=15.0)
+    T = EXAMPLE_ROBOT.encode_sampling_time
+    ticks = run.ticks
+    cap = tmp_path / "chassis.uart2"
+    cap.write_bytes(b"\x00\x13garbage" + b"".join(encode_wheel_frame(int(a), int(b))
+                                                   for a, b in ticks.tolist()))
+    d = write_logdir(tmp_path / "ref", EXAMPLE_ROBOT, wheel_t=(np.arange(len(ticks)) + 1) * T,
+                     ticks=ticks)
+    assert main(["replay", str(cap), "--robot", str(d / "robot.toml"),
+                 "-o", str(tmp_path / "cap.csv")]) == 0
+    text = capsys.readouterr().out
+    assert f"{len(ticks)} wheel frames" in text and "wheel odometry only" in text
+    assert main(["replay", str(d), "-o", str(tmp_path / "ref.csv")]) == 0
+    assert (tmp_path / "cap.csv").read_bytes() == (tmp_path / "ref.csv").read_bytes()
+    assert main(["replay", str(cap), "-o", str(tmp_path / "x.csv")]) == 2
+    assert "a capture needs --robot robot.toml" in capsys.readouterr().err
+
+
+def test_a_folder_of_logs_in_worker_processes(logs, tmp_path):
+    fleet = tmp_path / "fleet"
+    fleet.mkdir()
+    for name in ("run1", "run2"):
+        (fleet / name).symlink_to(logs / name, target_is_directory=True)
+    broken = fleet / "run9"
+    broken.mkdir()
+    (broken / "robot.toml").write_text((logs / "run1" / "robot.toml").read_text())
+    (broken / "wheels.csv").write_text("t,left,right\n0.04,1,2\n0.08,1\n")
+    (fleet / "notes").mkdir()  # not a log directory: ignored
+    out = tmp_path / "out"
+    proc = _cli(str(fleet), "-o", str(out), "--jobs", "2")
+    assert proc.returncode == 1, proc.stderr
+    # the good logs: each output equals the single replay of that log
+    assert sorted(p.name for p in out.iterdir()) == ["run1.csv", "run2.csv"]
+    for name in ("run1", "run2"):
+        single = tmp_path / f"{name}-single.csv"
+        assert main(["replay", str(logs / name), "-o", str(single)]) == 0
+        assert (out / f"{name}.csv").read_bytes() == single.read_bytes()
+    rows = {line.split()[0]: line for line in proc.stdout.splitlines()[1:4]}
+    assert rows["run1"].split()[1] == rows["run2"].split()[1] == "ok"
+    assert rows["run9"].split()[1] == "FAILED"
+    assert "wheels.csv:3" in rows["run9"]  # the error names the file and line
+    assert "2 of 3 logs replayed (2 worker processes); 1 failed" in proc.stdout
+    assert "wheels.csv:3" in proc.stderr
+    # all good: exit 0, other formats, one PNG per log
+    import shutil
+
+    shutil.rmtree(broken)
+    proc = _cli(str(fleet), "-o", str(tmp_path / "out2"), "--format", "jsonl", "-j", "2",
+                "--plot", str(tmp_path / "plots"))
+    assert proc.returncode == 0, proc.stderr
+    assert sorted(p.name for p in (tmp_path / "out2").iterdir()) == ["run1.jsonl", "run2.jsonl"]
+    for name in ("run1", "run2"):
+        assert (tmp_path / "plots" / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_progress_only_on_a_terminal_or_when_asked(logs, tmp_path):
+    pytest.importorskip("tqdm")
+    log = str(logs / "run1")
+    quiet = _cli(log, "-o", str(tmp_path / "a.csv"))  # stderr is a pipe: no progress
+    assert quiet.returncode == 0 and quiet.stderr == ""
+    bar = _cli(log, "-o", str(tmp_path / "b.csv"), "--progress")
+    assert bar.returncode == 0 and "run1:" in bar.stderr and "%|" in bar.stderr  # tqdm
+    # without tqdm: a plain line
+    plain = _py("import sys; sys.modules['tqdm'] = None", "replay", log, "-o",
+                str(tmp_path / "c.csv"), "--progress")
+    assert plain.returncode == 0, plain.stderr
+    assert "run1: 100% (20.0/20.0 s)" in plain.stderr
+    # a terminal on stderr (a real pty): progress by default, none with --no-progress
+    for extra, expect in (((), True), (("--no-progress",), False)):
+        master, slave = os.openpty()
+        # a terminal of 24 x 100 characters (a fresh pty is 0 x 0, where tqdm draws nothing)
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
+        try:
+            proc = subprocess.Popen([sys.executable, "-m", "fusion", "replay", log, "-o",
+                                     str(tmp_path / "d.csv"), *extra],
+                                    stdout=subprocess.DEVNULL, stderr=slave)
+            os.close(slave)
+            seen = b""
+            while True:
+                try:
+                    chunk = os.read(master, 4096)
+                except OSError:  # EIO: the child closed the terminal
+                    break
+                if not chunk:
+                    break
+                seen += chunk
+            assert proc.wait(timeout=120) == 0
+        finally:
+            os.close(master)
+        assert (b"run1:" in seen) is expect, seen
+
+
+def test_plot_and_its_missing_dependency(logs, tmp_path):
+    pytest.importorskip("matplotlib")
+    png = tmp_path / "p.png"
+    assert main(["replay", str(logs / "run2"), "-o", str(tmp_path / "f.csv"),
+                 "--plot", str(png)]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert stat.S_IMODE(png.stat().st_mode) == 0o666 & ~_umask()
+    proc = _py("import sys; sys.modules['matplotlib'] = None", "replay", str(logs / "run2"),
+               "-o", str(tmp_path / "g.csv"), "--plot", str(tmp_path / "q.png"))
+    assert proc.returncode == 2
+    assert "--plot needs matplotlib: pip install 'diffbot-fusion[demo]'" in proc.stderr
+    assert not (tmp_path / "g.csv").exists() and not (tmp_path / "q.png").exists()
