@@ -78,6 +78,7 @@ __all__ = [
     "DebugCommandParser",
     "DebugEvent",
     "DebugReplyParser",
+    "FrameStamper",
     "ParserStats",
     "WheelFrame",
     "WheelFrameParser",
@@ -456,6 +457,85 @@ class WheelFrameParser:
     def pending(self) -> int:
         """Bytes buffered but not yet decided."""
         return len(self._buf)
+
+
+class FrameStamper:
+    """Host stamps for DATA-uart2 frames read in chunks: the one stamping rule of the project
+    (:class:`drivers.serial_link.ChassisLink` live, :func:`fusion.logs.read_uart2_capture` on
+    a recorded capture), sans-I/O.
+
+    Give it every read of the port in order: :meth:`feed` with the read's return time on the
+    host clock (s) and its bytes, *empty reads included* (a read that returned nothing still
+    tells that no byte had arrived by then); then :meth:`poll` at the same time.
+
+    Rule: a frame's stamp is the estimated arrival time of its last byte, the read's return
+    time minus the transmission time (10 bits per byte, 8N1, at ``baudrate``) of the bytes that
+    came after it up to the end of the read, but never earlier than the previous read's return
+    (its bytes had not arrived then). A frame the parser holds back (its acceptance waits for
+    the next frame) is decided by :meth:`poll` once the line has been quiet for more than
+    ``2 * period`` s, and stamped as of the read that brought its bytes; :meth:`finish`
+    decides it at the end of a capture.
+
+    Each method returns ``(t, left, right, offsets)``: stamps s (float64), ticks per period and
+    stream offsets (int64), in stream order.
+
+    Args:
+        parser: the frame parser (fed by this object only).
+        baudrate: line speed, bit/s.
+        period: firmware sampling period ``encode_sampling_time``, s.
+    """
+
+    def __init__(self, parser: WheelFrameParser, *, baudrate: int = 115200,
+                 period: float = 0.04) -> None:
+        if not baudrate > 0 or not period > 0:
+            raise ValueError(f"baudrate and period must be > 0, got {baudrate!r}, {period!r}")
+        self.parser = parser
+        self.byte_time = 10.0 / baudrate
+        self.period = float(period)
+        self.bytes_fed = 0
+        self.last_byte_time: float | None = None  # return time of the last non-empty read
+        self._prev_read: float | None = None  # return time of the previous read (any)
+        self._floor_of_last_data: float | None = None  # the floor of that non-empty read
+
+    def _stamp(self, arrays, t_read: float, floor: float | None):
+        off, left, right = arrays
+        t = t_read - (self.bytes_fed - (off + FRAME_LEN)) * self.byte_time
+        if floor is not None:
+            t = np.maximum(t, floor)
+        return t.astype(np.float64), left, right, off
+
+    def feed(self, t_read: float, data: bytes | bytearray | memoryview):
+        """One read: its return time (s) and its bytes (possibly none)."""
+        floor = self._prev_read
+        self._prev_read = t_read
+        if not data:
+            return _no_frames()
+        self.last_byte_time = t_read
+        self._floor_of_last_data = floor
+        self.bytes_fed += len(data)
+        return self._stamp(self.parser.feed_arrays(data), t_read, floor)
+
+    def poll(self, now: float):
+        """Decide held-back frames if the line has been quiet for more than 2 periods."""
+        if (self.parser.pending and self.last_byte_time is not None
+                and now - self.last_byte_time > 2 * self.period):
+            return self._flush()
+        return _no_frames()
+
+    def finish(self):
+        """End of the stream: decide what the parser still holds."""
+        if self.last_byte_time is None:
+            return _no_frames()
+        return self._flush()
+
+    def _flush(self):
+        return self._stamp(self.parser.flush_arrays(), self.last_byte_time,
+                           self._floor_of_last_data)
+
+
+def _no_frames():
+    e = np.zeros(0, dtype=np.int64)
+    return np.zeros(0, dtype=np.float64), e, e, e
 
 
 # ---------------------------------------------------------------------------------------------

@@ -6,7 +6,11 @@ thread that feeds :class:`drivers.chassis.WheelFrameParser`, and delivers every 
 as a :class:`fusion.samples.WheelTicks` stamped on the host clock (``time.monotonic`` by
 default, s). The stamp is the estimated arrival time of the frame's last byte: the read's
 return time minus the transmission time (10 bits per byte at ``baudrate``) of the bytes that
-came after it in the same read, but never earlier than the previous read's return.
+came after it in the same read, but never earlier than the previous read's return
+(:class:`drivers.chassis.FrameStamper`, the rule :func:`fusion.logs.read_uart2_capture` applies
+to a recorded capture). ``on_read(t, data)`` sees every read (empty ones too), so a live
+session can be recorded with :class:`fusion.logs.Uart2CaptureWriter` and replayed to the same
+frames and stamps.
 
 Robustness (a robot runs for hours):
 
@@ -37,7 +41,7 @@ from dataclasses import dataclass
 
 import serial
 
-from drivers.chassis import WheelFrameParser, encode_wheel_frame
+from drivers.chassis import FrameStamper, WheelFrameParser, encode_wheel_frame
 from fusion.samples import WheelTicks
 
 __all__ = ["ChassisLink", "LinkEvent"]
@@ -73,6 +77,10 @@ class ChassisLink:
         parser_factory: builds the frame parser (e.g. with a bound from the robot's geometry).
         on_frame: callback ``f(WheelTicks)`` in the reader thread (keep it short).
         on_event: callback ``f(LinkEvent)`` in the reader thread.
+        on_read: callback ``f(t, data)`` in the reader thread for every read of the port,
+            before its frames are delivered: the read's return time (s, the link's clock)
+            and its bytes (``b""`` for a read that timed out). ``Uart2CaptureWriter.write``
+            fits: the capture replays to the frames and stamps the link delivered.
         clock: the host clock, s.
         queue_size: frames kept for :meth:`get` (the oldest are dropped and counted beyond);
             0 keeps none (use ``on_frame`` alone).
@@ -92,6 +100,7 @@ class ChassisLink:
         on_event: Callable[[LinkEvent], None] | None = None,
         clock: Callable[[], float] = time.monotonic,
         queue_size: int = 100_000,
+        on_read: Callable[[float, bytes], None] | None = None,
     ) -> None:
         if period <= 0 or silence_periods <= 0 or reconnect_interval <= 0:
             raise ValueError("period, silence_periods and reconnect_interval must be > 0")
@@ -107,6 +116,7 @@ class ChassisLink:
         self.parser = parser_factory()
         self._on_frame = on_frame
         self._on_event = on_event
+        self._on_read = on_read
         self._clock = clock
         if queue_size < 0:
             raise ValueError(f"queue_size must be >= 0, got {queue_size!r}")
@@ -125,11 +135,9 @@ class ChassisLink:
         self._target_time: float | None = None
         self._stale_sent = False
         self._last_frame_time: float | None = None
-        self._last_byte_time: float | None = None
         self._silent = False
-        self._bytes_fed = 0
         self._ever_connected = False
-        self._prev_read_time: float | None = None
+        self._stamper = FrameStamper(self.parser, baudrate=self.baudrate, period=self.period)
 
     # -- lifecycle --
     def start(self, wait: float | None = 2.0) -> ChassisLink:
@@ -273,7 +281,7 @@ class ChassisLink:
         with self._lock:
             self._port = port
         self.parser = self._parser_factory()
-        self._bytes_fed = 0
+        self._stamper = FrameStamper(self.parser, baudrate=self.baudrate, period=self.period)
         if self._ever_connected:
             self.reconnects += 1
         self._ever_connected = True
@@ -300,14 +308,9 @@ class ChassisLink:
             and now - self._target_time > self.command_timeout
         )
 
-    def _deliver(self, frames_off, left, right, t_read: float) -> None:
-        byte_time = 10.0 / self.baudrate  # 8N1: 10 bit times per byte
-        floor = self._prev_read_time  # bytes of this read arrived after the previous read
-        for off, lft, rgt in zip(frames_off, left, right):
-            after = self._bytes_fed - (int(off) + 11)
-            t = t_read - after * byte_time
-            if floor is not None and t < floor:
-                t = floor
+    def _deliver(self, stamped) -> None:
+        t_arr, left, right, _off = stamped
+        for t, lft, rgt in zip(t_arr.tolist(), left.tolist(), right.tolist()):
             sample = WheelTicks(t, int(lft), int(rgt))
             self.frames_received += 1
             self._last_frame_time = sample.t
@@ -319,7 +322,7 @@ class ChassisLink:
                 self._frames.put_nowait(sample)
             if self._on_frame is not None:
                 self._on_frame(sample)
-        if frames_off.size and self._silent:
+        if t_arr.size and self._silent:
             self._silent = False
             self._emit("alive", f"frames from {self.url} again")
 
@@ -330,13 +333,7 @@ class ChassisLink:
             self._silent = True
             self._emit("silent", f"no frame from {self.url} for {now - ref:.3f} s")
         # a lone deferred frame on a quiet line
-        if (
-            self.parser.pending
-            and self._last_byte_time is not None
-            and now - self._last_byte_time > 2 * self.period
-        ):
-            off, lft, rgt = self.parser.flush_arrays()
-            self._deliver(off, lft, rgt, self._last_byte_time)
+        self._deliver(self._stamper.poll(now))
         # stale command
         if (
             not self._stale_sent
@@ -369,10 +366,7 @@ class ChassisLink:
                 self._drop_port(str(exc))
                 continue
             now = self._clock()
-            if data:
-                self._last_byte_time = now
-                self._bytes_fed += len(data)
-                off, lft, rgt = self.parser.feed_arrays(data)
-                self._deliver(off, lft, rgt, now)
+            if self._on_read is not None:
+                self._on_read(now, data)
+            self._deliver(self._stamper.feed(now, data))
             self._housekeeping(now)
-            self._prev_read_time = now

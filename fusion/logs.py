@@ -818,14 +818,15 @@ def read_uart2_capture(
 ) -> Uart2Capture:
     """Decode a DATA-uart2 capture (raw bytes, or a timed ``t,data`` capture).
 
-    A timed capture is replayed read by read through the parser and stamped the way
-    :class:`drivers.serial_link.ChassisLink` stamps live frames: the read's time minus the
+    A timed capture is replayed read by read through :class:`drivers.chassis.FrameStamper`,
+    the stamping rule of :class:`drivers.serial_link.ChassisLink`: the read's time minus the
     transmission time (10 bits per byte at ``baudrate``) of the bytes that followed the frame
     up to the end of the read, never earlier than the previous read; a frame the parser holds
     back is decided when the line has been quiet for more than ``2 * period`` s (as the link's
-    housekeeping does) or at the end. (Live, the floor is the previous read of any kind,
-    including empty ones, which a capture does not record, so live and replayed stamps can
-    differ by a fraction of a period; replay is deterministic.)
+    housekeeping does) or at the end. A capture recorded from the link's ``on_read`` hook
+    holds every read, empty ones included, and replays to exactly the frames and stamps the
+    link delivered; in a capture without empty reads, a gap of more than 2 periods between
+    two reads is taken as the quiet line the link would have seen.
 
     Args:
         path: the capture file.
@@ -834,7 +835,7 @@ def read_uart2_capture(
         baudrate: line speed, for the transmission-time correction, bit/s.
         period: firmware sampling period (seed 000's ``encode_sampling_time``), s.
     """
-    from drivers.chassis import DEFAULT_MAX_TICKS, WheelFrameParser
+    from drivers.chassis import DEFAULT_MAX_TICKS, FrameStamper, WheelFrameParser
 
     path = Path(path)
     if baudrate <= 0 or not period > 0:
@@ -856,35 +857,23 @@ def read_uart2_capture(
                             stats=parser.stats.as_dict(), source=str(path))
 
     times, chunks = _read_timed_capture(path)
-    byte_time = 10.0 / baudrate  # 8N1
-    fed = 0
-    floor: float | None = None
-    last: float | None = None
-    out_t: list[float] = []
-    parts: list[tuple[NDArray, NDArray, NDArray]] = []
-
-    def deliver(arrays: tuple[NDArray, NDArray, NDArray], t_read: float) -> None:
-        off = arrays[0]
-        if off.size:
-            t = t_read - (fed - (off + 11)) * byte_time
-            if floor is not None:
-                t = np.maximum(t, floor)
-            out_t.extend(t.tolist())
-            parts.append(arrays)
-
+    # the link's own stamping rule, read by read (feed, then the quiet-line check)
+    stamper = FrameStamper(parser, baudrate=baudrate, period=period)
+    parts = []
+    prev_empty = True
     for t_read, data in zip(times, chunks):
-        if last is not None and parser.pending and t_read - last > 2 * period:
-            deliver(parser.flush_arrays(), last)  # the link flushes a quiet line
-        fed += len(data)
-        deliver(parser.feed_arrays(data), t_read)
-        floor = last = t_read
-    if last is not None:
-        deliver(parser.flush_arrays(), last)
+        if data and not prev_empty:
+            # two data reads more than 2 periods apart with no timed-out read between: a
+            # capture that does not record empty reads (the link's reads time out after a
+            # period, so it would have checked the quiet line in the gap)
+            parts.append(stamper.poll(t_read))
+        parts.append(stamper.feed(t_read, data))
+        parts.append(stamper.poll(t_read))
+        prev_empty = not data
+    parts.append(stamper.finish())
     parser.finish()
-    if parts:
-        off, left, right = (np.concatenate([p[i] for p in parts]).astype(np.int64)
-                            for i in range(3))
-    else:
-        off = left = right = np.zeros(0, dtype=np.int64)
+    out_t = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
+    left, right, off = (np.concatenate([p[i] for p in parts]).astype(np.int64)
+                        if parts else np.zeros(0, dtype=np.int64) for i in (1, 2, 3))
     return Uart2Capture(left=left, right=right, offset=off, t=np.asarray(out_t, dtype=float),
                         stats=parser.stats.as_dict(), reads=len(times), source=str(path))
