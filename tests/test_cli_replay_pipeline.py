@@ -192,29 +192,43 @@ def test_progress_only_on_a_terminal_or_when_asked(logs, tmp_path):
                 str(tmp_path / "c.csv"), "--progress")
     assert plain.returncode == 0, plain.stderr
     assert "run1: 100% (20.0/20.0 s)" in plain.stderr
-    # a terminal on stderr (a real pty): progress by default, none with --no-progress
-    for extra, expect in (((), True), (("--no-progress",), False)):
-        master, slave = os.openpty()
-        # a terminal of 24 x 100 characters (a fresh pty is 0 x 0, where tqdm draws nothing)
-        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
-        try:
-            proc = subprocess.Popen([sys.executable, "-m", "fusion", "replay", log, "-o",
-                                     str(tmp_path / "d.csv"), *extra],
-                                    stdout=subprocess.DEVNULL, stderr=slave)
+    # a terminal on stderr (a real pty): by default a long log shows progress and a short one
+    # stays quiet (the threshold, AUTO_PROGRESS_MIN_SPAN = 600 s, is lowered here around the
+    # 20 s logs to keep the test fast); --no-progress silences, --progress forces
+    cases = ((15.0, (), True), (30.0, (), False), (15.0, ("--no-progress",), False),
+             (30.0, ("--progress",), True))
+    for span, extra, expect in cases:
+        code = ("import sys\nimport fusion.cli.replay as r\n"
+                f"r.AUTO_PROGRESS_MIN_SPAN = {span}\nfrom fusion.cli import main\n"
+                f"sys.exit(main({['replay', log, '-o', str(tmp_path / 'd.csv'), *extra]!r}))")
+        seen = _on_a_terminal([sys.executable, "-c", code])
+        assert (b"run1:" in seen and b"%|" in seen) is expect, (span, extra, seen)
+
+
+def _on_a_terminal(argv: list[str]) -> bytes:
+    """Run with stderr on a real pty of 24 x 100 characters; returns what it wrote there."""
+    master, slave = os.openpty()
+    # a fresh pty is 0 x 0 characters, where tqdm draws nothing
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))
+    seen = b""
+    try:
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=slave)
+        os.close(slave)
+        slave = -1
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # EIO: the child closed the terminal
+                break
+            if not chunk:
+                break
+            seen += chunk
+        assert proc.wait(timeout=120) == 0, seen
+    finally:
+        os.close(master)
+        if slave >= 0:
             os.close(slave)
-            seen = b""
-            while True:
-                try:
-                    chunk = os.read(master, 4096)
-                except OSError:  # EIO: the child closed the terminal
-                    break
-                if not chunk:
-                    break
-                seen += chunk
-            assert proc.wait(timeout=120) == 0
-        finally:
-            os.close(master)
-        assert (b"run1:" in seen) is expect, seen
+    return seen
 
 
 def test_plot_and_its_missing_dependency(logs, tmp_path):

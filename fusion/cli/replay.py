@@ -34,7 +34,8 @@ w rad/s, gyro bias rad/s, the wheel calibration states k (1) and c (rad/m) of
 
 ``--plot out.png`` draws the fused, wheel-only and (when present) true trajectories and the
 yaw error (matplotlib, the ``demo`` extra). Progress goes to standard error when it is a
-terminal (or with ``--progress``): a tqdm bar (the ``progress`` extra) or a plain line.
+terminal and the input is long (:data:`AUTO_PROGRESS_MIN_SPAN`, or a folder of logs), or with
+``--progress``: a tqdm bar (the ``progress`` extra) or a plain line.
 """
 
 from __future__ import annotations
@@ -55,6 +56,7 @@ from numpy.typing import NDArray
 from fusion.cli import CommandError
 
 __all__ = [
+    "AUTO_PROGRESS_MIN_SPAN",
     "FUSED_CSV_COLUMNS",
     "OUTPUT_FORMATS",
     "ReplayResult",
@@ -108,7 +110,8 @@ def register(subparsers) -> None:
                         "this PNG (for a folder of logs: a folder, one PNG per log); needs "
                         "matplotlib (pip install 'diffbot-fusion[demo]')")
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
-                   help="progress on stderr (default: only when stderr is a terminal)")
+                   help="progress on stderr (default: when stderr is a terminal, for logs "
+                        "of 10 minutes or more and for folders of logs)")
     p.add_argument("-j", "--jobs", type=int, default=None,
                    help="worker processes for a folder of logs (default: the CPU count)")
     p.add_argument("--robot", type=Path,
@@ -230,13 +233,23 @@ class _Progress:
             self._line()
 
 
-def _progress_enabled(flag: bool | None) -> bool:
-    if flag is not None:
-        return flag
+#: Without --progress/--no-progress, a log of at least this many seconds shows its progress
+#: when stderr is a terminal (a shorter one replays in about a second).
+AUTO_PROGRESS_MIN_SPAN = 600.0
+
+
+def _stderr_is_tty() -> bool:
     try:
         return sys.stderr.isatty()
     except (AttributeError, ValueError):
         return False
+
+
+def _progress_for(flag: bool | None, span: float) -> bool:
+    """--progress: True; --no-progress: False; None: a long log on a terminal."""
+    if flag is not None:
+        return bool(flag)
+    return span >= AUTO_PROGRESS_MIN_SPAN and _stderr_is_tty()
 
 
 # -- replay through the pipeline ------------------------------------------------------------------
@@ -350,7 +363,7 @@ def _check_plot_available(path: Path | None = None) -> None:
 
 
 def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Path,
-                           progress: bool, desc: str):
+                           progress: bool | None, desc: str):
     """Run the arrays through a :class:`fusion.pipeline.FusionPipeline` (batch path) into the
     output; returns ``(table, pipeline, stats)``."""
     from fusion import _ekf_core as core
@@ -362,7 +375,7 @@ def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Pa
     streams = [a for a in ((imu.t if has_imu else None), wheel_t) if a is not None and a.size]
     t0 = min(float(a[0]) for a in streams)
     t1 = max(float(a[-1]) for a in streams)
-    bar = _Progress(t1 - t0, desc, "s", progress)
+    bar = _Progress(t1 - t0, desc, "s", _progress_for(progress, t1 - t0))
     tap = _StateTap(core.EV_GYRO if has_imu else core.EV_WHEELS,
                     lambda t: bar.update_to(t - t0))
     sinks = [] if fmt == "csv" else [open_sink(f"{fmt}:{output}")]
@@ -428,9 +441,13 @@ def _frame_arrays(frames) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
 
 
 def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
-                  plot: str | Path | None = None, progress: bool = False) -> ReplayResult:
+                  plot: str | Path | None = None,
+                  progress: bool | None = False) -> ReplayResult:
     """Replay a log directory through the pipeline into ``output`` (.csv/.mcap/.jsonl);
-    optionally draw ``plot`` (PNG). Raises on bad input, leaving no partial output."""
+    optionally draw ``plot`` (PNG). Raises on bad input, leaving no partial output.
+
+    ``progress``: on stderr (True), not (False), or (None) when the log spans at least
+    :data:`AUTO_PROGRESS_MIN_SPAN` s and stderr is a terminal."""
     path, output = Path(path), Path(output)
     robot, imu, wheel_t, ticks, truth_t, truth, cap_stats = _load_logdir(path)
     return _finish(path, output, robot, imu, wheel_t, ticks, truth_t, truth, tilt=tilt,
@@ -438,7 +455,8 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
 
 
 def replay_capture(path: str | Path, output: str | Path, robot_toml: str | Path, *,
-                   plot: str | Path | None = None, progress: bool = False) -> ReplayResult:
+                   plot: str | Path | None = None,
+                   progress: bool | None = False) -> ReplayResult:
     """Replay a DATA-uart2 capture (wheel odometry only) with the chassis of ``robot_toml``.
 
     A timed capture is stamped as the live link stamps; a raw one on the firmware period
@@ -645,7 +663,8 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
              None if args.plot is None else str(args.plot / (p.name + ".png"))) for p in logs]
     results: dict[str, tuple[str, Any]] = {}
     bar = _Progress(len(work), f"replay {len(work)} logs", "logs",
-                    _progress_enabled(args.progress), interval=0.0)
+                    _stderr_is_tty() if args.progress is None else args.progress,
+                    interval=0.0)
     try:
         if jobs == 1:
             for w in work:
@@ -707,7 +726,7 @@ def run(args: argparse.Namespace) -> int:
     if args.imu_topic or args.odom_topic:
         raise CommandError(f"{path}: --imu-topic/--odom-topic are for ROS bags; this is not "
                            "a .bag, .mcap or ROS 2 bag folder")
-    progress = _progress_enabled(args.progress)
+    progress = args.progress
     if path.is_file():
         if path.suffix.lower() not in CAPTURE_SUFFIXES:
             raise CommandError(f"{path}: is a file; replay takes a log directory "
