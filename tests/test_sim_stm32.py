@@ -249,12 +249,12 @@ def _traced_growth(history: int | None, warm: int, more: int) -> int:
 
 
 def test_a_long_run_keeps_flat_memory():
-    # 20000 periods (13 min of firmware time at 40 ms) after the history has filled: with the
-    # default ring buffers nothing accumulates; the unbounded records (history=None) grow by a
-    # few hundred bytes per period (a pose array and tuples), which is what ran the memory up
-    growth = _traced_growth(200, 1000, 20000)
-    unbounded = _traced_growth(None, 1000, 20000)
-    assert unbounded > 20000 * 200
+    # 10000 periods (under 7 min of firmware time at 40 ms) after the history has filled: with
+    # ring buffers nothing accumulates; the unbounded records (history=None) grow by a few
+    # hundred bytes per period (a pose array and tuples), which is what ran the memory up
+    growth = _traced_growth(200, 500, 10000)
+    unbounded = _traced_growth(None, 500, 10000)
+    assert unbounded > 10000 * 200
     assert growth < 20_000  # noise of the allocator, not a per-period leak
 
 
