@@ -14,16 +14,17 @@ Event-time model, stated once:
 
 - Every input is a time-stamped event on one host clock (s): :class:`fusion.samples.ImuSample`
   (the sample instant) or :class:`fusion.samples.WheelTicks` (the end of the firmware period,
-  as stamped by :class:`drivers.serial_link.ChassisLink`). Callers push events in *arrival*
-  order, which for a replay is host time order (:func:`merge_by_time`).
+  as stamped by :class:`drivers.serial_link.ChassisLink`), or an external odometry twist
+  (:meth:`FusionPipeline.push_twist`: a ROS bag's nav_msgs/Odometry, at its stamp). Callers
+  push events in *arrival* order, which for a replay is host time order (:func:`merge_by_time`).
 - IMU samples go through the Mahony filter on arrival (they must increase in time; a sample
   that does not is dropped and counted), which gives the attitude and the yaw rate about the
   world vertical (:func:`fusion.ekf.vertical_rate`, tilt compensation).
 - The EKF's own policy orders the inputs: each event is keyed by its *effective* time (a wheel
   frame's is ``stamp - encode_sampling_time/2 - wheel_latency``, the middle of its period; an
-  IMU sample's is its stamp) and held in a :class:`fusion.ekf.ReorderBuffer` until it is
-  ``reorder_window`` s older than the newest event, or earlier, as soon as every source has
-  delivered an event at least as new (the *watermark*: each source is in time order, so
+  IMU sample's and a twist's is its stamp) and held in a :class:`fusion.ekf.ReorderBuffer`
+  until it is ``reorder_window`` s older than the newest event, or earlier, as soon as every
+  source has delivered an event at least as new (the *watermark*: each source is in time order, so
   nothing older can still come); what is released still late is handled by the EKF's
   late-input policy (fused at the filter time within ``late_tolerance``, else dropped and
   counted in :attr:`PipelineStats.late_dropped`). The default window,
@@ -31,9 +32,10 @@ Event-time model, stated once:
   sources that deliver in batches (the MPU6050 FIFO) need their batch interval on top. The
   window only matters when a source stalls: with both sources flowing, the watermark releases
   a wheel frame as soon as the IMU samples up to the middle of its period are in.
-- Output: with ``publish_rate_hz=None`` one record per wheel frame, stamped with the filter
-  time after that frame (the middle of its period); with a rate, one record each time the
-  filter time crosses a multiple of ``1/publish_rate_hz`` (seed 000 publishes at 10 Hz).
+- Output: with ``publish_rate_hz=None`` one record per wheel frame (or twist), stamped with
+  the filter time after that frame (the middle of its period; a twist's stamp); with a rate,
+  one record each time the filter time crosses a multiple of ``1/publish_rate_hz`` (seed
+  000 publishes at 10 Hz).
 
 Determinism: nothing here reads a clock except to measure latency (``clock``), so replaying
 the same events gives the same records bit for bit (tests/test_pipeline_golden.py).
@@ -83,6 +85,8 @@ __all__ = [
 
 _EV_GYRO = core.EV_GYRO
 _EV_WHEELS = core.EV_WHEELS
+_EV_TWIST = core.EV_TWIST
+_SOURCES = ("imu", "wheels", "twist")
 
 
 @dataclass(frozen=True)
@@ -108,6 +112,8 @@ class PipelineStats:
         imu_out_of_order: IMU samples dropped because their stamp did not increase.
         wheel_frames: wheel frames accepted.
         wheel_out_of_order: wheel frames dropped because their stamp did not increase.
+        twist_messages: external odometry twists accepted (:meth:`FusionPipeline.push_twist`).
+        twist_out_of_order: twists dropped because their stamp did not increase.
         records: records published.
         late_dropped, late_applied: inputs the EKF dropped as too late / fused at its own time.
         slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
@@ -119,6 +125,8 @@ class PipelineStats:
     imu_out_of_order: int = 0
     wheel_frames: int = 0
     wheel_out_of_order: int = 0
+    twist_messages: int = 0
+    twist_out_of_order: int = 0
     records: int = 0
     late_dropped: int = 0
     late_applied: int = 0
@@ -148,14 +156,15 @@ class FusionPipeline:
         sinks: :class:`fusion.publish.Sink` objects; the pipeline opens them in
             :meth:`open` (or ``with``) and closes them in :meth:`close` (aborts them when the
             block raises, so file sinks leave no partial output).
-        publish_rate_hz: None: one record per wheel frame; else records at this rate of
+        publish_rate_hz: None: one record per wheel frame or twist; else records at this rate of
             filter time (Hz).
         reorder_window: s an event is held for reordering at most (default: half a wheel
             period plus the EKF's ``wheel_latency``, enough for host-ordered replay; add the
             largest batch delay of live sources).
         sources: the sources whose watermark releases events early: ``"imu"``,
-            ``"wheels"`` (default both; give only the ones that will deliver, e.g.
-            ``("wheels",)`` without an IMU, else only the window releases).
+            ``"wheels"``, ``"twist"`` (default ``("imu", "wheels")``; give only the ones
+            that will deliver, e.g. ``("wheels",)`` without an IMU or ``("imu", "twist")``
+            for a ROS bag's odometry, else only the window releases).
         imu_rate_hz: nominal IMU rate, Hz (the Mahony filter's first step).
         tilt: tilt-compensate the gyro with the Mahony attitude (False: the gyro's z axis is
             the yaw rate, a level robot).
@@ -210,9 +219,9 @@ class FusionPipeline:
                                                                sample_period=1.0 / imu_rate_hz)
         self._mount = _matrix_or_none(robot.imu_to_base())
         self._buffer = _WatermarkBuffer(self.reorder_window)
-        bad = set(sources) - {"imu", "wheels"}
+        bad = set(sources) - set(_SOURCES)
         if bad or not sources:
-            raise ValueError(f"sources must be 'imu' and/or 'wheels', got {list(sources)}")
+            raise ValueError(f"sources must be some of {list(_SOURCES)}, got {list(sources)}")
         self._marks = {name: -math.inf for name in sources}
         self._watermark = -math.inf
         self._clock = clock
@@ -222,6 +231,7 @@ class FusionPipeline:
         self.latencies: collections.deque[float] = collections.deque(maxlen=latency_window)
         self._last_imu_t = -math.inf
         self._last_wheel_t: float | None = None
+        self._last_twist_t = -math.inf
         self._q: NDArray[np.float64] | None = None  # attitude of the last fused IMU sample
         self._gyro = None
         self._accel = None
@@ -360,6 +370,34 @@ class FusionPipeline:
             self._watermark = min(self._marks.values())
         self._release()
 
+    def push_twist(self, t: float, v: float, w: float) -> None:
+        """One external wheel-odometry twist, e.g. a nav_msgs/Odometry message of a ROS bag:
+        forward speed ``v`` (m/s, base frame x) and yaw rate ``w`` (rad/s, about the base
+        frame's z) at stamp ``t`` (s, host clock), fused at ``t`` by the EKF's twist update
+        (:meth:`fusion.ekf.PlanarEKF.update_twist`: noise ``twist_v_std``/``twist_w_std``,
+        the wheel gate and ZUPT logic).
+
+        Twists must increase in time (one that does not is dropped and counted in
+        :attr:`PipelineStats.twist_out_of_order`); they go through the same reorder buffer
+        as IMU samples and wheel frames, keyed by their stamp (their effective time), and the
+        ``"twist"`` source's watermark. Without a publish rate, each twist gives one record
+        (like a wheel frame); the record's wheel speeds stay those of the last wheel frame
+        (None without one): a twist carries no wheel speeds.
+        """
+        if self._state != "open":
+            raise RuntimeError("the pipeline is not open: call open() or use 'with'")
+        t = float(t)
+        if not t > self._last_twist_t:
+            self.stats.twist_out_of_order += 1
+            return
+        self._last_twist_t = t
+        self.stats.twist_messages += 1
+        self._buffer.push(t, (_EV_TWIST, t, float(v), float(w)))
+        if "twist" in self._marks:
+            self._marks["twist"] = t
+            self._watermark = min(self._marks.values())
+        self._release()
+
     def flush(self) -> None:
         """Fuse every held event now (end of a replay, or before a pause)."""
         for _t, ev in self._buffer.flush():
@@ -382,9 +420,13 @@ class FusionPipeline:
             if self.publish_rate_hz is not None:
                 self._tick()
             return
-        _, t, left, right = ev
-        ekf.update_wheels(t, left, right)
-        self._wheel_speeds = (left * self._m_per_s, right * self._m_per_s)
+        if ev[0] == _EV_TWIST:
+            _, t, v, w = ev
+            ekf.update_twist(t, v, w)
+        else:
+            _, t, left, right = ev
+            ekf.update_wheels(t, left, right)
+            self._wheel_speeds = (left * self._m_per_s, right * self._m_per_s)
         if self.publish_rate_hz is None:
             self._publish(t)
         else:
@@ -437,21 +479,28 @@ class FusionPipeline:
         accel: NDArray[np.float64] | None = None,
         wheel_t: NDArray[np.float64] | None = None,
         ticks: NDArray[np.int64] | None = None,
+        twist_t: NDArray[np.float64] | None = None,
+        twist_v: NDArray[np.float64] | None = None,
+        twist_w: NDArray[np.float64] | None = None,
     ) -> None:
         """Whole recorded streams at once, then :meth:`flush` (for replay of long logs).
 
-        Exactly equivalent to pushing ``merge_by_time(imu_samples, wheel_frames)`` one event
-        at a time into this (fresh) pipeline and flushing: the same records, bit for bit
+        Exactly equivalent to pushing ``merge_by_time(imu_samples, wheel_frames, twists)``
+        one event at a time (:meth:`push_imu`, :meth:`push_wheels`, :meth:`push_twist`) into
+        this (fresh) pipeline and flushing: the same records, bit for bit
         (tests/test_pipeline.py), computed with the Mahony filter's and the EKF's batch
         entry points. The pipeline must not have received events before.
 
         Args:
             imu_t, gyro, accel: (N,) stamps s, (N, 3) rad/s and m/s^2 in the IMU frame.
             wheel_t, ticks: (M,) frame stamps s (end of period) and (M, 2) ticks per period.
+            twist_t, twist_v, twist_w: (K,) external odometry twists (a nav_msgs/Odometry
+                twist): stamps s, forward speed m/s, yaw rate rad/s (see :meth:`push_twist`).
         """
         if self._state != "open":
             raise RuntimeError("the pipeline is not open: call open() or use 'with'")
-        if self.stats.imu_samples or self.stats.wheel_frames or len(self._buffer):
+        if (self.stats.imu_samples or self.stats.wheel_frames or self.stats.twist_messages
+                or len(self._buffer)):
             raise ValueError("push_arrays needs a pipeline that has received no events")
         it = np.zeros(0) if imu_t is None else np.asarray(imu_t, dtype=np.float64).reshape(-1)
         n_imu = it.size
@@ -460,6 +509,11 @@ class FusionPipeline:
         wt = np.zeros(0) if wheel_t is None else np.asarray(wheel_t, dtype=np.float64).reshape(-1)
         TK = (np.zeros((0, 2), np.int64) if wt.size == 0
               else np.asarray(ticks).reshape(wt.size, 2).astype(np.int64))
+        tt = np.zeros(0) if twist_t is None else np.asarray(twist_t, dtype=np.float64).reshape(-1)
+        TV = np.zeros(0) if twist_v is None else np.asarray(twist_v, dtype=np.float64).reshape(-1)
+        TW = np.zeros(0) if twist_w is None else np.asarray(twist_w, dtype=np.float64).reshape(-1)
+        if not TV.size == TW.size == tt.size:
+            raise ValueError(f"{tt.size} twist stamps but {TV.size} v and {TW.size} w values")
 
         keep = _increasing(it)
         self.stats.imu_out_of_order += int(n_imu - keep.sum())
@@ -498,14 +552,23 @@ class FusionPipeline:
             self._last_wheel_t = float(wt[-1])
         self.stats.wheel_frames += int(wt.size)
 
-        # arrival order (host time, IMU first at equal stamps), then the reorder buffer's
-        # release order: by effective time, ties in arrival order
+        keep = _increasing(tt)
+        self.stats.twist_out_of_order += int(tt.size - keep.sum())
+        tt, TV, TW = tt[keep], TV[keep], TW[keep]
+        if tt.size:
+            self._last_twist_t = float(tt[-1])
+        self.stats.twist_messages += int(tt.size)
+
+        # arrival order (host time; at equal stamps IMU, then wheels, then twists, as
+        # merge_by_time with the streams in that order), then the reorder buffer's release
+        # order: by effective time, ties in arrival order
         n_w = wt.size
-        stamp = np.concatenate([it, wt])
+        stamp = np.concatenate([it, wt, tt])
         kind = np.concatenate([np.full(it.size, _EV_GYRO, np.int64),
-                               np.full(n_w, _EV_WHEELS, np.int64)])
-        src = np.concatenate([np.arange(it.size), np.arange(n_w)])
-        t_eff = np.concatenate([it, wt - 0.5 * self.period - self.ekf.noise.wheel_latency])
+                               np.full(n_w, _EV_WHEELS, np.int64),
+                               np.full(tt.size, _EV_TWIST, np.int64)])
+        src = np.concatenate([np.arange(it.size), np.arange(n_w), np.arange(tt.size)])
+        t_eff = np.concatenate([it, wt - 0.5 * self.period - self.ekf.noise.wheel_latency, tt])
         arrival = np.argsort(stamp, kind="stable")
         order = arrival[np.argsort(t_eff[arrival], kind="stable")]
         kind, src, t_eff = kind[order], src[order], t_eff[order]
@@ -515,10 +578,14 @@ class FusionPipeline:
         is_w = kind == _EV_WHEELS
         a[is_w] = TK[src[is_w], 0]
         b[is_w] = TK[src[is_w], 1]
+        is_t = kind == _EV_TWIST
+        a[is_t] = TV[src[is_t]]
+        b[is_t] = TW[src[is_t]]
         # the wheel frame's own stamp goes to the filter: update_wheels() subtracts the same
-        # half period and latency, process_batch() takes effective times
+        # half period and latency, process_batch() takes effective times (a twist's is its
+        # stamp)
         if self.publish_rate_hz is None:
-            points = np.flatnonzero(is_w)
+            points = np.flatnonzero(is_w | is_t)
         else:
             points = self._tick_points(t_eff, a, b)
         pos = np.arange(kind.size)
@@ -532,7 +599,9 @@ class FusionPipeline:
                               b[start:p + 1])
             start = p + 1
             self._set_last(last_gyro[p], last_wheel[p], src, G, A, Q, TK)
-            self._publish(float(wt[src[p]]) if kind[p] == _EV_WHEELS else None)
+            kp = kind[p]
+            self._publish(float(wt[src[p]]) if kp == _EV_WHEELS
+                          else float(tt[src[p]]) if kp == _EV_TWIST else None)
         if start < kind.size:
             ekf.process_batch(kind[start:], t_eff[start:], a[start:], b[start:])
             self._set_last(last_gyro[-1], last_wheel[-1], src, G, A, Q, TK)
