@@ -11,19 +11,20 @@ Inputs:
 - a ROS 1 ``.bag``, a ROS 2 bag folder or an ``.mcap`` file with ``--imu-topic``
   (sensor_msgs/Imu) and ``--odom-topic`` (nav_msgs/Odometry, whose twist is the wheel
   odometry, fused as an external twist), ``--imu-mount-rpy`` taking IMU-frame vectors into the
-  base frame (URDF rpy, rad). Needs the ``ros`` extra (``rosbags``).
+  base frame (URDF rpy, rad; default that of ``--robot``, else none). Needs the ``ros`` extra
+  (``rosbags``).
 
-Log directories and captures run through :class:`fusion.pipeline.FusionPipeline` (its batch
-entry point :meth:`~fusion.pipeline.FusionPipeline.push_arrays`), the object ``fusion run``
-uses live. Bags carry the wheel odometry as twists, which the pipeline has no input for: they
-go through :func:`fusion.ekf.fuse` (the same EKF core).
+Every input runs through :class:`fusion.pipeline.FusionPipeline` (its batch entry point
+:meth:`~fusion.pipeline.FusionPipeline.push_arrays`), the object ``fusion run`` uses live; a
+bag's odometry goes to the pipeline's twist input
+(:meth:`~fusion.pipeline.FusionPipeline.push_twist`).
 
 Outputs (``-o``/``--output``, chosen by suffix): ``.csv`` is the replay CSV below, one row per
 IMU sample (or per wheel frame when the log has no IMU), the whole run; ``.mcap``
 (nav_msgs/Odometry, tf, sensor_msgs/Imu, wheel speeds; the ``ros`` extra) and ``.jsonl``
 (:meth:`fusion.fused.FusedOdometry.to_dict` per line) get the pipeline's records, one per
-wheel frame, through :func:`fusion.publish.open_sink`. An existing file is only ever replaced
-by a complete one. The replay CSV header::
+wheel frame (a bag: per odometry message), through :func:`fusion.publish.open_sink`. An
+existing file is only ever replaced by a complete one. The replay CSV header::
 
     t,x,y,yaw,v,w,gyro_bias_z,wheel_rate_scale,wheel_rate_per_speed,
     var_x,var_y,var_yaw,cov_xy,cov_x_yaw,cov_y_yaw
@@ -90,7 +91,8 @@ def register(subparsers) -> None:
             "a folder of log directories (in parallel worker processes), a DATA-uart2 "
             "capture (*.uart2, with --robot) or a ROS bag, and write the fused odometry: "
             ".csv (the header " + ",".join(FUSED_CSV_COLUMNS) + ", one row per IMU sample), "
-            ".mcap or .jsonl (the pipeline's records, one per wheel frame). Prints a "
+            ".mcap or .jsonl (the pipeline's records, one per wheel frame or bag odometry "
+            "message). Prints a "
             "summary; with truth.csv, the errors of the fused and of the wheel-only odometry."
         ),
     )
@@ -122,9 +124,10 @@ def register(subparsers) -> None:
     bag.add_argument("--odom-topic", help="nav_msgs/Odometry topic of the wheel odometry "
                                           "(bags only)")
     bag.add_argument("--imu-mount-rpy", type=float, nargs=3, metavar=("R", "P", "Y"),
-                     default=(0.0, 0.0, 0.0),
+                     default=None,
                      help="URDF roll pitch yaw (rad) taking IMU-frame vectors into the base "
-                          "frame (bags only; a log directory has it in robot.toml)")
+                          "frame (bags only; default: imu_mount_rpy of --robot, else 0 0 0; "
+                          "a log directory has it in robot.toml)")
     p.set_defaults(func=run)
 
 
@@ -295,11 +298,13 @@ class _StateTap:
 
     Installed as the pipeline's filter (:class:`_TappedEKF`): every ``process_batch`` the
     pipeline makes hands over its events' kinds, effective times and state rows; the rows of
-    ``keep_kind`` become the CSV (the state after every IMU sample, or every wheel frame).
+    the ``keep_kinds`` become the CSV (the state after every IMU sample, or without an IMU
+    after every wheel frame or twist: :meth:`fusion.ekf.FusedTrack.output_rows`' rule).
     """
 
-    def __init__(self, keep_kind: int, on_time: Callable[[float], None] | None) -> None:
-        self.keep_kind = keep_kind
+    def __init__(self, keep_kinds: tuple[int, ...],
+                 on_time: Callable[[float], None] | None) -> None:
+        self.keep_kinds = keep_kinds
         self.on_time = on_time
         self._pending: list[tuple[NDArray, NDArray, NDArray]] = []
         self._chunks: list[NDArray[np.float64]] = []
@@ -318,7 +323,7 @@ class _StateTap:
         t = np.concatenate([p[1] for p in self._pending])
         states = np.concatenate([p[2] for p in self._pending])
         self._pending.clear()
-        keep = kinds == self.keep_kind
+        keep = np.isin(kinds, self.keep_kinds)
         self._chunks.append(_table(t[keep], states[keep]))
 
     def table(self) -> NDArray[np.float64]:
@@ -363,23 +368,28 @@ def _check_plot_available(path: Path | None = None) -> None:
 
 
 def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Path,
-                           progress: bool | None, desc: str):
+                           progress: bool | None, desc: str, odom=None):
     """Run the arrays through a :class:`fusion.pipeline.FusionPipeline` (batch path) into the
-    output; returns ``(table, pipeline, stats)``."""
+    output; returns ``(table, pipeline, stats)``. ``imu``: ``t, gyro, accel`` (IMU frame);
+    ``odom``: ``t, v, w`` external odometry twists (a bag's nav_msgs/Odometry), or None."""
     from fusion import _ekf_core as core
     from fusion.pipeline import FusionPipeline
     from fusion.publish import open_sink
 
     fmt = _output_format(output)
     has_imu = imu is not None and imu.t.size > 0
-    streams = [a for a in ((imu.t if has_imu else None), wheel_t) if a is not None and a.size]
+    has_wheels = wheel_t is not None and wheel_t.size > 0
+    has_odom = odom is not None and odom.t.size > 0
+    streams = [a for a, on in ((imu.t if has_imu else None, has_imu), (wheel_t, has_wheels),
+                               (odom.t if has_odom else None, has_odom)) if on]
     t0 = min(float(a[0]) for a in streams)
     t1 = max(float(a[-1]) for a in streams)
     bar = _Progress(t1 - t0, desc, "s", _progress_for(progress, t1 - t0))
-    tap = _StateTap(core.EV_GYRO if has_imu else core.EV_WHEELS,
+    tap = _StateTap((core.EV_GYRO,) if has_imu else (core.EV_WHEELS, core.EV_TWIST),
                     lambda t: bar.update_to(t - t0))
     sinks = [] if fmt == "csv" else [open_sink(f"{fmt}:{output}")]
-    sources = [name for name, on in (("imu", has_imu), ("wheels", wheel_t.size > 0)) if on]
+    sources = [name for name, on in (("imu", has_imu), ("wheels", has_wheels),
+                                     ("twist", has_odom)) if on]
     rate = 100.0  # the IMU's rate, Hz: the Mahony filter's first step (as live)
     if has_imu and imu.t.size >= 2:
         dt = float(np.median(np.diff(imu.t)))
@@ -394,7 +404,11 @@ def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Pa
             raise CommandError(f"{output}: {exc}") from None
         with pipe:
             pipe.push_arrays(imu.t if has_imu else None, imu.gyro if has_imu else None,
-                             imu.accel if has_imu else None, wheel_t, ticks)
+                             imu.accel if has_imu else None,
+                             wheel_t if has_wheels else None, ticks if has_wheels else None,
+                             twist_t=odom.t if has_odom else None,
+                             twist_v=odom.v if has_odom else None,
+                             twist_w=odom.w if has_odom else None)
         table = tap.table()
         if fmt == "csv":
             _write_table(output, table)
@@ -532,9 +546,11 @@ def _finish(path, output, robot, imu, wheel_t, ticks, truth_t, truth, *, tilt, p
         wheel_distance=chassis.wheel_distance, truth=truth_res, notes=notes)
 
 
-def _plot(path: Path, title: str, table, wheel_t, wheel, truth_t, truth) -> None:
+def _plot(path: Path, title: str, table, wheel_t, wheel, truth_t, truth,
+          wheel_label: str = "wheel only") -> None:
     """Trajectories (fused, wheel-only, truth) and yaw error (or yaw without truth) to a PNG,
-    written atomically with the umask's permissions."""
+    written atomically with the umask's permissions. ``wheel_label`` names the wheel-only
+    track (a bag's own odometry)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -547,7 +563,7 @@ def _plot(path: Path, title: str, table, wheel_t, wheel, truth_t, truth) -> None
     try:
         if truth is not None:
             ax1.plot(truth[:, 0], truth[:, 1], "k-", lw=2, label="truth")
-        ax1.plot(wheel[:, 0], wheel[:, 1], "-", color="tab:orange", lw=1, label="wheel only")
+        ax1.plot(wheel[:, 0], wheel[:, 1], "-", color="tab:orange", lw=1, label=wheel_label)
         ax1.plot(table[:, 1], table[:, 2], "-", color="tab:blue", lw=1, label="fused EKF")
         ax1.set_aspect("equal", adjustable="datalim")
         ax1.set_xlabel("x (m)")
@@ -563,7 +579,7 @@ def _plot(path: Path, title: str, table, wheel_t, wheel, truth_t, truth) -> None
             inside = (t >= truth_t[0]) & (t <= truth_t[-1])
             w_in = (wheel_t >= truth_t[0]) & (wheel_t <= truth_t[-1])
             ax2.plot(wheel_t[w_in], err(wheel_t[w_in], wheel[w_in, 2]), color="tab:orange",
-                     lw=1, label="wheel only")
+                     lw=1, label=wheel_label)
             ax2.plot(t[inside], err(t[inside], table[inside, 3]), color="tab:blue", lw=1,
                      label="fused EKF")
             ax2.axhline(0.0, color="k", lw=0.8)
@@ -571,7 +587,7 @@ def _plot(path: Path, title: str, table, wheel_t, wheel, truth_t, truth) -> None
             ax2.set_title("Yaw error against the truth")
         else:
             ax2.plot(wheel_t, np.degrees(np.angle(np.exp(1j * wheel[:, 2]))),
-                     color="tab:orange", lw=1, label="wheel only")
+                     color="tab:orange", lw=1, label=wheel_label)
             ax2.plot(t, np.degrees(table[:, 3]), color="tab:blue", lw=1, label="fused EKF")
             ax2.set_ylabel("yaw (deg)")
             ax2.set_title("Yaw (no truth in the log)")
@@ -764,10 +780,11 @@ def _is_bag(path: Path) -> bool:
 
 
 def run_bag(args: argparse.Namespace) -> int:
-    """``fusion replay BAG --imu-topic T --odom-topic T`` (through :func:`fusion.ekf.fuse`:
-    the pipeline has no input for the bag's odometry twists)."""
-    from fusion import quaternion as quat
-    from fusion.ekf import fuse, vertical_rate
+    """``fusion replay BAG --imu-topic T --odom-topic T``: the bag's IMU messages and its
+    odometry twists through :class:`fusion.pipeline.FusionPipeline` (as a log directory's
+    IMU samples and wheel frames), into ``-o`` (.csv/.mcap/.jsonl) and ``--plot``."""
+    import dataclasses
+
     from fusion.kinematics import DiffDriveParams
     from fusion.logdir import RobotConfig, read_robot_toml
     from fusion.logs import read_bag
@@ -776,12 +793,9 @@ def run_bag(args: argparse.Namespace) -> int:
     if not (args.imu_topic and args.odom_topic):
         raise CommandError(f"{path}: a bag needs --imu-topic (sensor_msgs/Imu) and "
                            "--odom-topic (nav_msgs/Odometry)")
-    if _output_format(args.output) != "csv":
-        raise CommandError(f"{args.output}: a bag replays to .csv only (its wheel odometry "
-                           "is a twist, which the pipeline that writes .mcap/.jsonl has no "
-                           "input for)")
+    _output_format(args.output)
     if args.plot is not None:
-        raise CommandError("--plot is for log directories and captures, not bags")
+        _check_plot_available(Path(args.plot))
     if args.robot is not None:
         robot = read_robot_toml(args.robot)
     else:
@@ -789,43 +803,36 @@ def run_bag(args: argparse.Namespace) -> int:
         # only the motion-onset logic: neutral values
         robot = RobotConfig(DiffDriveParams(wheel_distance=0.5, speed_ratio=1e-4,
                                             encode_sampling_time=0.02))
+    if args.imu_mount_rpy is not None:  # the command line wins over robot.toml
+        robot = dataclasses.replace(robot, imu_mount_rpy=tuple(args.imu_mount_rpy))
     bag = read_bag(path, imu_topic=args.imu_topic, odom_topic=args.odom_topic)
     imu, odom = bag.imu, bag.odometry
-    q_mount = quat.from_euler(*args.imu_mount_rpy)
-    gyro = quat.rotate(q_mount, imu.gyro)
-    accel = quat.rotate(q_mount, imu.accel)
-    if args.level or len(imu) < 2:
-        gyro_z = gyro[:, 2].copy()
-    else:
-        from fusion.mahony import Mahony
-
-        q = Mahony(axes=6).update_batch(gyro, accel, timestamps=imu.t)
-        gyro_z = vertical_rate(gyro, q)
-    track, ekf = fuse(robot.chassis, imu.t, gyro_z, noise=robot.ekf, twist_t=odom.t,
-                      twist_v=odom.v, twist_w=odom.w)
-    rows = track.output_rows()
-    t_out = track.t[rows]
-    states = track.states[rows]
-    write_fused_csv(args.output, t_out, states)
+    table, pipe, stats = _fuse_through_pipeline(
+        robot, imu, None, None, tilt=not args.level, output=args.output,
+        progress=args.progress, desc=path.name, odom=odom)
+    # the bag's own wheel odometry pose, moved to start at the origin like the fused track
+    x0, y0, th0 = odom.x[0], odom.y[0], odom.yaw[0]
+    c, sn = math.cos(th0), math.sin(th0)
+    dx, dy = odom.x - x0, odom.y - y0
+    own = np.column_stack([c * dx + sn * dy, -sn * dx + c * dy,
+                           np.angle(np.exp(1j * (odom.yaw - th0)))])
+    if args.plot is not None:
+        _plot(Path(args.plot), path.name, table, odom.t, own, None, None,
+              wheel_label=f"bag odometry ({args.odom_topic})")
     print(f"{path}: {len(imu)} IMU messages ({imu.frame_id or 'no frame_id'}), {len(odom)} "
           f"odometry messages ({odom.frame_id} -> {odom.child_frame_id}) -> {args.output} "
-          f"({len(t_out)} rows)")
+          f"({table.shape[0]} rows, {stats.records} records)")
     if imu.out_of_order or odom.out_of_order:
         print(f"warning: messages out of order in the bag (sorted): IMU {imu.out_of_order}, "
               f"odometry {odom.out_of_order}")
-    yaw = math.degrees(math.remainder(states[-1, 2], 2 * math.pi))
-    print(f"final pose: x {states[-1, 0]:.3f} m, y {states[-1, 1]:.3f} m, yaw {yaw:.2f} deg; "
-          f"path {_distance(t_out, states[:, 3]):.2f} m")
-    s = ekf.stats
-    print(f"gyro bias {math.degrees(ekf.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, slip "
-          f"(twist/gyro disagreement) {s['slips']}, invalid {s['invalid']}")
-    # the bag's own wheel odometry pose, moved to start at the origin like the fused track
-    x0, y0, th0 = odom.x[0], odom.y[0], odom.yaw[0]
-    dx, dy = odom.x[-1] - x0, odom.y[-1] - y0
-    c, sn = math.cos(th0), math.sin(th0)
-    oyaw = math.degrees(math.remainder(odom.yaw[-1] - th0, 2 * math.pi))
-    print(f"bag odometry ({args.odom_topic}) final pose from its start: x {c * dx + sn * dy:.3f}"
-          f" m, y {-sn * dx + c * dy:.3f} m, yaw {oyaw:.2f} deg")
+    last = table[-1]
+    print(f"final pose: x {last[1]:.3f} m, y {last[2]:.3f} m, yaw {math.degrees(last[3]):.2f}"
+          f" deg; path {_distance(table[:, 0], table[:, 4]):.2f} m")
+    ekf = pipe.ekf
+    print(f"gyro bias {math.degrees(ekf.gyro_bias):+.4f} deg/s; ZUPTs {stats.zupts}, slip "
+          f"(twist/gyro disagreement) {stats.slips}, invalid {ekf.stats['invalid']}")
+    print(f"bag odometry ({args.odom_topic}) final pose from its start: x {own[-1, 0]:.3f}"
+          f" m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")
     return 0
 
 
