@@ -155,3 +155,27 @@ def test_plot_of_a_bag(bag, tmp_path, capsys):
                  "-o", str(tmp_path / "g.csv"), "--plot", str(tmp_path / "no" / "p.png")]) == 2
     assert "the folder" in capsys.readouterr().err
     assert not (tmp_path / "g.csv").exists()
+
+
+def test_the_mount_comes_from_robot_toml_unless_given(bag, tmp_path):
+    """--robot robot.toml with imu_mount_rpy: the pipeline rotates the IMU by it (the same
+    bytes as --imu-mount-rpy with the same values); --imu-mount-rpy overrides it."""
+    from fusion.logdir import read_robot_toml, write_robot_toml
+
+    rpy = (0.0, 0.0, 1.2)  # an IMU mounted yawed by 1.2 rad
+    toml = tmp_path / "robot.toml"
+    write_robot_toml(toml, RobotConfig(NEUTRAL.chassis, imu_mount_rpy=rpy))
+    assert read_robot_toml(toml).imu_mount_rpy == rpy
+    outs = {}
+    for name, extra in (("toml", ["--robot", str(toml)]),
+                        ("flag", ["--imu-mount-rpy", *map(str, rpy)]),
+                        ("override", ["--robot", str(toml), "--imu-mount-rpy", "0", "0", "0"]),
+                        ("none", [])):
+        assert _replay(bag, tmp_path / f"{name}.jsonl", *extra) == 0
+        outs[name] = (tmp_path / f"{name}.jsonl").read_text()
+    assert outs["toml"] == outs["flag"]
+    assert outs["override"] == outs["none"]
+    assert outs["toml"] != outs["none"]  # the records carry the mounted IMU's vectors
+    a = json.loads(outs["toml"].splitlines()[-1])
+    b = json.loads(outs["none"].splitlines()[-1])
+    assert a["linear_acceleration"] != b["linear_acceleration"]
