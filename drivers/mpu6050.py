@@ -48,6 +48,7 @@ __all__ = [
     "RawSample",
     "SelfTestResult",
     "SensorStuckError",
+    "SystemClock",
     "accel_factory_trim",
     "gyro_factory_trim",
 ]
@@ -184,7 +185,9 @@ def accel_factory_trim(code: int) -> float:
     return 4096.0 * 0.34 * (0.92 / 0.34) ** ((code - 1) / 30.0)
 
 
-class _SystemClock:
+class SystemClock:
+    """The host's monotonic clock (``time.monotonic``/``time.sleep``), s: the default clock."""
+
     @staticmethod
     def monotonic() -> float:
         return time.monotonic()
@@ -338,7 +341,7 @@ class MPU6050:
         self.calibration = calibration
         self.retries = int(retries)
         self.backoff_s = float(backoff_s)
-        self.clock = clock if clock is not None else _SystemClock()
+        self.clock = clock if clock is not None else SystemClock()
         self.stuck_samples = int(stuck_samples)
         self.on_stuck = on_stuck
         self.stats = _Stats()

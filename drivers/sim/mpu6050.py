@@ -47,13 +47,15 @@ import ctypes
 import errno as _errno
 import math
 import os
-import time
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+# The host clock is the driver's (one definition); registers stay local on purpose.
+from drivers.mpu6050 import SystemClock
 
 __all__ = [
     "ArrayTrace",
@@ -104,19 +106,6 @@ class SimClock:
             self.now += float(seconds)
 
     advance = sleep
-
-
-class SystemClock:
-    """The host's monotonic clock (``time.monotonic``/``time.sleep``), s."""
-
-    @staticmethod
-    def monotonic() -> float:
-        return time.monotonic()
-
-    @staticmethod
-    def sleep(seconds: float) -> None:
-        if seconds > 0:
-            time.sleep(seconds)
 
 
 def static_trace(
