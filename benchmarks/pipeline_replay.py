@@ -93,14 +93,11 @@ def live_latency(seconds: float, speed: float = 1.0) -> tuple[float, float, int]
     from drivers.mpu6050 import MPU6050
     from drivers.serial_link import ChassisLink
     from fusion.cli.demo import (
-        MISSION,
+        LoopingMission,
         ScaledClock,
         SimRobot,
         SimRobotParams,
-        mission_command,
-        mission_duration,
         nominal_config,
-        send_twist,
         warm_up,
     )
     from fusion.pipeline import FusionPipeline, LiveRunner
@@ -118,16 +115,10 @@ def live_latency(seconds: float, speed: float = 1.0) -> tuple[float, float, int]
     robot.start()
     runner = LiveRunner(pipe, link=link, imu=imu).start()
     t0 = clock()
-    loop = mission_duration(MISSION)
-    state = {"cmd": None, "sent": -1.0}
+    mission = LoopingMission(link, ch, clock, t0)
 
     def tick() -> bool:
-        now = clock()
-        cmd = mission_command((now - t0) % loop)
-        if cmd != state["cmd"] or now - state["sent"] > 0.2:
-            send_twist(link, ch, *cmd)
-            state["cmd"], state["sent"] = cmd, now
-        return now - t0 >= seconds * speed
+        return mission() - t0 >= seconds * speed
 
     try:
         runner.run(until=tick, poll=0.01)

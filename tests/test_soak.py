@@ -15,15 +15,12 @@ import pytest
 from drivers.mpu6050 import MPU6050
 from drivers.serial_link import ChassisLink
 from fusion.cli.demo import (
-    MISSION,
+    LoopingMission,
     ScaledClock,
     SimRobot,
     SimRobotParams,
     freeze_heap,
-    mission_command,
-    mission_duration,
     nominal_config,
-    send_twist,
     warm_up,
 )
 from fusion.pipeline import FusionPipeline, LiveRunner
@@ -56,17 +53,13 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     robot.start()
     runner = LiveRunner(pipe, link=link, imu=imu).start()
     t0 = clock()
-    loop = mission_duration(MISSION)
-    state = {"cmd": None, "sent": -1.0, "mark": None}
+    mission = LoopingMission(link, ch, clock, t0)
+    state = {"mark": None}
     wall0 = time.monotonic()
     marks = []
 
     def tick() -> bool:
-        now = clock()
-        cmd = mission_command((now - t0) % loop)
-        if cmd != state["cmd"] or now - state["sent"] > 0.2:
-            send_twist(link, ch, *cmd)
-            state["cmd"], state["sent"] = cmd, now
+        mission()
         elapsed = time.monotonic() - wall0
         if state["mark"] is None and elapsed >= WARM_S:
             tracemalloc.start()

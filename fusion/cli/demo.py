@@ -395,6 +395,31 @@ def send_twist(link: Any, chassis: Any, v: float, w: float) -> bool:
     return link.send_twist(v, w, chassis)
 
 
+class LoopingMission:
+    """Drives the scripted mission in a loop through a chassis link: call it from a run loop.
+
+    A command is (re)sent when it changes or every ``resend`` s (robot time), so the link's
+    stale-command stop never fires while the mission runs.
+    """
+
+    def __init__(self, link: Any, chassis: Any, clock, t0: float, mission=MISSION,
+                 resend: float = 0.2) -> None:
+        self.link, self.chassis, self.clock, self.t0 = link, chassis, clock, t0
+        self.mission, self.resend = mission, resend
+        self.period = mission_duration(mission)
+        self._cmd: tuple[float, float] | None = None
+        self._sent = -math.inf
+
+    def __call__(self) -> float:
+        """Send the mission's command for now if due; returns the robot time now, s."""
+        now = self.clock()
+        cmd = mission_command((now - self.t0) % self.period, self.mission)
+        if cmd != self._cmd or now - self._sent > self.resend:
+            send_twist(self.link, self.chassis, *cmd)
+            self._cmd, self._sent = cmd, now
+        return now
+
+
 @dataclass
 class DemoReport:
     """Figures of one demo run (SI units; latencies in s of wall-clock time)."""

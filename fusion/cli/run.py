@@ -144,13 +144,11 @@ def run(args: argparse.Namespace) -> int:
     from drivers.chassis import WheelFrameParser
     from drivers.serial_link import ChassisLink
     from fusion.cli.demo import (
-        MISSION,
+        LoopingMission,
         ScaledClock,
         SimRobot,
         SimRobotParams,
         freeze_heap,
-        mission_command,
-        mission_duration,
         send_twist,
         warm_up,
     )
@@ -236,16 +234,12 @@ def run(args: argparse.Namespace) -> int:
         runner = LiveRunner(pipe, link=link, imu=imu, fifo_interval=cfg.fifo_interval).start()
         t0 = clock()
         drive = sim and not any(s.strip().lower() == "ros1" for s in cfg.publish)
-        state = {"cmd": None, "sent": -1.0, "status": time.monotonic()}
-        period = mission_duration(MISSION)
+        state = {"status": time.monotonic()}
+        mission = LoopingMission(link, chassis, clock, t0)
 
         def tick() -> bool:
-            now = clock()
             if drive and not link_holder.get("external"):
-                cmd = mission_command((now - t0) % period)
-                if cmd != state["cmd"] or now - state["sent"] > 0.2:
-                    send_twist(link, chassis, *cmd)
-                    state["cmd"], state["sent"] = cmd, now
+                mission()
             if status and time.monotonic() - state["status"] >= status:
                 state["status"] = time.monotonic()
                 err(_status(pipe, runner))
