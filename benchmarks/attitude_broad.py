@@ -20,9 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.logs import read_broad
-from fusion.mahony import Mahony
-from fusion.metrics import orientation_rmse
+from fusion.attitude.mahony import Mahony
+from fusion.evaluation.orientation import orientation_rmse
+from fusion.io.broad import read_broad
 
 DATA = Path(__file__).resolve().parent.parent / "datasets" / "broad"
 GRAVITY = 9.80665

@@ -14,7 +14,7 @@ import numpy as np
 from _timing import cpu_rate  # benchmarks/_timing.py (scripts run from benchmarks/)
 
 from fusion._jit import HAVE_NUMBA
-from fusion.mahony import Mahony
+from fusion.attitude.mahony import Mahony
 
 DT = 0.01
 

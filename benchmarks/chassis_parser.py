@@ -8,7 +8,8 @@
    "speed" is each parser's MB/s relative to ours with 4 KiB reads (the size of a serial
    read); "1 MiB" is the bulk case (decoding a capture file).
 2. Latency over a real pty (os.openpty): from the moment the frame's last byte is written on
-   the far end to the moment :class:`fusion.odometry.WheelOdometry` has integrated it, through
+   the far end to the moment :class:`fusion.planar.odometry.WheelOdometry` has integrated it,
+   through
    :class:`drivers.serial_link.ChassisLink` (reader thread, parser, callback); p50/p99/max.
    Frames that rule 3 defers (checksum byte 0xFF and the like, 1 in ~200) wait for the next
    frame; they are reported separately.
@@ -29,8 +30,8 @@ import numpy as np
 
 from drivers.chassis import WheelFrameParser, encode_wheel_frame
 from drivers.serial_link import ChassisLink
-from fusion.kinematics import DiffDriveParams
-from fusion.odometry import WheelOdometry
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.planar.odometry import WheelOdometry
 
 
 def make_frames(n: int, rng: np.random.Generator) -> np.ndarray:

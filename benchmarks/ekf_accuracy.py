@@ -2,14 +2,14 @@
 
 Run: python benchmarks/ekf_accuracy.py [--seeds N] [--duration S]
 
-Missions: fusion.synthetic.degraded_mission (robot.toml's wheel_distance 3 % off, 0.5 %
+Missions: fusion.evaluation.synthetic.degraded_mission (robot.toml's wheel_distance 3 % off, 0.5 %
 left/right radius mismatch, gyro z bias 0.5 deg/s with a 2e-5 rad/s/sqrt(s) random walk,
 MPU6050 noise, three 1 s slip patches of 30 %, start at rest). Contenders:
 
-- wheel only: seed 000's dead reckoning (fusion.odometry.WheelOdometry, midpoint rule);
+- wheel only: seed 000's dead reckoning (fusion.planar.odometry.WheelOdometry, midpoint rule);
 - gyro heading: heading integrated from the gyro minus its mean over the first 4 s at rest,
   translation from the wheels' distance (the classic gyrodometry, no filter);
-- fused EKF: fusion.ekf with its defaults except the bias walk set to the simulated one.
+- fused EKF: fusion.planar.ekf with its defaults except the bias walk set to the simulated one.
 
 Printed per contender: final position error in % of the distance travelled and yaw RMSE, as
 mean and worst over the seeds.
@@ -22,10 +22,10 @@ import math
 
 import numpy as np
 
-from fusion.ekf import EkfNoise, fuse
-from fusion.odometry import WheelOdometry
-from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
-from fusion.trajectory_metrics import final_position_error_percent, yaw_rmse
+from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.evaluation.trajectory import final_position_error_percent, yaw_rmse
+from fusion.planar.ekf import EkfNoise, fuse
+from fusion.planar.odometry import WheelOdometry
 
 ROBOT = EXAMPLE_ROBOT
 

@@ -22,10 +22,10 @@ import sys
 
 from _timing import cpu_rate  # benchmarks/_timing.py (scripts run from benchmarks/)
 
-from fusion import _ekf_core as core
 from fusion._jit import HAVE_NUMBA
-from fusion.ekf import PlanarEKF, merge_events
-from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.planar import _ekf_core as core
+from fusion.planar.ekf import PlanarEKF, merge_events
 
 
 def main() -> None:

@@ -1,4 +1,4 @@
-"""Replay throughput and live latency of fusion.pipeline.FusionPipeline.
+"""Replay throughput and live latency of fusion.pipeline.core.FusionPipeline.
 
 1. Replay: one hour of a synthetic mission with a 200 Hz IMU and 25 Hz wheel frames
    (720 000 + 90 000 events) through the whole pipeline (IMU mount rotation, Mahony,
@@ -6,7 +6,7 @@
    by the batch entry point ``push_arrays`` (bit-identical to streaming, see
    tests/test_pipeline.py), without a sink and into a JSON lines file; the streaming path
    ``push()`` on a 5-minute slice; and, as the reference, the bare EKF batch
-   (``fusion.ekf.fuse`` after ``Mahony.update_batch``, no records) on the same hour.
+   (``fusion.planar.ekf.fuse`` after ``Mahony.update_batch``, no records) on the same hour.
    Target: the hour in under 10 s.
 2. Live latency: the demo's simulated robot (STM32 on a pty through the real ChassisLink,
    MPU6050 through the real driver) at 1x real time for ``--live`` seconds; latency from a
@@ -30,7 +30,7 @@ import numpy as np
 
 
 def synthetic_hour(hours: float):
-    from fusion.synthetic import (
+    from fusion.evaluation.synthetic import (
         EXAMPLE_ROBOT,
         EncoderModel,
         ImuModel,
@@ -48,8 +48,8 @@ def synthetic_hour(hours: float):
 
 
 def replay(run, sinks=(), rate=None) -> tuple[float, int]:
-    from fusion.logdir import RobotConfig
-    from fusion.pipeline import FusionPipeline
+    from fusion.pipeline.core import FusionPipeline
+    from fusion.planar.robot import RobotConfig
 
     pipe = FusionPipeline(RobotConfig(chassis=run.robot), list(sinks), imu_rate_hz=200.0,
                           publish_rate_hz=rate)
@@ -60,9 +60,10 @@ def replay(run, sinks=(), rate=None) -> tuple[float, int]:
 
 
 def streaming(run, seconds: float) -> tuple[float, int]:
-    from fusion.logdir import RobotConfig
-    from fusion.pipeline import FusionPipeline, merge_by_time
-    from fusion.samples import ImuSample, WheelTicks
+    from fusion.pipeline.core import FusionPipeline
+    from fusion.pipeline.sources import merge_by_time
+    from fusion.planar.robot import RobotConfig
+    from fusion.types.samples import ImuSample, WheelTicks
 
     ni = int(np.searchsorted(run.imu_t, seconds))
     nw = int(np.searchsorted(run.wheel_t, seconds))
@@ -79,8 +80,8 @@ def streaming(run, seconds: float) -> tuple[float, int]:
 
 
 def bare_ekf(run) -> float:
-    from fusion.ekf import fuse, vertical_rate
-    from fusion.mahony import Mahony
+    from fusion.attitude.mahony import Mahony
+    from fusion.planar.ekf import fuse, vertical_rate
 
     t0 = time.perf_counter()
     q = Mahony(axes=6, sample_period=0.005).update_batch(run.gyro, run.accel,
@@ -92,15 +93,10 @@ def bare_ekf(run) -> float:
 def live_latency(seconds: float, speed: float = 1.0) -> tuple[float, float, int]:
     from drivers.mpu6050 import MPU6050
     from drivers.serial_link import ChassisLink
-    from fusion.cli.demo import (
-        LoopingMission,
-        ScaledClock,
-        SimRobot,
-        SimRobotParams,
-        nominal_config,
-        warm_up,
-    )
-    from fusion.pipeline import FusionPipeline, LiveRunner
+    from drivers.sim.robot import LoopingMission, ScaledClock, SimRobot, SimRobotParams
+    from fusion.cli.demo import nominal_config, warm_up
+    from fusion.pipeline.core import FusionPipeline
+    from fusion.pipeline.live import LiveRunner
 
     params = SimRobotParams()
     cfg = nominal_config(params)
@@ -137,7 +133,7 @@ def main() -> None:
     ap.add_argument("--hours", type=float, default=1.0)
     ap.add_argument("--live", type=float, default=20.0, help="live seconds (0: skip)")
     args = ap.parse_args()
-    from fusion.publish import JsonLinesSink
+    from fusion.sinks.text import JsonLinesSink
 
     t = time.perf_counter()
     run = synthetic_hour(args.hours)

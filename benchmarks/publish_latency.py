@@ -51,8 +51,9 @@ def foxglove_latency(n: int, rate: float, plain: bool) -> list[float]:
     from foxglove import messages as fm
     from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-    from fusion.fused import FusedOdometry
-    from fusion.publish import FoxgloveSink, Topics
+    from fusion.sinks.foxglove import FoxgloveSink
+    from fusion.sinks.ros_messages import Topics
+    from fusion.types.fused import FusedOdometry
 
     if plain:
         ctx = foxglove.Context()
@@ -136,9 +137,9 @@ ROS_PUBLISHER = textwrap.dedent("""
     n, rate, plain = int(sys.argv[1]), float(sys.argv[2]), sys.argv[3] == "plain"
     import rospy
     from nav_msgs.msg import Odometry
-    from fusion.fused import FusedOdometry
-    from fusion.publish import Topics
-    from fusion.ros1 import Ros1Sink
+    from fusion.types.fused import FusedOdometry
+    from fusion.sinks import Topics
+    from fusion.sinks.ros1 import Ros1Sink
     topics = Topics(tf=None, imu=None, wheel_left=None, wheel_right=None)
     if plain:
         rospy.init_node("bench_pub", disable_signals=True)
@@ -184,7 +185,7 @@ def ros_python() -> str | None:
     candidate = os.environ.get("FUSION_ROS_PYTHON") or str(ROOT / ".ci/ros-venv/bin/python")
     if not Path(candidate).exists():
         return None
-    ok = subprocess.run([candidate, "-c", "import rospy, fusion.ros1"], capture_output=True)
+    ok = subprocess.run([candidate, "-c", "import rospy, fusion.sinks.ros1"], capture_output=True)
     return candidate if ok.returncode == 0 else None
 
 

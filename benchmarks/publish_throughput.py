@@ -1,5 +1,5 @@
-"""Publishing and bag-reading speed: records/s of each sink in fusion.publish beside a peer
-writing the same content its own way, and messages/s of fusion.logs.read_bag beside a bare
+"""Publishing and bag-reading speed: records/s of each sink in fusion.sinks beside a peer
+writing the same content its own way, and messages/s of fusion.io.bags.read_bag beside a bare
 rosbags read loop.
 
 - McapSink (ROS 2 CDR through rosbags, 5 messages per record) vs foxglove-sdk's own MCAP
@@ -28,8 +28,11 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.fused import FusedOdometry
-from fusion.publish import FoxgloveSink, JsonLinesSink, McapSink, Rosbag2Sink, ros_messages
+from fusion.sinks.bag import McapSink, Rosbag2Sink
+from fusion.sinks.foxglove import FoxgloveSink
+from fusion.sinks.ros_messages import ros_messages
+from fusion.sinks.text import JsonLinesSink
+from fusion.types.fused import FusedOdometry
 
 ROOT = Path(__file__).resolve().parents[1]
 BAG = ROOT / "datasets" / "rosbag" / "jackal_sim_test2.bag"
@@ -219,7 +222,7 @@ def main() -> None:
     if have_ros:
         from rosbags.highlevel import AnyReader
 
-        from fusion.logs import read_bag
+        from fusion.io.bags import read_bag
 
         topics = ("/imu/data", "/jackal_velocity_controller/odom")
 

@@ -461,7 +461,7 @@ class WheelFrameParser:
 
 class FrameStamper:
     """Host stamps for DATA-uart2 frames read in chunks: the one stamping rule of the project
-    (:class:`drivers.serial_link.ChassisLink` live, :func:`fusion.logs.read_uart2_capture` on
+    (:class:`drivers.serial_link.ChassisLink` live, :func:`fusion.io.uart2.read_uart2_capture` on
     a recorded capture), sans-I/O.
 
     Give it every read of the port in order: :meth:`feed` with the read's return time on the

@@ -3,7 +3,7 @@
 Values and procedures follow the MPU-6000/MPU-6050 Register Map and Descriptions (rev 4.2) and
 the Product Specification (rev 3.4).
 
-Units and frames: samples come out as ``fusion.samples.ImuSample`` in SI units in the sensor's
+Units and frames: samples come out as ``fusion.types.samples.ImuSample`` in SI units in the sensor's
 own axes (x, y, z as printed on the chip; mount it x forward, y left, z up for the library's
 body frame): angular rate in rad/s, specific force in m/s^2 (+1 g on the up axis at rest;
 g = 9.80665 m/s^2 unless ``gravity`` is given), temperature in deg C, time in s on the host
@@ -36,7 +36,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.samples import ImuSample
+from fusion.types.samples import ImuSample
 
 __all__ = [
     "ACCEL_LSB_PER_G",
@@ -274,7 +274,7 @@ class MPU6050:
             output rate and ``sample_rate_hz`` is then the rate obtained (a request more
             than 5 % away from every achievable rate is refused).
         gravity: m/s^2 per g for the conversion of accelerometer readings.
-        calibration: a ``fusion.calibration.ImuCalibration`` applied by ``read()`` and
+        calibration: a ``fusion.calibration.imu.ImuCalibration`` applied by ``read()`` and
             ``read_fifo()`` (settable later through the ``calibration`` attribute).
         retries: extra attempts after an EIO/EREMOTEIO/ENXIO failure of one transaction.
         backoff_s: first wait before a retry, s; doubles on each further retry.

@@ -3,13 +3,13 @@
 :class:`ChassisLink` opens the port with ``serial.serial_for_url`` (a device path such as
 ``/dev/ttyUSB0`` or a stable udev symlink, ``socket://host:port``, ``loop://``), runs one reader
 thread that feeds :class:`drivers.chassis.WheelFrameParser`, and delivers every accepted frame
-as a :class:`fusion.samples.WheelTicks` stamped on the host clock (``time.monotonic`` by
+as a :class:`fusion.types.samples.WheelTicks` stamped on the host clock (``time.monotonic`` by
 default, s). The stamp is the estimated arrival time of the frame's last byte: the read's
 return time minus the transmission time (10 bits per byte at ``baudrate``) of the bytes that
 came after it in the same read, but never earlier than the previous read's return
-(:class:`drivers.chassis.FrameStamper`, the rule :func:`fusion.logs.read_uart2_capture` applies
+(:class:`drivers.chassis.FrameStamper`, the rule :func:`fusion.io.uart2.read_uart2_capture` applies
 to a recorded capture). ``on_read(t, data)`` sees every read (empty ones too), so a live
-session can be recorded with :class:`fusion.logs.Uart2CaptureWriter` and replayed to the same
+session can be recorded with :class:`fusion.io.uart2.Uart2CaptureWriter` and replayed to the same
 frames and stamps.
 
 Robustness (a robot runs for hours):
@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import serial
 
 from drivers.chassis import FrameStamper, WheelFrameParser, encode_wheel_frame
-from fusion.samples import WheelTicks
+from fusion.types.samples import WheelTicks
 
 __all__ = ["ChassisLink", "LinkEvent"]
 
@@ -219,14 +219,14 @@ class ChassisLink:
     def send_twist(self, v: float, w: float, params, rounding: str = "truncate") -> bool:
         """Send a body twist as seed 000's ``base_controller`` does: clamp to the
         ``cmd_vel_*_max`` limits, scale to ``wheel_speed_max`` keeping the curvature, convert to
-        target ticks per period (:func:`fusion.kinematics.twist_to_ticks`).
+        target ticks per period (:func:`fusion.geometry.kinematics.twist_to_ticks`).
 
         Args:
             v: forward speed, m/s. w: yaw rate, rad/s (CCW). params: a
-                :class:`fusion.kinematics.DiffDriveParams`. rounding: ``"truncate"`` (seed) or
-                ``"nearest"``.
+                :class:`fusion.geometry.kinematics.DiffDriveParams`. rounding: ``"truncate"``
+                (seed) or ``"nearest"``.
         """
-        from fusion.kinematics import twist_to_ticks
+        from fusion.geometry.kinematics import twist_to_ticks
 
         left, right = twist_to_ticks(v, w, params, rounding=rounding)
         return self.send_ticks(left, right)

@@ -21,7 +21,7 @@ import pytest
 
 from drivers.mpu6050 import MPU6050
 from drivers.sim.mpu6050 import SimulatedMPU6050, static_trace
-from fusion.calibration import (
+from fusion.calibration.imu import (
     ImuCalibration,
     SensorMovingError,
     calibrate,
@@ -32,7 +32,7 @@ from fusion.calibration import (
     pose_means,
     static_segments,
 )
-from fusion.mpu6050_csv import read_mpu6050_csv
+from fusion.io.mpu6050_csv import read_mpu6050_csv
 
 G = 9.80665
 RAW = Path(__file__).resolve().parent.parent / "datasets" / "mpu6050_raw"

@@ -7,7 +7,7 @@ import numpy as np
 from scipy.signal import lfilter
 
 from drivers.chassis import WheelFrameParser, encode_wheel_frame
-from fusion.kinematics import DiffDriveParams, twist_to_ticks
+from fusion.geometry.kinematics import DiffDriveParams, twist_to_ticks
 
 N = 1_000_000
 

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from fusion.attitude.mahony import Mahony
 from fusion.cli import main
-from fusion.logs import read_broad
-from fusion.mahony import Mahony
+from fusion.io.broad import read_broad
 
 TRIAL = "24_disturbed_tapping_A.mat"
 

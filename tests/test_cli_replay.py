@@ -11,10 +11,11 @@ import pytest
 
 from fusion.cli import main
 from fusion.cli.replay import FUSED_CSV_COLUMNS
-from fusion.ekf import fuse
-from fusion.logdir import RobotConfig, write_logdir
-from fusion.quaternion import from_euler, rotate_inverse
-from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.geometry.quaternion import from_euler, rotate_inverse
+from fusion.io.logdir import write_logdir
+from fusion.planar.ekf import fuse
+from fusion.planar.robot import RobotConfig
 
 
 @pytest.fixture(scope="module")
@@ -145,8 +146,8 @@ def test_tilt_compensation_of_an_unknown_imu_tilt(tmp_path):
     # Measured when written (seed 2, 300 s): level 2.10 % / 4.25 deg, compensated 0.36 % /
     # 0.71 deg.
     from fusion.cli.replay import fuse_logdir
-    from fusion.logdir import read_logdir
-    from fusion.trajectory_metrics import final_position_error_percent, yaw_rmse
+    from fusion.evaluation.trajectory import final_position_error_percent, yaw_rmse
+    from fusion.io.logdir import read_logdir
 
     run = degraded_mission(seed=2, duration=300.0)
     q = from_euler(math.radians(4.0), math.radians(-6.0), 0.3)

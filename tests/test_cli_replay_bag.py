@@ -1,9 +1,9 @@
-"""``fusion replay BAG`` through :class:`fusion.pipeline.FusionPipeline` (the bag's
+"""``fusion replay BAG`` through :class:`fusion.pipeline.core.FusionPipeline` (the bag's
 nav_msgs/Odometry twists as the pipeline's twist input), on the bundled ROS 1 bag
 (datasets/rosbag/jackal_sim_test2.bag: a simulated Jackal, 3061 sensor_msgs/Imu messages at
 50 Hz on /imu/data, 3060 nav_msgs/Odometry on /jackal_velocity_controller/odom).
 
-Oracles: the pipeline fed by hand, one message at a time, from :func:`fusion.logs.read_bag`;
+Oracles: the pipeline fed by hand, one message at a time, from :func:`fusion.io.bags.read_bag`;
 the filters composed by hand (Mahony.update_batch -> vertical_rate -> ekf.fuse with twists),
 which is what the bag path ran before it used the pipeline; the mcap package reading the
 .mcap output back.
@@ -20,14 +20,14 @@ import stat
 import numpy as np
 import pytest
 
+from fusion.attitude.mahony import Mahony
 from fusion.cli import main
 from fusion.cli.replay import write_fused_csv
-from fusion.ekf import fuse, vertical_rate
-from fusion.kinematics import DiffDriveParams
-from fusion.logdir import RobotConfig
-from fusion.mahony import Mahony
-from fusion.pipeline import FusionPipeline
-from fusion.publish import JsonLinesSink
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.pipeline.core import FusionPipeline
+from fusion.planar.ekf import fuse, vertical_rate
+from fusion.planar.robot import RobotConfig
+from fusion.sinks.text import JsonLinesSink
 
 pytest.importorskip("rosbags")
 
@@ -46,7 +46,7 @@ def bag(datasets_dir):
 
 @pytest.fixture(scope="module")
 def msgs(bag):
-    from fusion.logs import read_bag
+    from fusion.io.bags import read_bag
 
     return read_bag(bag, imu_topic=IMU_TOPIC, odom_topic=ODOM_TOPIC)
 
@@ -64,7 +64,7 @@ def _by_hand(msgs, robot, sinks=(), **kw) -> FusionPipeline:
                       ((t, 1, i) for i, t in enumerate(odom.t.tolist())))
     pipe = FusionPipeline(robot, list(sinks), sources=("imu", "twist"),
                           imu_rate_hz=50.0, **kw)  # the bag's nominal IMU rate
-    from fusion.samples import ImuSample
+    from fusion.types.samples import ImuSample
 
     with pipe:
         for t, kind, i in evs:
@@ -160,7 +160,7 @@ def test_plot_of_a_bag(bag, tmp_path, capsys):
 def test_the_mount_comes_from_robot_toml_unless_given(bag, tmp_path):
     """--robot robot.toml with imu_mount_rpy: the pipeline rotates the IMU by it (the same
     bytes as --imu-mount-rpy with the same values); --imu-mount-rpy overrides it."""
-    from fusion.logdir import read_robot_toml, write_robot_toml
+    from fusion.io.robot_toml import read_robot_toml, write_robot_toml
 
     rpy = (0.0, 0.0, 1.2)  # an IMU mounted yawed by 1.2 rad
     toml = tmp_path / "robot.toml"

@@ -1,7 +1,7 @@
 """``fusion replay`` through the pipeline: outputs by suffix, captures, folders of logs in
 worker processes, progress, plots, and outputs that are never left partial.
 
-Oracles: the pipeline fed one event at a time from :func:`fusion.pipeline.logdir_events`
+Oracles: the pipeline fed one event at a time from :func:`fusion.pipeline.sources.logdir_events`
 (the streaming path; tests/test_pipeline.py shows it equals the filters composed by hand),
 independent readers of the outputs (the mcap package, json), and the replay of the same
 ticks written as a log directory.
@@ -24,10 +24,11 @@ import pytest
 
 from drivers.chassis import encode_wheel_frame
 from fusion.cli import main
-from fusion.logdir import write_logdir
-from fusion.pipeline import FusionPipeline, logdir_events, replay
-from fusion.publish import JsonLinesSink
-from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.io.logdir import write_logdir
+from fusion.pipeline.core import FusionPipeline
+from fusion.pipeline.sources import logdir_events, replay
+from fusion.sinks.text import JsonLinesSink
 
 
 @pytest.fixture(scope="module")

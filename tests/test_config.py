@@ -1,4 +1,4 @@
-"""fusion.config: the robot configuration file of ``fusion run`` (TOML)."""
+"""fusion.io.run_config: the robot configuration file of ``fusion run`` (TOML)."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import textwrap
 
 import pytest
 
-from fusion.config import RUN_OPTIONS, SCHEMA, ConfigError, RunConfig, load_config
-from fusion.logdir import read_robot_toml
+from fusion.io.robot_toml import read_robot_toml
+from fusion.io.run_config import RUN_OPTIONS, SCHEMA, ConfigError, RunConfig, load_config
 
 FULL = """\
 # a complete file, every table
@@ -92,7 +92,7 @@ def test_full_file_reads_every_key(tmp_path):
 
 
 def test_robot_tables_parse_like_a_log_directory_robot_toml(tmp_path):
-    """[chassis]/[frames]/[ekf] are parsed by fusion.logdir's code: same result."""
+    """[chassis]/[frames]/[ekf] are parsed by fusion.io.logdir's code: same result."""
     text = FULL.split("[imu]")[0]
     a = load_config(write(tmp_path, text, "a.toml")).robot
     b = read_robot_toml(write(tmp_path, text, "b.toml"))
@@ -149,7 +149,7 @@ def test_every_fusion_run_option_can_come_from_the_file():
         ("[imu]\ntilt = 1\n", 2, ["[imu] tilt", "true or false"]),
         # an unknown table
         ("[imu]\nrate_hz = 100\n[serial]\nport = 'x'\n", 3, ["unknown table [serial]"]),
-        # the robot tables, through fusion.logdir's parser, still get the line
+        # the robot tables, through fusion.io.logdir's parser, still get the line
         ("[chassis]\nwheel_distance = 0.3\nspeed_ratio = -1\nencode_sampling_time = 0.04\n",
          3, ["speed_ratio", "> 0"]),
         ("[chassis]\nwheel_distance = 0.3\nspeed_ratio = 1e-4\nencode_sampling_time = 0.04\n"

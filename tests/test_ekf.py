@@ -8,17 +8,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion import _ekf_core as core
-from fusion.ekf import (
-    EkfNoise,
-    PlanarEKF,
-    ReorderBuffer,
-    fuse,
-    merge_events,
-    odometry_covariances,
-    vertical_rate,
-)
-from fusion.synthetic import (
+from fusion.evaluation.synthetic import (
     EXAMPLE_ROBOT,
     EncoderModel,
     ImuModel,
@@ -28,6 +18,16 @@ from fusion.synthetic import (
     spin,
     stop,
     straight,
+)
+from fusion.planar import _ekf_core as core
+from fusion.planar.ekf import (
+    EkfNoise,
+    PlanarEKF,
+    ReorderBuffer,
+    fuse,
+    merge_events,
+    odometry_covariances,
+    vertical_rate,
 )
 
 ROBOT = EXAMPLE_ROBOT

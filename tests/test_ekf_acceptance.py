@@ -1,10 +1,10 @@
 """Acceptance of the fused odometry on synthetic 300 s missions (issue 4, "must be true").
 
-Each mission (fusion.synthetic.degraded_mission): robot.toml's wheel_distance 3 % off the
+Each mission (fusion.evaluation.synthetic.degraded_mission): robot.toml's wheel_distance 3 % off the
 truth, 0.5 % left/right wheel-radius mismatch, gyro z bias 0.5 deg/s walking at
 2e-5 rad/s/sqrt(s), MPU6050 noise, three 1 s slip patches (one wheel over-counts by 30 %),
 starting at rest. Truth comes from the simulator's exact integration; the wheel-only baseline
-is the chassis odometry of fusion.odometry (seed 000's midpoint rule), an independent module.
+is the chassis odometry of fusion.planar.odometry (seed 000's midpoint rule), an independent module.
 """
 
 from __future__ import annotations
@@ -14,11 +14,8 @@ import math
 import numpy as np
 import pytest
 
-from fusion import _ekf_core as core
-from fusion.ekf import EkfNoise, fuse, pose_covariances
-from fusion.odometry import WheelOdometry
-from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
-from fusion.trajectory_metrics import (
+from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.evaluation.trajectory import (
     final_position_error_percent,
     nees,
     nees_bounds,
@@ -26,6 +23,9 @@ from fusion.trajectory_metrics import (
     pose_errors,
     yaw_rmse,
 )
+from fusion.planar import _ekf_core as core
+from fusion.planar.ekf import EkfNoise, fuse, pose_covariances
+from fusion.planar.odometry import WheelOdometry
 
 SEEDS = range(8)
 # The filter's bias walk is set to the simulated one, as a user would from an Allan variance.
@@ -113,7 +113,13 @@ def test_dropped_frames_jitter_and_latency(seed):
     # The same kind of mission with 5 % of the wheel frames lost, 2 ms stamp jitter and 5 ms
     # transport latency on the wheels, 0.5 ms jitter on the IMU stamps. Measured when written:
     # 0.12-0.22 % of distance, yaw RMSE 0.09-0.47 deg.
-    from fusion.synthetic import EncoderModel, ImuModel, SlipPatch, random_mission, simulate
+    from fusion.evaluation.synthetic import (
+        EncoderModel,
+        ImuModel,
+        SlipPatch,
+        random_mission,
+        simulate,
+    )
 
     patches = tuple(SlipPatch(t0, t0 + 1.0, wheel="left", ratio=0.3) for t0 in (60, 150, 240))
     imu = ImuModel(gyro_bias=(0.002, -0.002, math.radians(0.5)), gyro_bias_walk=2e-5,
@@ -136,7 +142,7 @@ def test_a_common_distance_scale_error_is_not_observable():
     # turning, not distance, so the fused path is 1 % short, like wheel-only odometry. This is
     # why the acceptance missions split the radius mismatch evenly, and why
     # `fusion calibrate odometry` needs a measured distance for speed_ratio.
-    from fusion.synthetic import EncoderModel, ImuModel, random_mission, simulate
+    from fusion.evaluation.synthetic import EncoderModel, ImuModel, random_mission, simulate
 
     enc = EncoderModel(left_scale_error=0.01, right_scale_error=0.01)
     run = simulate(random_mission(120, seed=4), EXAMPLE_ROBOT, ImuModel(), enc, seed=4)

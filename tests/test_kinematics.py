@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fusion.kinematics import (
+from fusion.geometry.kinematics import (
     TICKS_MAX,
     DiffDriveParams,
     clamp_twist,

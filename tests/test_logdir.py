@@ -7,17 +7,12 @@ import math
 import numpy as np
 import pytest
 
-from fusion.kinematics import DiffDriveParams
-from fusion.logdir import (
-    RobotConfig,
-    read_logdir,
-    read_robot_toml,
-    read_wheels_csv,
-    write_logdir,
-    write_robot_toml,
-)
-from fusion.logs import LogFormatError
-from fusion.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.io.errors import LogFormatError
+from fusion.io.logdir import read_logdir, read_wheels_csv, write_logdir
+from fusion.io.robot_toml import read_robot_toml, write_robot_toml
+from fusion.planar.robot import RobotConfig
 
 ROBOT_TOML = """\
 # a hand-written robot.toml

@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
-from fusion.logs import LogFormatError, read_broad, read_imu_csv, write_attitude_csv
+from fusion.io.broad import read_broad
+from fusion.io.errors import LogFormatError
+from fusion.io.imu_csv import read_imu_csv, write_attitude_csv
 
 TRIAL = "01_undisturbed_slow_rotation_A.mat"
 

@@ -1,4 +1,4 @@
-"""Bag and MCAP readers of fusion.logs on the bundled ROS 1 bag (robot_localization's
+"""Bag and MCAP readers of fusion.io on the bundled ROS 1 bag (robot_localization's
 test2.bag of a simulated Jackal, datasets/rosbag/README.md) and on bags made here.
 
 The facts checked on the real bag are properties of the recording, not of our code: message
@@ -17,15 +17,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion.fused import FusedOdometry
-from fusion.logs import (
-    LogFormatError,
-    bag_topics,
-    read_bag,
-    read_bag_imu,
-    read_bag_odometry,
-    read_bag_twist,
-)
+from fusion.io.bags import bag_topics, read_bag, read_bag_imu, read_bag_odometry, read_bag_twist
+from fusion.io.errors import LogFormatError
+from fusion.types.fused import FusedOdometry
 
 pytest.importorskip("rosbags", reason="bag readers need the 'ros' extra")
 
@@ -309,8 +303,8 @@ def test_twist_from_ros1_and_twist_stamped_from_ros2(tmp_path) -> None:
 
 
 def test_fused_mcap_output_reads_back_as_odometry(tmp_path) -> None:
-    """What fusion.publish.McapSink writes, read_bag_odometry reads (replaying fused output)."""
-    from fusion.publish import McapSink
+    """What fusion.sinks.bag.McapSink writes, read_bag_odometry reads (replaying fused output)."""
+    from fusion.sinks.bag import McapSink
 
     recs = []
     for k in range(5):

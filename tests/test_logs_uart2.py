@@ -1,4 +1,4 @@
-"""DATA-uart2 capture reader of fusion.logs: raw and timed captures, frames derived by hand
+"""DATA-uart2 capture reader of fusion.io: raw and timed captures, frames derived by hand
 from seed 000's table (byte 0-1 FF FF, 2 enc1_sig, 3-5 enc1 BE, 6 enc2_sig, 7-9 enc2 BE,
 10 = low byte of the sum of bytes 0..9; sig 0 = negative)."""
 
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from drivers.chassis import encode_wheel_frame
-from fusion.logs import LogFormatError, Uart2CaptureWriter, read_uart2_capture
-from fusion.samples import WheelTicks
+from fusion.io.errors import LogFormatError
+from fusion.io.uart2 import Uart2CaptureWriter, read_uart2_capture
+from fusion.types.samples import WheelTicks
 
 # left +10, right -20
 A = bytes([0xFF, 0xFF,        # header

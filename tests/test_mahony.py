@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion import quaternion as Q
 from fusion._jit import HAVE_NUMBA
-from fusion.mahony import Mahony, MahonyParams
+from fusion.attitude.mahony import Mahony, MahonyParams
+from fusion.geometry import quaternion as Q
 
 G = 9.80665
 
@@ -273,7 +273,7 @@ def test_interpreted_path_equals_compiled(tmp_path):
         "import numpy as np, sys\n"
         "from fusion._jit import HAVE_NUMBA\n"
         "assert not HAVE_NUMBA\n"
-        "from fusion.mahony import Mahony\n"
+        "from fusion.attitude.mahony import Mahony\n"
         f"d = np.load(r'{tmp_path / 'in.npz'}')\n"
         f"q = Mahony(axes=9, **{opts!r}).update_batch(d['gyro'], d['accel'], d['mag'],"
         " timestamps=d['t'])\n"

@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from fusion.logs import read_broad
-from fusion.mahony import Mahony
-from fusion.metrics import orientation_rmse
+from fusion.attitude.mahony import Mahony
+from fusion.evaluation.orientation import orientation_rmse
+from fusion.io.broad import read_broad
 
 
 @pytest.fixture(scope="module")

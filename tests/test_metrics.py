@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion import quaternion as Q
-from fusion.metrics import error_angles, orientation_rmse
+from fusion.evaluation.orientation import error_angles, orientation_rmse
+from fusion.geometry import quaternion as Q
 
 RNG = np.random.default_rng(5)
 

@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from drivers.mpu6050 import MPU6050, MPU6050Error, SensorStuckError
 from drivers.sim.mpu6050 import ArrayTrace, SimulatedMPU6050, static_trace
-from fusion.calibration import ImuCalibration
+from fusion.calibration.imu import ImuCalibration
 
 G = 9.80665
 GYRO_LSB = {250: 131.0, 500: 65.5, 1000: 32.8, 2000: 16.4}  # LSB/(deg/s), register map 4.19

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from fusion.kinematics import DiffDriveParams
-from fusion.odometry import (
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.planar.odometry import (
     OdometryNoise,
     TwistOdometry,
     WheelOdometry,

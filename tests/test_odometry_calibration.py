@@ -7,9 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from fusion.odometry import WheelOdometry
-from fusion.odometry_calibration import calibrate_odometry, rest_bias, umbmark
-from fusion.synthetic import (
+from fusion.calibration.odometry import calibrate_odometry, rest_bias, umbmark
+from fusion.evaluation.synthetic import (
     EXAMPLE_ROBOT,
     EncoderModel,
     ImuModel,
@@ -20,6 +19,7 @@ from fusion.synthetic import (
     stop,
     straight,
 )
+from fusion.planar.odometry import WheelOdometry
 
 ROBOT = EXAMPLE_ROBOT
 
@@ -137,7 +137,7 @@ def test_cli_calibrate_odometry(tmp_path, capsys):
     assert main(["calibrate", "odometry", str(tmp_path / "none")]) == 2
     assert "not a log directory" in capsys.readouterr().err
     # --write: a corrected robot.toml that the log-directory reader accepts
-    from fusion.logdir import read_robot_toml
+    from fusion.io.robot_toml import read_robot_toml
 
     assert main(["calibrate", "odometry", str(d), "--write", str(tmp_path / "new.toml")]) == 0
     capsys.readouterr()
@@ -168,7 +168,7 @@ def test_calibration_with_dropped_frames_jitter_and_latency():
     # 5 % of the frames lost (windows must be consecutive frames, so about half the windows
     # survive), 2 ms stamp jitter, 5 ms latency (given), slips. Measured when written:
     # L -0.07..+0.07 %, ratio within 0.01 %, speed_ratio (from the truth) within 0.04 %.
-    from fusion.synthetic import SlipPatch, random_mission
+    from fusion.evaluation.synthetic import SlipPatch, random_mission
 
     patches = tuple(SlipPatch(t0, t0 + 1, wheel="left", ratio=0.3) for t0 in (60, 150, 240))
     imu = ImuModel(gyro_bias=(0.002, -0.002, math.radians(0.5)), gyro_bias_walk=2e-5,

@@ -10,23 +10,8 @@ import numpy as np
 import pytest
 
 from drivers.chassis import encode_wheel_frame
-from fusion import _ekf_core as core
-from fusion.ekf import EkfNoise, fuse, vertical_rate
-from fusion.fused import FusedOdometry
-from fusion.logdir import RobotConfig
-from fusion.mahony import Mahony
-from fusion.pipeline import (
-    FusionPipeline,
-    _fast_record,
-    _record_fields,
-    capture_events,
-    logdir_events,
-    merge_by_time,
-    replay,
-)
-from fusion.publish import JsonLinesSink
-from fusion.samples import ImuSample, WheelTicks
-from fusion.synthetic import (
+from fusion.attitude.mahony import Mahony
+from fusion.evaluation.synthetic import (
     EXAMPLE_ROBOT,
     EncoderModel,
     ImuModel,
@@ -34,6 +19,15 @@ from fusion.synthetic import (
     random_mission,
     simulate,
 )
+from fusion.pipeline.core import FusionPipeline
+from fusion.pipeline.records import _fast_record, _record_fields
+from fusion.pipeline.sources import capture_events, logdir_events, merge_by_time, replay
+from fusion.planar import _ekf_core as core
+from fusion.planar.ekf import EkfNoise, fuse, vertical_rate
+from fusion.planar.robot import RobotConfig
+from fusion.sinks.text import JsonLinesSink
+from fusion.types.fused import FusedOdometry
+from fusion.types.samples import ImuSample, WheelTicks
 
 
 @pytest.fixture(scope="module")
@@ -187,9 +181,9 @@ def test_publish_needs_an_open_pipeline():
 
 
 def test_captures_raw_and_timed_give_the_frames_sent(tmp_path):
-    """fusion.logs decodes; a raw capture is stamped on the firmware period, a timed one as
-    the live link stamps (fusion.logs' own tests cover that rule)."""
-    from fusion.logs import Uart2CaptureWriter
+    """fusion.io decodes; a raw capture is stamped on the firmware period, a timed one as
+    the live link stamps (fusion.io' own tests cover that rule)."""
+    from fusion.io.uart2 import Uart2CaptureWriter
 
     ticks = [(0, 0), (120, -118), (-5, 7), (255, 65535), (0, 0)]
     data = b"\x00\xff\x13"  # line noise before the first frame
@@ -220,7 +214,7 @@ def test_logdir_replay_keeps_the_imu_frame_for_the_pipeline(tmp_path, run):
     """A log directory with a mount rotation: the pipeline rotates (once) what the reader
     gives, so the result equals the arrays path with the same robot."""
     robot = RobotConfig(chassis=run.robot, imu_mount_rpy=(0.0, 0.0, math.pi / 2))
-    from fusion.logdir import write_logdir
+    from fusion.io.logdir import write_logdir
 
     # IMU-frame vectors of a sensor mounted with yaw 90 deg: base x = imu -y ...
     g_imu = np.column_stack([run.gyro[:, 1], -run.gyro[:, 0], run.gyro[:, 2]])

@@ -2,10 +2,10 @@
 
 Inputs (committed, ``tests/data/golden_replay/``): ``robot.toml`` (a tilted IMU mount and EKF
 tuning), ``imu.csv`` (IMU frame) and ``wheels.uart2``, a timed DATA-uart2 capture
-(:class:`fusion.logs.Uart2CaptureWriter`: the host time and the bytes of each read) of the
+(:class:`fusion.io.uart2.Uart2CaptureWriter`: the host time and the bytes of each read) of the
 wheel frames with line noise between some of them. They were made by :func:`make_inputs` from
-fusion.synthetic with a fixed seed. The expected output ``fused.jsonl`` (JSON lines, 10 Hz as
-seed 000 publishes) is compared byte for byte.
+fusion.evaluation.synthetic with a fixed seed. The expected output ``fused.jsonl`` (JSON lines,
+10 Hz as seed 000 publishes) is compared byte for byte.
 
 To change the output *intentionally* (a deliberate change of the filters or of the record
 format), regenerate it and review the diff before committing::
@@ -26,9 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from fusion.logdir import RobotConfig
-from fusion.pipeline import FusionPipeline, capture_events, logdir_events, replay
-from fusion.publish import JsonLinesSink
+from fusion.pipeline.core import FusionPipeline
+from fusion.pipeline.sources import capture_events, logdir_events, replay
+from fusion.planar.robot import RobotConfig
+from fusion.sinks.text import JsonLinesSink
 
 DATA = Path(__file__).parent / "data" / "golden_replay"
 GOLDEN = DATA / "fused.jsonl"
@@ -38,10 +39,7 @@ RATE_HZ = 10.0
 def make_inputs(folder: Path = DATA) -> None:
     """Write the committed inputs (deterministic: fixed seeds)."""
     from drivers.chassis import encode_wheel_frame
-    from fusion import quaternion as quat
-    from fusion.ekf import EkfNoise
-    from fusion.logdir import write_logdir
-    from fusion.synthetic import (
+    from fusion.evaluation.synthetic import (
         EXAMPLE_ROBOT,
         EncoderModel,
         ImuModel,
@@ -52,6 +50,9 @@ def make_inputs(folder: Path = DATA) -> None:
         stop,
         straight,
     )
+    from fusion.geometry import quaternion as quat
+    from fusion.io.logdir import write_logdir
+    from fusion.planar.ekf import EkfNoise
 
     segs = (stop(1.5) + straight(1.2, 0.4) + spin(math.pi / 2, 1.0) + arc(0.8, math.pi / 2)
             + stop(1.5))
@@ -68,7 +69,7 @@ def make_inputs(folder: Path = DATA) -> None:
     write_logdir(folder, robot, run.imu_t, gyro, accel, truth_t=run.truth_t[::10],
                  truth=run.truth[::10])
     rng = np.random.default_rng(2026)
-    from fusion.logs import Uart2CaptureWriter
+    from fusion.io.uart2 import Uart2CaptureWriter
 
     with Uart2CaptureWriter(folder / "wheels.uart2", overwrite=True) as cap:
         for k, (left, right) in enumerate(run.ticks.tolist()):
@@ -85,7 +86,7 @@ def replay_bytes(batch: bool = False) -> str:
     buf = io.StringIO()
     pipe = FusionPipeline(robot, [JsonLinesSink(buf, flush=False)], publish_rate_hz=RATE_HZ)
     if batch:
-        from fusion.logs import read_imu_csv
+        from fusion.io.imu_csv import read_imu_csv
 
         imu = read_imu_csv(DATA / "imu.csv")
         frames, _ = capture_events(DATA / "wheels.uart2", robot.chassis.encode_sampling_time)
@@ -121,7 +122,7 @@ def test_the_golden_output_follows_the_simulated_truth():
     radius mismatch, a slip patch and a 0.5 deg/s gyro bias."""
     import json
 
-    from fusion.logdir import read_truth_csv
+    from fusion.io.logdir import read_truth_csv
 
     t_truth, truth = read_truth_csv(DATA / "truth.csv")
     last = json.loads(GOLDEN.read_text().splitlines()[-1])

@@ -10,16 +10,10 @@ import numpy as np
 
 from drivers.mpu6050 import MPU6050
 from drivers.serial_link import ChassisLink
-from fusion.cli.demo import (
-    ScaledClock,
-    SimRobot,
-    SimRobotParams,
-    freeze_heap,
-    nominal_config,
-    send_twist,
-    warm_up,
-)
-from fusion.pipeline import FusionPipeline, LiveRunner
+from drivers.sim.robot import ScaledClock, SimRobot, SimRobotParams, send_twist
+from fusion.cli.demo import freeze_heap, nominal_config, warm_up
+from fusion.pipeline.core import FusionPipeline
+from fusion.pipeline.live import LiveRunner
 
 SPEED = 2.0  # robot time per wall second (low: a loaded machine must keep up)
 

@@ -1,4 +1,4 @@
-"""Sinks of fusion.publish: JSON lines, rosbag2 and MCAP files (read back by independent
+"""Sinks of fusion.sinks: JSON lines, rosbag2 and MCAP files (read back by independent
 readers: rosbags' AnyReader, and the mcap package with mcap-ros2-support's CDR decoder)."""
 
 from __future__ import annotations
@@ -13,18 +13,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion.fused import FusedOdometry
-from fusion.publish import (
-    CsvSink,
-    FoxgloveSink,
-    JsonLinesSink,
-    McapSink,
-    Rosbag2Sink,
-    SinkError,
-    Topics,
-    open_sink,
-    ros_messages,
-)
+from fusion.sinks.bag import McapSink, Rosbag2Sink
+from fusion.sinks.base import SinkError
+from fusion.sinks.foxglove import FoxgloveSink
+from fusion.sinks.registry import open_sink
+from fusion.sinks.ros_messages import Topics, ros_messages
+from fusion.sinks.text import CsvSink, JsonLinesSink
+from fusion.types.fused import FusedOdometry
 
 pytest.importorskip("rosbags", reason="bag sinks need the 'ros' extra")
 

@@ -15,8 +15,9 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion.fused import FusedOdometry
-from fusion.publish import FoxgloveSink, Topics
+from fusion.sinks.foxglove import FoxgloveSink
+from fusion.sinks.ros_messages import Topics
+from fusion.types.fused import FusedOdometry
 
 pytest.importorskip("foxglove", reason="the Foxglove sink needs the 'foxglove' extra")
 websockets = pytest.importorskip("websockets")

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion.fused import FusedOdometry, yaw_quaternion
+from fusion.types.fused import FusedOdometry, yaw_quaternion
 
 
 def _pose_cov() -> np.ndarray:

@@ -14,9 +14,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion.fused import FusedOdometry
-from fusion.logs import write_attitude_csv
-from fusion.publish import CsvSink, JsonLinesSink, McapSink, Rosbag2Sink, create_temp_file
+from fusion.io.imu_csv import write_attitude_csv
+from fusion.sinks.bag import McapSink, Rosbag2Sink
+from fusion.sinks.base import create_temp_file
+from fusion.sinks.text import CsvSink, JsonLinesSink
+from fusion.types.fused import FusedOdometry
 
 
 @pytest.fixture(params=[0o022, 0o077, 0o002])

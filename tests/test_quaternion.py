@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion import quaternion as Q
+from fusion.geometry import quaternion as Q
 
 RNG = np.random.default_rng(1234)
 N = 500

@@ -32,8 +32,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion.fused import FusedOdometry
-from fusion.ros1 import RateLimiter, Ros1Sink
+from fusion.sinks.ros1 import RateLimiter, Ros1Sink
+from fusion.types.fused import FusedOdometry
 
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_ROS_PYTHON = ROOT / ".ci" / "ros-venv" / "bin" / "python"
@@ -43,7 +43,8 @@ TIMEOUT = 90.0  # generous: reached only when something is broken
 def ros_python() -> str:
     """The ROS-capable interpreter, or skip (fail under CI) with the reason."""
     candidate = os.environ.get("FUSION_ROS_PYTHON") or str(DEFAULT_ROS_PYTHON)
-    probe = "import rospy, rosmaster, nav_msgs.msg, tf2_msgs.msg, sensor_msgs.msg, fusion.ros1"
+    probe = ("import rospy, rosmaster, nav_msgs.msg, tf2_msgs.msg, sensor_msgs.msg, "
+             "fusion.sinks.ros1")
     reason = None
     if not Path(candidate).exists():
         reason = f"no ROS 1 interpreter at {candidate}"
@@ -90,9 +91,9 @@ def templates() -> list[FusedOdometry]:
 
 NODE = textwrap.dedent("""
     import json, sys, threading
-    from fusion.fused import FusedOdometry
-    from fusion.publish import Topics
-    from fusion.ros1 import Ros1Sink
+    from fusion.types.fused import FusedOdometry
+    from fusion.sinks import Topics
+    from fusion.sinks.ros1 import Ros1Sink
 
     records = [FusedOdometry.from_dict(d) for d in json.loads(sys.argv[1])]
     lock = threading.Lock()
@@ -378,7 +379,7 @@ def test_ros1_sink_without_rospy_says_how_to_install() -> None:
         pytest.skip("rospy is importable here")
     with pytest.raises(ImportError, match="apt-get install python3-rospy"):
         Ros1Sink().open()
-    assert "rospy" not in sys.modules  # importing fusion.ros1 did not need it
+    assert "rospy" not in sys.modules  # importing fusion.sinks.ros1 did not need it
 
 
 def test_ros1_sink_argument_checks() -> None:
@@ -390,7 +391,7 @@ def test_ros1_sink_argument_checks() -> None:
         Ros1Sink(child_frame_id="")
 
 
-# -- ROS's own bag reader (Debian's python3-rosbag) as the oracle for fusion.logs.read_bag --
+# -- ROS's own bag reader (Debian's python3-rosbag) as the oracle for fusion.io.bags.read_bag --
 
 ROSBAG_DUMP = textwrap.dedent("""
     import json, sys
@@ -427,7 +428,7 @@ def test_read_bag_matches_ros_own_rosbag_reader(datasets_dir) -> None:
             pytest.fail(reason)
         pytest.skip(reason)
     pytest.importorskip("rosbags")
-    from fusion.logs import read_bag
+    from fusion.io.bags import read_bag
 
     bag = datasets_dir / "rosbag" / "jackal_sim_test2.bag"
     imu_topic, odom_topic = "/imu/data", "/jackal_velocity_controller/odom"
@@ -469,7 +470,7 @@ def test_ros1_sink_without_a_master_says_so(tmp_path: Path) -> None:
     port = free_port()  # nothing listens there
     env = {**os.environ, "ROS_MASTER_URI": f"http://127.0.0.1:{port}/",
            "ROS_IP": "127.0.0.1", "ROS_HOME": str(tmp_path)}
-    script = ("from fusion.ros1 import Ros1Sink\n"
+    script = ("from fusion.sinks.ros1 import Ros1Sink\n"
               "try:\n"
               "    Ros1Sink().open()\n"
               "except ConnectionError as exc:\n"

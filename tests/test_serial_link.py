@@ -192,7 +192,7 @@ def test_open_failure_names_the_port(tmp_path):
 
 
 def test_send_twist_uses_the_seed_command_path(pty_pair):
-    from fusion.kinematics import DiffDriveParams
+    from fusion.geometry.kinematics import DiffDriveParams
 
     geo = DiffDriveParams(wheel_distance=0.3, speed_ratio=3e-4, encode_sampling_time=0.04,
                           cmd_vel_linear_max=0.4)

@@ -4,7 +4,7 @@ A real pseudo-terminal pair (os.openpty): a writer thread plays DATA-uart2 bytes
 master with line noise, frames split across writes, a frame the parser must hold back (payload
 and checksum FF, decided by the next frame or a quiet line) followed by silence, and gaps of
 several periods; the link reads the slave with pyserial. Its ``on_read`` hook feeds a
-:class:`fusion.logs.Uart2CaptureWriter`. :func:`fusion.logs.read_uart2_capture` of that file
+:class:`fusion.io.uart2.Uart2CaptureWriter`. :func:`fusion.io.uart2.read_uart2_capture` of that file
 must give exactly the frames and stamps ``on_frame`` received live (the two share
 :class:`drivers.chassis.FrameStamper`); the frames are also checked against what was written.
 """
@@ -20,7 +20,7 @@ import numpy as np
 
 from drivers.chassis import FRAME_LEN, FrameStamper, WheelFrameParser, encode_wheel_frame
 from drivers.serial_link import ChassisLink
-from fusion.logs import Uart2CaptureWriter, read_uart2_capture
+from fusion.io.uart2 import Uart2CaptureWriter, read_uart2_capture
 
 PERIOD = 0.02
 # left +65535, right +1: payload FF FF and checksum FF (seed 000's table: header FF FF,

@@ -20,8 +20,8 @@ from drivers.chassis import (
 )
 from drivers.serial_link import ChassisLink
 from drivers.sim.stm32 import PtyStm32, Stm32Sim, Stm32SimParams, _Pid
-from fusion.kinematics import DiffDriveParams, twist_to_ticks
-from fusion.odometry import WheelOdometry
+from fusion.geometry.kinematics import DiffDriveParams, twist_to_ticks
+from fusion.planar.odometry import WheelOdometry
 
 TIMEOUT = 5.0
 

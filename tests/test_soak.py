@@ -14,17 +14,11 @@ import pytest
 
 from drivers.mpu6050 import MPU6050
 from drivers.serial_link import ChassisLink
-from fusion.cli.demo import (
-    LoopingMission,
-    ScaledClock,
-    SimRobot,
-    SimRobotParams,
-    freeze_heap,
-    nominal_config,
-    warm_up,
-)
-from fusion.pipeline import FusionPipeline, LiveRunner
-from fusion.publish import JsonLinesSink
+from drivers.sim.robot import LoopingMission, ScaledClock, SimRobot, SimRobotParams
+from fusion.cli.demo import freeze_heap, nominal_config, warm_up
+from fusion.pipeline.core import FusionPipeline
+from fusion.pipeline.live import LiveRunner
+from fusion.sinks.text import JsonLinesSink
 
 # 2x leaves headroom: tracemalloc slows Python ~2x and a CI machine may be shared.
 SPEED = float(os.environ.get("FUSION_SOAK_SPEED", "2"))

@@ -7,9 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from fusion.kinematics import DiffDriveParams
-from fusion.odometry import WheelOdometry
-from fusion.synthetic import (
+from fusion.evaluation.synthetic import (
     GRAVITY,
     EncoderModel,
     ImuModel,
@@ -25,6 +23,8 @@ from fusion.synthetic import (
     stop,
     straight,
 )
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.planar.odometry import WheelOdometry
 
 ROBOT = DiffDriveParams(wheel_distance=0.3, speed_ratio=1e-4, encode_sampling_time=0.04)
 FAST = {"max_accel": 1e9, "max_angular_accel": 1e9}  # steps instead of ramps
@@ -91,7 +91,7 @@ def test_encoder_counts_follow_the_true_geometry():
 
 
 def test_exact_geometry_dead_reckoning_matches_truth():
-    # Independent integration (fusion.odometry, seed 000's midpoint rule) of the simulated
+    # Independent integration (fusion.planar.odometry, seed 000's midpoint rule) of the simulated
     # ticks lands on the truth: the only errors left are quantisation and the midpoint rule.
     run = simulate(square(side=3.0), ROBOT, seed=2)
     pose = WheelOdometry(ROBOT).update_batch(run.ticks[:, 0], run.ticks[:, 1])[-1]
@@ -222,7 +222,7 @@ def test_mpu6050_registers_follow_the_register_map():
 def test_accelerate_ramps_the_command_linearly():
     # 0 -> 0.5 m/s over 2 s (0.25 m/s^2, below the 1 m/s^2 limit), hold 1 s, ramp down:
     # v(t) = 0.25 t on the ramp; distance = 0.5 + 0.5 + 0.5 m
-    from fusion.synthetic import accelerate
+    from fusion.evaluation.synthetic import accelerate
 
     segs = [*accelerate(0.5, 2.0), Segment(0.5, 0.0, 1.0), *accelerate(0.0, 2.0), *stop(0.5)]
     run = simulate(segs, ROBOT, seed=0)
@@ -274,8 +274,8 @@ def test_end_to_end_through_both_drivers():
     # arrays fuse to, up to the sensors' quantisation.
     from drivers.chassis import WheelFrameParser
     from drivers.mpu6050 import MPU6050
-    from fusion.ekf import fuse
-    from fusion.synthetic import degraded_mission
+    from fusion.evaluation.synthetic import degraded_mission
+    from fusion.planar.ekf import fuse
 
     run = degraded_mission(seed=3, duration=40.0)
     regs = run.mpu6050_registers(gyro_range_dps=500, accel_range_g=4)

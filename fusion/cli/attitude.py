@@ -33,9 +33,10 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fusion.logs import BroadTrial, read_broad, read_imu_csv, write_attitude_csv
-    from fusion.mahony import PRESETS, Mahony
-    from fusion.metrics import orientation_rmse
+    from fusion.attitude.mahony import PRESETS, Mahony
+    from fusion.evaluation.orientation import orientation_rmse
+    from fusion.io.broad import BroadTrial, read_broad
+    from fusion.io.imu_csv import read_imu_csv, write_attitude_csv
 
     path: Path = args.input
     if not path.exists():
@@ -72,7 +73,7 @@ def run(args: argparse.Namespace) -> int:
                c.accel_skipped, "magnetometer rows unusable": c.mag_skipped}
     for what, n in skipped.items():
         if n:
-            print(f"warning: {n} {what} (see fusion.mahony for the policy)")
+            print(f"warning: {n} {what} (see fusion.attitude.mahony for the policy)")
     bias = filt.gyro_bias
     print(f"gyro bias estimate (rad/s): {bias[0]:+.5f} {bias[1]:+.5f} {bias[2]:+.5f}")
     if isinstance(log, BroadTrial):

@@ -75,9 +75,9 @@ def _missing_what(parser) -> int:
 
 
 def run_odometry(args: argparse.Namespace) -> int:
-    from fusion.ekf import vertical_rate
-    from fusion.logdir import read_logdir
-    from fusion.odometry_calibration import calibrate_odometry
+    from fusion.calibration.odometry import calibrate_odometry
+    from fusion.io.logdir import read_logdir
+    from fusion.planar.ekf import vertical_rate
 
     if not args.input.is_dir():
         raise CommandError(f"{args.input}: not a log directory")
@@ -92,7 +92,7 @@ def run_odometry(args: argparse.Namespace) -> int:
     if args.level:
         gyro_z = log.gyro[:, 2]
     else:
-        from fusion.mahony import Mahony
+        from fusion.attitude.mahony import Mahony
 
         q = Mahony(axes=6).update_batch(log.gyro, log.accel, timestamps=log.imu_t)
         gyro_z = vertical_rate(log.gyro, q)
@@ -109,7 +109,7 @@ def run_odometry(args: argparse.Namespace) -> int:
     if args.write is not None:
         from dataclasses import replace
 
-        from fusion.logdir import write_robot_toml
+        from fusion.io.robot_toml import write_robot_toml
 
         target = args.write
         if target.resolve() == (args.input / "robot.toml").resolve():
@@ -121,9 +121,9 @@ def run_odometry(args: argparse.Namespace) -> int:
 
 
 def run_umbmark(args: argparse.Namespace) -> int:
-    from fusion.logdir import read_logdir
-    from fusion.odometry import WheelOdometry
-    from fusion.odometry_calibration import umbmark
+    from fusion.calibration.odometry import umbmark
+    from fusion.io.logdir import read_logdir
+    from fusion.planar.odometry import WheelOdometry
 
     def errors(dirs: list[Path]) -> tuple[np.ndarray, float]:
         out = []

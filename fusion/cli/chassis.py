@@ -133,7 +133,7 @@ def _cmd_encode(args) -> int:
 
 
 def _geometry(args):
-    from fusion.kinematics import DiffDriveParams
+    from fusion.geometry.kinematics import DiffDriveParams
 
     return DiffDriveParams(
         wheel_distance=args.wheel_distance, speed_ratio=args.speed_ratio,
@@ -143,7 +143,7 @@ def _geometry(args):
 
 def _cmd_monitor(args) -> int:
     from drivers.serial_link import ChassisLink
-    from fusion.odometry import WheelOdometry
+    from fusion.planar.odometry import WheelOdometry
 
     geo = _geometry(args)
     odo = WheelOdometry(geo, method=args.method)

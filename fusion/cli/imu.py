@@ -11,7 +11,7 @@ Examples::
 Columns: ``t`` (s, host clock; simulated seconds with ``--sim``), ``gx gy gz`` (rad/s),
 ``ax ay az`` (m/s^2), ``temp`` (deg C, empty for FIFO samples), ``qw qx qy qz`` (body ->
 world ENU), ``roll pitch yaw`` (deg, ZYX). With ``--raw``: the raw recording format of
-``fusion.mpu6050_csv`` (``Fs`` and sensitivity lines, then ``ax,ay,az,gx,gy,gz`` int16
+``fusion.io.mpu6050_csv`` (``Fs`` and sensitivity lines, then ``ax,ay,az,gx,gy,gz`` int16
 counts). Status lines go to standard error.
 
 ``fusion imu-calibrate REST.csv [--poses POSES.csv] -o FILE``: gyro bias from a recording at
@@ -63,7 +63,7 @@ def register(subparsers: Any) -> None:
     p.add_argument("--calibrate-seconds", type=float, default=3.0, metavar="S",
                    help="duration of the --calibrate rest measurement (default 3 s)")
     p.add_argument("--calibration", type=Path, metavar="FILE",
-                   help="apply a calibration JSON file (fusion.calibration.ImuCalibration)")
+                   help="apply a calibration JSON file (fusion.calibration.imu.ImuCalibration)")
     p.add_argument("--save-calibration", type=Path, metavar="FILE",
                    help="write the calibration in force (after --calibrate) to FILE")
     p.add_argument("--no-fifo", action="store_true",
@@ -89,8 +89,8 @@ def register(subparsers: Any) -> None:
 
 
 def run_calibrate(args: argparse.Namespace) -> int:
-    from fusion.calibration import calibrate_recordings
-    from fusion.mpu6050_csv import read_mpu6050_csv
+    from fusion.calibration.imu import calibrate_recordings
+    from fusion.io.mpu6050_csv import read_mpu6050_csv
 
     rest = read_mpu6050_csv(args.rest)
     poses = read_mpu6050_csv(args.poses) if args.poses else None
@@ -121,7 +121,7 @@ def _sim_motion(t_start: float) -> Any:
 
 def _open(args: argparse.Namespace) -> Any:
     from drivers.mpu6050 import MPU6050
-    from fusion.calibration import ImuCalibration
+    from fusion.calibration.imu import ImuCalibration
 
     calibration = ImuCalibration.load(args.calibration) if args.calibration else None
     kw = dict(gyro_range_dps=args.gyro_range, accel_range_g=args.accel_range, dlpf=args.dlpf,
@@ -138,7 +138,7 @@ def _open(args: argparse.Namespace) -> Any:
 
 
 def _calibrate(imu: Any, seconds: float, out: TextIO) -> None:
-    from fusion.calibration import ImuCalibration, gyro_bias_at_rest
+    from fusion.calibration.imu import ImuCalibration, gyro_bias_at_rest
 
     n = max(20, round(seconds * imu.sample_rate_hz))
     print(f"calibrating: keep the sensor still for {n / imu.sample_rate_hz:.1f} s", file=out)
@@ -153,7 +153,7 @@ def _calibrate(imu: Any, seconds: float, out: TextIO) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fusion.mahony import Mahony
+    from fusion.attitude.mahony import Mahony
 
     if args.count is not None and args.count < 1:
         raise ValueError(f"--count must be >= 1; got {args.count}")
@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
 def _stream(imu: Any, args: argparse.Namespace, mahony: Any, sink: TextIO,
             status: TextIO) -> None:
     if args.raw:
-        from fusion.mpu6050_csv import format_header
+        from fusion.io.mpu6050_csv import format_header
 
         sink.write(format_header(imu.sample_rate_hz, imu.accel_lsb_per_g, imu.gyro_lsb_per_dps))
     else:
@@ -216,7 +216,7 @@ def _stream(imu: Any, args: argparse.Namespace, mahony: Any, sink: TextIO,
                 batch = [imu.read(wait=True)]
         for i, s in enumerate(batch):
             if args.raw:
-                from fusion.mpu6050_csv import format_row
+                from fusion.io.mpu6050_csv import format_row
 
                 sink.write(format_row(*raw[i]))
                 written += 1

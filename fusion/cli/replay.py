@@ -7,23 +7,23 @@ Inputs:
 - a folder whose subfolders are log directories: every log is replayed in a worker process
   (``--jobs``), one output per log in the ``-o`` folder, and a summary table is printed;
 - a DATA-uart2 capture (``*.uart2``, raw bytes or timed ``t,data`` rows, see
-  :func:`fusion.logs.read_uart2_capture`) with ``--robot robot.toml``: wheel odometry only;
+  :func:`fusion.io.uart2.read_uart2_capture`) with ``--robot robot.toml``: wheel odometry only;
 - a ROS 1 ``.bag``, a ROS 2 bag folder or an ``.mcap`` file with ``--imu-topic``
   (sensor_msgs/Imu) and ``--odom-topic`` (nav_msgs/Odometry, whose twist is the wheel
   odometry, fused as an external twist), ``--imu-mount-rpy`` taking IMU-frame vectors into the
   base frame (URDF rpy, rad; default that of ``--robot``, else none). Needs the ``ros`` extra
   (``rosbags``).
 
-Every input runs through :class:`fusion.pipeline.FusionPipeline` (its batch entry point
-:meth:`~fusion.pipeline.FusionPipeline.push_arrays`), the object ``fusion run`` uses live; a
+Every input runs through :class:`fusion.pipeline.core.FusionPipeline` (its batch entry point
+:meth:`~fusion.pipeline.core.FusionPipeline.push_arrays`), the object ``fusion run`` uses live; a
 bag's odometry goes to the pipeline's twist input
-(:meth:`~fusion.pipeline.FusionPipeline.push_twist`).
+(:meth:`~fusion.pipeline.core.FusionPipeline.push_twist`).
 
 Outputs (``-o``/``--output``, chosen by suffix): ``.csv`` is the replay CSV below, one row per
 IMU sample (or per wheel frame when the log has no IMU), the whole run; ``.mcap``
 (nav_msgs/Odometry, tf, sensor_msgs/Imu, wheel speeds; the ``ros`` extra) and ``.jsonl``
-(:meth:`fusion.fused.FusedOdometry.to_dict` per line) get the pipeline's records, one per
-wheel frame (a bag: per odometry message), through :func:`fusion.publish.open_sink`. An
+(:meth:`fusion.types.fused.FusedOdometry.to_dict` per line) get the pipeline's records, one per
+wheel frame (a bag: per odometry message), through :func:`fusion.sinks.registry.open_sink`. An
 existing file is only ever replaced by a complete one. The replay CSV header::
 
     t,x,y,yaw,v,w,gyro_bias_z,wheel_rate_scale,wheel_rate_per_speed,
@@ -31,7 +31,7 @@ existing file is only ever replaced by a complete one. The replay CSV header::
 
 ``t`` s (host clock), pose of base_footprint in odom (m, m, rad wrapped to (-pi, pi]), v m/s,
 w rad/s, gyro bias rad/s, the wheel calibration states k (1) and c (rad/m) of
-:mod:`fusion.ekf`, and the pose covariance (m^2, m*rad, rad^2).
+:mod:`fusion.planar.ekf`, and the pose covariance (m^2, m*rad, rad^2).
 
 ``--plot out.png`` draws the fused, wheel-only and (when present) true trajectories and the
 yaw error (matplotlib, the ``demo`` extra). Progress goes to standard error when it is a
@@ -132,19 +132,19 @@ def register(subparsers) -> None:
 
 
 def fuse_logdir(log, tilt: bool = True):
-    """Fuse a :class:`fusion.logdir.LogDir` with :func:`fusion.ekf.fuse` (the batch filter
+    """Fuse a :class:`fusion.io.logdir.LogDir` with :func:`fusion.planar.ekf.fuse` (the batch filter
     alone, without the pipeline); returns ``(track, filter, rows)``.
 
     With ``tilt`` and an IMU, the yaw rate is the gyro rate about the world vertical, using
     the Mahony filter's attitude (6-axis); otherwise the gyro's z axis. ``rows`` is the mask of
-    :meth:`fusion.ekf.FusedTrack.output_rows`.
+    :meth:`fusion.planar.ekf.FusedTrack.output_rows`.
     """
-    from fusion.ekf import fuse, vertical_rate
+    from fusion.planar.ekf import fuse, vertical_rate
 
     gyro_z = None
     if log.imu_t is not None and log.imu_t.size:
         if tilt and log.imu_t.size >= 2:
-            from fusion.mahony import Mahony
+            from fusion.attitude.mahony import Mahony
 
             q = Mahony(axes=6).update_batch(log.gyro, log.accel, timestamps=log.imu_t)
             gyro_z = vertical_rate(log.gyro, q)
@@ -156,14 +156,14 @@ def fuse_logdir(log, tilt: bool = True):
 
 
 def _table(t: NDArray[np.float64], states: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Replay CSV rows from :meth:`fusion.ekf.PlanarEKF.process_batch` rows (yaw wrapped)."""
+    """Replay CSV rows from :meth:`fusion.planar.ekf.PlanarEKF.process_batch` rows (yaw wrapped)."""
     yaw = np.pi - np.mod(np.pi - states[:, 2], 2 * np.pi)
     return np.column_stack([t, states[:, 0:2], yaw, states[:, 3:8], states[:, 8:11],
                             states[:, 16:19]])
 
 
 def _write_table(path: Path, table: NDArray[np.float64]) -> None:
-    from fusion.publish import create_temp_file
+    from fusion.sinks.base import create_temp_file
 
     tmp = create_temp_file(path)  # the umask's permissions, a unique name
     try:
@@ -269,7 +269,7 @@ class ReplayResult:
             without an IMU); records: pipeline records (one per wheel frame).
         final: last fused pose (x m, y m, yaw rad wrapped); distance: integral of |v|, m.
         gyro_bias: rad/s; k (1), c (rad/m): the EKF's wheel yaw-rate calibration states.
-        stats: the pipeline's counters (:meth:`fusion.pipeline.PipelineStats.as_dict`).
+        stats: the pipeline's counters (:meth:`fusion.pipeline.core.PipelineStats.as_dict`).
         truth: with truth, ``distance`` m and the fused/wheel-only final position error (% of
             distance) and yaw RMSE (deg); else None.
         notes: warnings for the user.
@@ -299,7 +299,7 @@ class _StateTap:
     Installed as the pipeline's filter (:class:`_TappedEKF`): every ``process_batch`` the
     pipeline makes hands over its events' kinds, effective times and state rows; the rows of
     the ``keep_kinds`` become the CSV (the state after every IMU sample, or without an IMU
-    after every wheel frame or twist: :meth:`fusion.ekf.FusedTrack.output_rows`' rule).
+    after every wheel frame or twist: :meth:`fusion.planar.ekf.FusedTrack.output_rows`' rule).
     """
 
     def __init__(self, keep_kinds: tuple[int, ...],
@@ -334,7 +334,7 @@ class _StateTap:
 
 
 def _tapped_ekf(chassis, noise, tap: _StateTap):
-    from fusion.ekf import PlanarEKF
+    from fusion.planar.ekf import PlanarEKF
 
     class _TappedEKF(PlanarEKF):
         def process_batch(self, kinds, t_eff, a, b):
@@ -369,12 +369,12 @@ def _check_plot_available(path: Path | None = None) -> None:
 
 def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Path,
                            progress: bool | None, desc: str, odom=None):
-    """Run the arrays through a :class:`fusion.pipeline.FusionPipeline` (batch path) into the
+    """Run the arrays through a :class:`fusion.pipeline.core.FusionPipeline` (batch path) into the
     output; returns ``(table, pipeline, stats)``. ``imu``: ``t, gyro, accel`` (IMU frame);
     ``odom``: ``t, v, w`` external odometry twists (a bag's nav_msgs/Odometry), or None."""
-    from fusion import _ekf_core as core
-    from fusion.pipeline import FusionPipeline
-    from fusion.publish import open_sink
+    from fusion.pipeline.core import FusionPipeline
+    from fusion.planar import _ekf_core as core
+    from fusion.sinks.registry import open_sink
 
     fmt = _output_format(output)
     has_imu = imu is not None and imu.t.size > 0
@@ -420,9 +420,10 @@ def _fuse_through_pipeline(robot, imu, wheel_t, ticks, *, tilt: bool, output: Pa
 def _load_logdir(path: Path):
     """``(robot, imu or None, wheel_t, ticks, truth_t, truth, capture_stats)``; the IMU in
     its own frame (the pipeline applies ``imu_mount_rpy``)."""
-    from fusion.logdir import read_robot_toml, read_truth_csv, read_wheels_csv
-    from fusion.logs import read_imu_csv
-    from fusion.pipeline import capture_events
+    from fusion.io.imu_csv import read_imu_csv
+    from fusion.io.logdir import read_truth_csv, read_wheels_csv
+    from fusion.io.robot_toml import read_robot_toml
+    from fusion.pipeline.sources import capture_events
 
     toml_path = path / "robot.toml"
     if not toml_path.is_file():
@@ -474,9 +475,9 @@ def replay_capture(path: str | Path, output: str | Path, robot_toml: str | Path,
     """Replay a DATA-uart2 capture (wheel odometry only) with the chassis of ``robot_toml``.
 
     A timed capture is stamped as the live link stamps; a raw one on the firmware period
-    (:func:`fusion.pipeline.capture_events`)."""
-    from fusion.logdir import read_robot_toml
-    from fusion.pipeline import capture_events
+    (:func:`fusion.pipeline.sources.capture_events`)."""
+    from fusion.io.robot_toml import read_robot_toml
+    from fusion.pipeline.sources import capture_events
 
     path, output = Path(path), Path(output)
     robot = read_robot_toml(robot_toml)
@@ -491,8 +492,8 @@ def replay_capture(path: str | Path, output: str | Path, robot_toml: str | Path,
 
 def _finish(path, output, robot, imu, wheel_t, ticks, truth_t, truth, *, tilt, plot, progress,
             capture_stats) -> ReplayResult:
-    from fusion.odometry import WheelOdometry
-    from fusion.trajectory_metrics import final_position_error_percent, path_length, yaw_rmse
+    from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
+    from fusion.planar.odometry import WheelOdometry
 
     if plot is not None:
         _check_plot_available(Path(plot))
@@ -556,7 +557,7 @@ def _plot(path: Path, title: str, table, wheel_t, wheel, truth_t, truth,
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from fusion.publish import create_temp_file
+    from fusion.sinks.base import create_temp_file
 
     t = table[:, 0]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(12, 5.5))
@@ -781,13 +782,14 @@ def _is_bag(path: Path) -> bool:
 
 def run_bag(args: argparse.Namespace) -> int:
     """``fusion replay BAG --imu-topic T --odom-topic T``: the bag's IMU messages and its
-    odometry twists through :class:`fusion.pipeline.FusionPipeline` (as a log directory's
+    odometry twists through :class:`fusion.pipeline.core.FusionPipeline` (as a log directory's
     IMU samples and wheel frames), into ``-o`` (.csv/.mcap/.jsonl) and ``--plot``."""
     import dataclasses
 
-    from fusion.kinematics import DiffDriveParams
-    from fusion.logdir import RobotConfig, read_robot_toml
-    from fusion.logs import read_bag
+    from fusion.geometry.kinematics import DiffDriveParams
+    from fusion.io.bags import read_bag
+    from fusion.io.robot_toml import read_robot_toml
+    from fusion.planar.robot import RobotConfig
 
     path: Path = args.input
     if not (args.imu_topic and args.odom_topic):

@@ -14,8 +14,8 @@ separated): ``jsonl[:PATH]``, ``mcap:PATH``, ``rosbag2:PATH``, ``foxglove[:HOST:
 ``ros1`` (seed 000's node: /odom, /tf, /imu/data, wheel speeds; /cmd_vel drives the wheels).
 A Foxglove client's geometry_msgs/Twist on /cmd_vel (the Teleop panel) drives the wheels too.
 
-Every option can come from the ``--config`` file (:mod:`fusion.config`, see
-:data:`fusion.config.RUN_OPTIONS`); an option on the command line wins. With ``sim`` for the
+Every option can come from the ``--config`` file (:mod:`fusion.io.run_config`, see
+:data:`fusion.io.run_config.RUN_OPTIONS`); an option on the command line wins. With ``sim`` for the
 chassis the robot drives ``fusion demo``'s mission in a loop (or follows /cmd_vel with
 ``ros1``; with ``foxglove`` until the first /cmd_vel from a client). Runs until Ctrl-C
 (or SIGTERM, or ``--duration``): the sources stop, the sinks are closed, and the files are
@@ -45,7 +45,7 @@ def register(subparsers: Any) -> None:
         help="live fused odometry from the IMU and the chassis, published to ROS 1, "
              "Foxglove, MCAP or JSON lines",
         description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Mahony + EKF -> "
-                    "sinks. Every option can come from --config (TOML, see fusion.config); "
+                    "sinks. Every option can come from --config (TOML, see fusion.io.run_config); "
                     "the command line wins. Ctrl-C stops cleanly (files complete).",
     )
     p.add_argument("--config", type=Path, help="robot configuration file (TOML)")
@@ -72,7 +72,7 @@ def register(subparsers: Any) -> None:
 
 
 def _config(args: argparse.Namespace):
-    from fusion.config import RunConfig, _sinks, load_config
+    from fusion.io.run_config import RunConfig, _sinks, load_config
 
     cfg = load_config(args.config) if args.config else RunConfig()
     publish = None
@@ -94,7 +94,7 @@ def _config(args: argparse.Namespace):
         from dataclasses import replace
 
         cfg = replace(cfg, publish_rate_hz=None if rate == 0 else rate)
-    from fusion.config import _imu_source
+    from fusion.io.run_config import _imu_source
 
     try:
         _imu_source(cfg.imu)
@@ -114,14 +114,15 @@ def _config(args: argparse.Namespace):
 
 
 def _sinks_for(cfg, cmd_vel) -> list:
-    from fusion.publish import Topics, open_sink
+    from fusion.sinks.registry import open_sink
+    from fusion.sinks.ros_messages import Topics
 
     topics = Topics(**cfg.topics)
     sinks = []
     for spec in cfg.publish:
         kind = spec.strip().lower().partition(":")[0]
         if kind == "ros1":
-            from fusion.ros1 import Ros1Sink  # rospy itself is imported at open()
+            from fusion.sinks.ros1 import Ros1Sink
 
             sinks.append(Ros1Sink(topics=topics, cmd_vel_topic=cfg.cmd_vel_topic,
                                   on_cmd_vel=cmd_vel,
@@ -143,16 +144,10 @@ class _Stop(Exception):
 def run(args: argparse.Namespace) -> int:
     from drivers.chassis import WheelFrameParser
     from drivers.serial_link import ChassisLink
-    from fusion.cli.demo import (
-        LoopingMission,
-        ScaledClock,
-        SimRobot,
-        SimRobotParams,
-        freeze_heap,
-        send_twist,
-        warm_up,
-    )
-    from fusion.pipeline import FusionPipeline, LiveRunner
+    from drivers.sim.robot import LoopingMission, ScaledClock, SimRobot, SimRobotParams, send_twist
+    from fusion.cli.demo import freeze_heap, warm_up
+    from fusion.pipeline.core import FusionPipeline
+    from fusion.pipeline.live import LiveRunner
 
     cfg = _config(args)
     if args.duration is not None and not args.duration > 0:
@@ -281,7 +276,7 @@ def _open_imu(cfg, robot, clock):
 
     calibration = None
     if cfg.imu_calibration:
-        from fusion.calibration import ImuCalibration
+        from fusion.calibration.imu import ImuCalibration
 
         calibration = ImuCalibration.load(cfg.imu_calibration)
     kw = dict(gyro_range_dps=cfg.gyro_range_dps, accel_range_g=cfg.accel_range_g,

@@ -48,7 +48,7 @@ def register(subparsers) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from fusion.synthetic import (
+    from fusion.evaluation.synthetic import (
         EXAMPLE_ROBOT,
         EncoderModel,
         ImuModel,

@@ -39,7 +39,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.kinematics import DiffDriveParams
+from fusion.geometry.kinematics import DiffDriveParams
 
 __all__ = [
     "METHODS",

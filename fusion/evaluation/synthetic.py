@@ -12,7 +12,7 @@ twist, exact circular arcs), and two sensor models sample it:
   dependent vibration. Sample times may jitter.
 - :class:`EncoderModel`: Hall encoders counted per firmware period (ticks per period, as on the
   miiboo DATA-uart2 wire), with the *true* geometry differing from the nominal
-  :class:`~fusion.kinematics.DiffDriveParams` that a user would write in ``robot.toml``: a
+  :class:`~fusion.geometry.kinematics.DiffDriveParams` that a user would write in ``robot.toml``: a
   wheel-separation error, left/right wheel-radius (metres-per-tick) errors, slip patches
   (the wheel turns faster than its contact point moves), dropped frames and timestamp jitter.
 
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.kinematics import DiffDriveParams
+from fusion.geometry.kinematics import DiffDriveParams
 
 __all__ = [
     "EXAMPLE_ROBOT",
@@ -361,8 +361,8 @@ class SyntheticRun:
         return float(self.truth_t[-1] - self.truth_t[0])
 
     def write_logdir(self, path, truth: bool = True):
-        """Write the run as a log directory (``fusion.logdir``); returns its path."""
-        from fusion.logdir import write_logdir
+        """Write the run as a log directory (``fusion.io.logdir``); returns its path."""
+        from fusion.io.logdir import write_logdir
 
         return write_logdir(
             path, self.robot, self.imu_t, self.gyro, self.accel, self.wheel_t, self.ticks,

@@ -1,9 +1,9 @@
-"""Compiled core of the planar EKF (private; see :mod:`fusion.ekf` for the model and units).
+"""Compiled core of the planar EKF (private; see :mod:`fusion.planar.ekf` for the model and units).
 
 Plain loops over 6x6 matrices in the numba subset: numba compiles them (``fast`` extra), or
 they run interpreted with identical IEEE results. One function, :func:`step_core`, handles one
 input event (time bookkeeping, prediction, update); the streaming methods and the batch loop
-of :class:`fusion.ekf.PlanarEKF` both call it, so they agree exactly.
+of :class:`fusion.planar.ekf.PlanarEKF` both call it, so they agree exactly.
 
 State ``x = [x, y, yaw, v, w, b, k, c]``. Parameter vector ``par`` and bookkeeping vector ``aux``
 use the index constants below.

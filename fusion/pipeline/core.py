@@ -3,26 +3,26 @@
 Data flow (one :class:`FusionPipeline` object; only the sources differ between live and
 replay)::
 
-    ImuSample (IMU frame) --mount rotation--> Mahony (attitude) --vertical rate--\\
+    ImuSample (IMU frame) --mount rotation--> Mahony (attitude) --vertical rate--\
                                                                                   ReorderBuffer
     WheelTicks (DATA-uart2 frame, ticks per period) ----------------------------/      |
                                                            PlanarEKF <-----------------+
                                                                |
-                                      FusedOdometry records -> sinks (fusion.publish)
+                                      FusedOdometry records -> sinks (fusion.sinks)
 
 Event-time model, stated once:
 
-- Every input is a time-stamped event on one host clock (s): :class:`fusion.samples.ImuSample`
-  (the sample instant) or :class:`fusion.samples.WheelTicks` (the end of the firmware period,
+- Every input is a time-stamped event on one host clock (s): :class:`fusion.types.samples.ImuSample`
+  (the sample instant) or :class:`fusion.types.samples.WheelTicks` (the end of the firmware period,
   as stamped by :class:`drivers.serial_link.ChassisLink`), or an external odometry twist
   (:meth:`FusionPipeline.push_twist`: a ROS bag's nav_msgs/Odometry, at its stamp). Callers
   push events in *arrival* order, which for a replay is host time order (:func:`merge_by_time`).
 - IMU samples go through the Mahony filter on arrival (they must increase in time; a sample
   that does not is dropped and counted), which gives the attitude and the yaw rate about the
-  world vertical (:func:`fusion.ekf.vertical_rate`, tilt compensation).
+  world vertical (:func:`fusion.planar.ekf.vertical_rate`, tilt compensation).
 - The EKF's own policy orders the inputs: each event is keyed by its *effective* time (a wheel
   frame's is ``stamp - encode_sampling_time/2 - wheel_latency``, the middle of its period; an
-  IMU sample's and a twist's is its stamp) and held in a :class:`fusion.ekf.ReorderBuffer`
+  IMU sample's and a twist's is its stamp) and held in a :class:`fusion.planar.ekf.ReorderBuffer`
   until it is ``reorder_window`` s older than the newest event, or earlier, as soon as every
   source has delivered an event at least as new (the *watermark*: each source is in time order, so
   nothing older can still come); what is released still late is handled by the EKF's
@@ -41,7 +41,7 @@ Determinism: nothing here reads a clock except to measure latency (``clock``), s
 the same events gives the same records bit for bit (tests/test_pipeline_golden.py).
 
 Replay sources: :func:`logdir_events` (a log directory, ``datasets/LOGDIR.md``),
-:func:`capture_events` (a DATA-uart2 capture through :func:`fusion.logs.read_uart2_capture`,
+:func:`capture_events` (a DATA-uart2 capture through :func:`fusion.io.uart2.read_uart2_capture`,
 stamped as the live link stamps), :func:`imu_csv_events`. Live sources are
 :class:`drivers.serial_link.ChassisLink` and :class:`drivers.mpu6050.MPU6050` (see
 ``fusion/cli/run.py``).
@@ -52,40 +52,34 @@ from __future__ import annotations
 import collections
 import heapq
 import math
-import queue
-import threading
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion import _ekf_core as core
-from fusion import quaternion as quat
-from fusion.ekf import PlanarEKF, ReorderBuffer
-from fusion.fused import FusedOdometry
-from fusion.logdir import RobotConfig
-from fusion.logs import LogFormatError
-from fusion.mahony import Mahony
-from fusion.samples import ImuSample, WheelTicks
+from fusion.attitude.mahony import Mahony
+from fusion.geometry import quaternion as quat
+from fusion.pipeline.records import _fast_record, _record_fields
+from fusion.planar import _ekf_core as core
+from fusion.planar.ekf import PlanarEKF, ReorderBuffer
+from fusion.planar.robot import RobotConfig
+from fusion.types.fused import FusedOdometry
+from fusion.types.samples import ImuSample, WheelTicks
 
-__all__ = [
-    "FusionPipeline",
-    "LiveRunner",
-    "PipelineStats",
-    "WheelGap",
-    "capture_events",
-    "imu_csv_events",
-    "logdir_events",
-    "merge_by_time",
-    "replay",
-]
+__all__ = ["FusionPipeline", "PipelineStats", "WheelGap"]
+
 
 _EV_GYRO = core.EV_GYRO
+
+
 _EV_WHEELS = core.EV_WHEELS
+
+
 _EV_TWIST = core.EV_TWIST
+
+
 _SOURCES = ("imu", "wheels", "twist")
 
 
@@ -152,8 +146,9 @@ class FusionPipeline:
 
     Args:
         robot: chassis geometry, frames (with the IMU mount rotation) and EKF tuning
-            (:class:`fusion.logdir.RobotConfig`, e.g. from :func:`fusion.config.load_config`).
-        sinks: :class:`fusion.publish.Sink` objects; the pipeline opens them in
+            (:class:`fusion.planar.robot.RobotConfig`, e.g. from
+            :func:`fusion.io.run_config.load_config`).
+        sinks: :class:`fusion.sinks.base.Sink` objects; the pipeline opens them in
             :meth:`open` (or ``with``) and closes them in :meth:`close` (aborts them when the
             block raises, so file sinks leave no partial output).
         publish_rate_hz: None: one record per wheel frame or twist; else records at this rate of
@@ -168,7 +163,7 @@ class FusionPipeline:
         imu_rate_hz: nominal IMU rate, Hz (the Mahony filter's first step).
         tilt: tilt-compensate the gyro with the Mahony attitude (False: the gyro's z axis is
             the yaw rate, a level robot).
-        mahony: a configured :class:`fusion.mahony.Mahony` (default: the 6-axis preset).
+        mahony: a configured :class:`fusion.attitude.mahony.Mahony` (default: the 6-axis preset).
         clock: host clock (s) used only to measure latency from a wheel frame's stamp to its
             record; None disables latency measurement.
         gap_periods: a wheel-frame interval longer than this many periods is a gap.
@@ -374,7 +369,7 @@ class FusionPipeline:
         """One external wheel-odometry twist, e.g. a nav_msgs/Odometry message of a ROS bag:
         forward speed ``v`` (m/s, base frame x) and yaw rate ``w`` (rad/s, about the base
         frame's z) at stamp ``t`` (s, host clock), fused at ``t`` by the EKF's twist update
-        (:meth:`fusion.ekf.PlanarEKF.update_twist`: noise ``twist_v_std``/``twist_w_std``,
+        (:meth:`fusion.planar.ekf.PlanarEKF.update_twist`: noise ``twist_v_std``/``twist_w_std``,
         the wheel gate and ZUPT logic).
 
         Twists must increase in time (one that does not is dropped and counted in
@@ -653,7 +648,7 @@ class FusionPipeline:
 
 
 class _WatermarkBuffer(ReorderBuffer):
-    """The EKF's :class:`fusion.ekf.ReorderBuffer` with one more way out: :meth:`pop_through`
+    """The EKF's :class:`fusion.planar.ekf.ReorderBuffer` with one more way out: :meth:`pop_through`
     releases, in order, everything not newer than a time every source has passed."""
 
     def pop_through(self, t: float) -> list:
@@ -679,316 +674,3 @@ def _rotate_rows(R: list[list[float]], v: NDArray[np.float64]) -> NDArray[np.flo
     return np.column_stack([R[0][0] * x + R[0][1] * y + R[0][2] * z,
                             R[1][0] * x + R[1][1] * y + R[1][2] * z,
                             R[2][0] * x + R[2][1] * y + R[2][2] * z])
-
-
-_UNOBSERVED = 99999.0  # seed 000's variance of what a planar filter does not estimate
-
-
-def _frozen(a: NDArray[np.float64]) -> NDArray[np.float64]:
-    a.setflags(write=False)
-    return a
-
-
-def _record_fields(t, x, P, q, gyro_xy, accel, wheel_speeds, frame_id,
-                   child_frame_id) -> dict[str, Any]:
-    """The :class:`FusedOdometry` fields of a filter state: nav_msgs/Odometry covariances
-    from ``P`` (the layout of :func:`fusion.ekf.odometry_covariances`, symmetrised)."""
-    (p00, p01, p02, _, _, _, _, _), (p10, p11, p12, _, _, _, _, _), \
-        (p20, p21, p22, _, _, _, _, _), (_, _, _, p33, p34, _, _, _), \
-        (_, _, _, p43, p44, _, _, _) = P[:5].tolist()
-    c01, c02, c12 = 0.5 * (p01 + p10), 0.5 * (p02 + p20), 0.5 * (p12 + p21)
-    u = _UNOBSERVED
-    pose = [p00, c01, 0.0, 0.0, 0.0, c02,
-            c01, p11, 0.0, 0.0, 0.0, c12,
-            0.0, 0.0, u, 0.0, 0.0, 0.0,
-            0.0, 0.0, 0.0, u, 0.0, 0.0,
-            0.0, 0.0, 0.0, 0.0, u, 0.0,
-            c02, c12, 0.0, 0.0, 0.0, p22]
-    c34 = 0.5 * (p34 + p43)
-    twist = [p33, 0.0, 0.0, 0.0, 0.0, c34,
-             0.0, u, 0.0, 0.0, 0.0, 0.0,
-             0.0, 0.0, u, 0.0, 0.0, 0.0,
-             0.0, 0.0, 0.0, u, 0.0, 0.0,
-             0.0, 0.0, 0.0, 0.0, u, 0.0,
-             c34, 0.0, 0.0, 0.0, 0.0, p44]
-    w = float(x[4])
-    if gyro_xy is None:
-        av = (0.0, 0.0, w)
-    else:
-        av = (gyro_xy[0], gyro_xy[1], w)
-    return {
-        "t": float(t), "x": float(x[0]), "y": float(x[1]),
-        "yaw": core.wrap_angle_scalar(float(x[2])), "v": float(x[3]), "w": w,
-        "pose_covariance": np.array(pose).reshape(6, 6),
-        "twist_covariance": np.array(twist).reshape(6, 6),
-        "orientation": None if q is None else np.asarray(q, dtype=np.float64).tolist(),
-        "angular_velocity": av,
-        "linear_acceleration": None if accel is None
-        else np.asarray(accel, dtype=np.float64).tolist(),
-        "wheel_left_speed": None if wheel_speeds is None else float(wheel_speeds[0]),
-        "wheel_right_speed": None if wheel_speeds is None else float(wheel_speeds[1]),
-        "frame_id": frame_id, "child_frame_id": child_frame_id,
-        "_sum": sum(pose) + sum(twist),
-    }
-
-
-def _fast_record(f: dict[str, Any]) -> FusedOdometry:
-    """``FusedOdometry(**f)`` for fields from :func:`_record_fields` (without its ``_sum``
-    key), at a fraction of the cost (tests/test_pipeline.py checks the two are equal): the
-    covariances are symmetric by construction there, so only finiteness is checked here, and
-    a non-finite state goes through the validating constructor, which raises naming the
-    field."""
-    av, q, accel = f["angular_velocity"], f["orientation"], f["linear_acceleration"]
-    total = f["_sum"] + f["t"] + f["x"] + f["y"] + f["yaw"] + f["v"] + f["w"] + av[0] + av[1]
-    qn = 1.0
-    if q is not None:
-        qn = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-        total += qn
-    if accel is not None:
-        total += accel[0] + accel[1] + accel[2]
-    if not math.isfinite(total) or abs(qn - 1.0) > 1e-3:
-        return FusedOdometry(**{k: v for k, v in f.items() if k != "_sum"})  # raises
-    rec = object.__new__(FusedOdometry)
-    put = object.__setattr__
-    put(rec, "t", f["t"])
-    put(rec, "x", f["x"])
-    put(rec, "y", f["y"])
-    put(rec, "yaw", f["yaw"])
-    put(rec, "v", f["v"])
-    put(rec, "w", f["w"])
-    put(rec, "wheel_left_speed", f["wheel_left_speed"])
-    put(rec, "wheel_right_speed", f["wheel_right_speed"])
-    put(rec, "frame_id", f["frame_id"])
-    put(rec, "child_frame_id", f["child_frame_id"])
-    pose, twist = f["pose_covariance"], f["twist_covariance"]
-    pose.setflags(write=False)  # fresh arrays from _record_fields
-    twist.setflags(write=False)
-    put(rec, "pose_covariance", pose)
-    put(rec, "twist_covariance", twist)
-    if q is not None:
-        qa = np.array(q, dtype=np.float64)
-        # what FusedOdometry does: q / np.linalg.norm(q), and norm is sqrt(q.dot(q))
-        put(rec, "orientation", _frozen(qa / math.sqrt(qa.dot(qa))))
-    else:
-        put(rec, "orientation", None)
-    put(rec, "angular_velocity", _frozen(np.array(av, dtype=np.float64)))
-    put(rec, "linear_acceleration",
-        None if accel is None else _frozen(np.array(accel, dtype=np.float64)))
-    put(rec, "imu_frame_id", f["child_frame_id"])
-    return rec
-
-
-# -- live sources -------------------------------------------------------------------------------
-
-
-class LiveRunner:
-    """Feeds a :class:`FusionPipeline` from live sources in arrival order.
-
-    Each source has a thread that puts its events on one queue; :meth:`run` (in the calling
-    thread) takes them off in order and pushes them into the pipeline, so the pipeline
-    itself stays single-threaded.
-
-    Args:
-        pipeline: an open pipeline.
-        link: a started :class:`drivers.serial_link.ChassisLink` (its frames are forwarded),
-            or None.
-        imu: a :class:`drivers.mpu6050.MPU6050` (its FIFO is enabled here and read every
-            ``fifo_interval`` s of its clock), or None.
-        fifo_interval: s between FIFO reads (the 1024-byte FIFO holds 85 samples).
-        max_queue: events kept waiting at most (beyond, the oldest are dropped and counted).
-
-    Attributes:
-        imu_errors: FIFO reads that failed after the driver's retries (the loop goes on);
-            ``last_imu_error`` the newest message.
-        imu_lost: IMU samples the driver reported lost (overflow, failed reads).
-        dropped: events dropped because the queue was full.
-    """
-
-    def __init__(self, pipeline: FusionPipeline, *, link: Any = None, imu: Any = None,
-                 fifo_interval: float = 0.02, max_queue: int = 100_000) -> None:
-        if not fifo_interval > 0:
-            raise ValueError(f"fifo_interval must be > 0 s, got {fifo_interval!r}")
-        self.pipeline = pipeline
-        self.link = link
-        self.imu = imu
-        self.fifo_interval = float(fifo_interval)
-        self._q: queue.Queue = queue.Queue(maxsize=max_queue)
-        self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
-        self.imu_errors = 0
-        self.imu_lost = 0
-        self.imu_overflows = 0
-        self.last_imu_error: str | None = None
-        self.dropped = 0
-        self.events_pushed = 0
-
-    def _put(self, ev: Any) -> None:
-        try:
-            self._q.put_nowait(ev)
-        except queue.Full:
-            try:
-                self._q.get_nowait()
-                self.dropped += 1
-            except queue.Empty:
-                pass
-            self._q.put_nowait(ev)
-
-    def _imu_loop(self) -> None:
-        from drivers.mpu6050 import MPU6050Error
-
-        imu = self.imu
-        while not self._stop.is_set():
-            imu.clock.sleep(self.fifo_interval)
-            try:
-                r = imu.read_fifo()
-            except MPU6050Error as exc:  # retried by the driver already: report, go on
-                self.imu_errors += 1
-                self.last_imu_error = str(exc)
-                continue
-            self.imu_lost += r.lost
-            self.imu_overflows += int(r.overflow)
-            for sample in r.samples:
-                self._put(sample)
-
-    def _link_loop(self) -> None:
-        link = self.link
-        while not self._stop.is_set():
-            frame = link.get(timeout=0.05)
-            if frame is not None:
-                self._put(frame)
-
-    def start(self) -> LiveRunner:
-        """Enable the IMU FIFO and start the source threads."""
-        if self.imu is not None:
-            self.imu.enable_fifo()
-            self._threads.append(threading.Thread(target=self._imu_loop, name="imu-fifo",
-                                                  daemon=True))
-        if self.link is not None:
-            self._threads.append(threading.Thread(target=self._link_loop, name="link-frames",
-                                                  daemon=True))
-        for th in self._threads:
-            th.start()
-        return self
-
-    def run(self, until: Callable[[], bool] | None = None, poll: float = 0.05,
-            on_event: Callable[[Any], None] | None = None) -> None:
-        """Push events into the pipeline until ``until()`` is true or :meth:`stop` is
-        called. ``until`` is called after each batch of events and at least every ``poll``
-        wall seconds (a place to send commands); ``on_event(ev)`` sees each event before the
-        pipeline does. Ctrl-C (KeyboardInterrupt) propagates."""
-        q = self._q
-        push = self.pipeline.push
-        while not self._stop.is_set() and not (until is not None and until()):
-            try:
-                ev = q.get(timeout=poll)
-            except queue.Empty:
-                continue
-            for _ in range(1000):  # this one and whatever else waits, without blocking
-                if on_event is not None:
-                    on_event(ev)
-                push(ev)
-                self.events_pushed += 1
-                try:
-                    ev = q.get_nowait()
-                except queue.Empty:
-                    break
-            else:
-                self._q.put(ev)  # keep the one taken; give until() a turn
-
-    def stop(self) -> None:
-        """Stop the source threads and push what they had queued."""
-        self._stop.set()
-        for th in self._threads:
-            th.join(timeout=5.0)
-        self._threads.clear()
-        while True:
-            try:
-                ev = self._q.get_nowait()
-            except queue.Empty:
-                break
-            if self.pipeline._state == "open":
-                self.pipeline.push(ev)
-                self.events_pushed += 1
-
-
-# -- replay sources ---------------------------------------------------------------------------
-
-
-def merge_by_time(*streams: Iterable[ImuSample | WheelTicks]) -> Iterator[ImuSample | WheelTicks]:
-    """Merge event streams, each in time order, into host time order (ties: the earlier
-    stream first), lazily."""
-    return heapq.merge(*streams, key=lambda e: e.t)
-
-
-def replay(pipeline: FusionPipeline, events: Iterable[ImuSample | WheelTicks]) -> PipelineStats:
-    """Push every event through ``pipeline`` (opened here if new) and close it.
-
-    On an exception the sinks are aborted (no partial files) and it propagates.
-    """
-    if pipeline._state == "new":
-        pipeline.open()
-    try:
-        for ev in events:
-            pipeline.push(ev)
-    except BaseException:
-        pipeline.abort()
-        raise
-    pipeline.close()
-    return pipeline.finish_stats()
-
-
-def imu_csv_events(path: str | Path) -> Iterator[ImuSample]:
-    """IMU samples of an IMU CSV (``t,gx,gy,gz,ax,ay,az``; IMU frame, s, rad/s, m/s^2)."""
-    from fusion.logs import read_imu_csv
-
-    log = read_imu_csv(path)
-    t = log.t.tolist()
-    for i in range(len(t)):
-        yield ImuSample(t[i], log.gyro[i], log.accel[i])
-
-
-def logdir_events(path: str | Path) -> tuple[RobotConfig, Iterator[ImuSample | WheelTicks]]:
-    """``(robot, events)`` of a log directory (``datasets/LOGDIR.md``).
-
-    IMU samples stay in the IMU frame (the pipeline applies ``imu_mount_rpy``). The wheel
-    frames come from ``wheels.csv`` or, without it, from a DATA-uart2 capture ``wheels.uart2``
-    (timed or raw, see :func:`capture_events`).
-    """
-    from fusion.logdir import read_robot_toml, read_wheels_csv
-
-    path = Path(path)
-    if not path.is_dir():
-        raise FileNotFoundError(f"{path}: not a log directory")
-    robot = read_robot_toml(path / "robot.toml")
-    streams: list[Iterable[ImuSample | WheelTicks]] = []
-    if (path / "imu.csv").is_file():
-        streams.append(list(imu_csv_events(path / "imu.csv")))
-    if (path / "wheels.csv").is_file():
-        wt, ticks = read_wheels_csv(path / "wheels.csv")
-        streams.append([WheelTicks(float(t), int(l), int(r))
-                        for t, (l, r) in zip(wt.tolist(), ticks.tolist())])
-    elif (path / "wheels.uart2").is_file():
-        frames, _ = capture_events(path / "wheels.uart2", robot.chassis.encode_sampling_time)
-        streams.append(frames)
-    if not streams:
-        raise LogFormatError(f"{path}: no imu.csv, wheels.csv or wheels.uart2")
-    return robot, merge_by_time(*streams)
-
-
-def capture_events(path: str | Path, period: float, *, t0: float = 0.0,
-                   max_ticks: int | None = None) -> tuple[list[WheelTicks], dict[str, int]]:
-    """Wheel frames of a DATA-uart2 capture (:func:`fusion.logs.read_uart2_capture`).
-
-    A timed capture (``t,data`` rows, :class:`fusion.logs.Uart2CaptureWriter`) gives each
-    frame the stamp the live link would have given it. A raw capture has no clock: frame k
-    (0-based, stream order) is stamped ``t0 + (k + 1) * period`` (dropped frames cannot be
-    seen). Returns ``(frames, parser_counters)``.
-    """
-    from fusion.logs import read_uart2_capture
-
-    cap = read_uart2_capture(path, period=period, max_ticks=max_ticks)
-    if cap.t is not None:
-        return cap.wheel_ticks(), cap.stats
-    stamps = (t0 + (np.arange(len(cap)) + 1) * period).tolist()
-    return [WheelTicks(stamps[k], int(cap.left[k]), int(cap.right[k]))
-            for k in range(len(cap))], cap.stats

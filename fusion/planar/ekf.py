@@ -15,7 +15,7 @@ is not observable from a gyro and stays as it is configured. The class is a
 :class:`filterpy.kalman.ExtendedKalmanFilter`: ``x``, ``P``, ``y``, ``S``, ``K`` keep filterpy's
 meaning and filterpy's own ``update(z, HJacobian, Hx, R, residual=...)`` can fuse any extra
 measurement (a beacon, a scan match) into the same state. The built-in sensors use a compiled
-core (:mod:`fusion._ekf_core`, numba when installed) that computes exactly filterpy's
+core (:mod:`fusion.planar._ekf_core`, numba when installed) that computes exactly filterpy's
 update equations (Joseph form) with a Cholesky solve instead of ``inv(S)``; a test checks it
 against filterpy's ``predict``/``update`` step by step.
 
@@ -80,9 +80,9 @@ import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
-from fusion import _ekf_core as core
 from fusion._jit import HAVE_NUMBA
-from fusion.kinematics import DiffDriveParams
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.planar import _ekf_core as core
 
 __all__ = [
     "STATE_NAMES",
@@ -188,7 +188,7 @@ def vertical_rate(gyro: ArrayLike, quaternion: ArrayLike | None = None) -> NDArr
     """Rate about the world vertical (rad/s) from body-frame gyro rates (..., 3).
 
     With ``quaternion`` (scalar first, body -> world ENU, e.g. from
-    :class:`fusion.mahony.Mahony`) the body rate is rotated into the world frame and its z
+    :class:`fusion.attitude.mahony.Mahony`) the body rate is rotated into the world frame and its z
     component returned; without it the robot is taken as level and ``gyro[..., 2]`` is returned.
     """
     g = np.asarray(gyro, dtype=float)
@@ -491,7 +491,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         """Fuse a yaw rate about the world vertical (rad/s) stamped ``t`` (s).
 
         Use :func:`vertical_rate` for a tilted robot. Returns the status code of
-        :func:`fusion._ekf_core.step_core` (0 applied, 5 dropped as too late, 6 invalid).
+        :func:`fusion.planar._ekf_core.step_core` (0 applied, 5 dropped as too late, 6 invalid).
         """
         return self._step(core.EV_GYRO, t, rate_z, 0.0)
 

@@ -1,6 +1,6 @@
 """ROS 1 node sink with seed 000's interface (miiboo_bringup's base_controller).
 
-Publishes (names configurable through :class:`fusion.publish.Topics`):
+Publishes (names configurable through :class:`fusion.sinks.ros_messages.Topics`):
 
 - ``/odom`` nav_msgs/Odometry: pose of ``child_frame_id`` in ``frame_id`` (m, yaw-only
   quaternion), twist in the child frame (m/s, rad/s), both 6x6 covariances row major over
@@ -25,8 +25,9 @@ import math
 from collections.abc import Callable
 from typing import Any
 
-from fusion.fused import FusedOdometry
-from fusion.publish import MESSAGE_TYPES, Sink, Topics, ros_messages
+from fusion.sinks.base import Sink
+from fusion.sinks.ros_messages import MESSAGE_TYPES, Topics, ros_messages
+from fusion.types.fused import FusedOdometry
 
 __all__ = ["RateLimiter", "Ros1Sink"]
 
@@ -58,7 +59,7 @@ class Ros1Sink(Sink):
     """A ROS 1 node that publishes each :class:`FusedOdometry` record (see the module doc).
 
     Args:
-        topics: topic names (:class:`fusion.publish.Topics`; None leaves a topic out).
+        topics: topic names (:class:`fusion.sinks.ros_messages.Topics`; None leaves a topic out).
         node_name: ROS node name (used when this sink initialises the node).
         cmd_vel_topic: velocity command topic, or None not to subscribe.
         on_cmd_vel: ``callback(v, w)`` with linear.x (m/s) and angular.z (rad/s) of every
@@ -173,7 +174,7 @@ class Ros1Sink(Sink):
             self.on_cmd_vel(float(msg.linear.x), float(msg.angular.z))
 
     def _build(self, msgtype: str, value: dict[str, Any], now: Any = None) -> Any:
-        """A plain dict from :func:`fusion.publish.ros_messages` -> a rospy message
+        """A plain dict from :func:`fusion.sinks.ros_messages.ros_messages` -> a rospy message
         (stamps become ``now`` when given, else the dict's nanoseconds)."""
         cls = self._class(msgtype)
         kwargs = {}

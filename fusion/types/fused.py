@@ -1,4 +1,4 @@
-"""One fused odometry output record, the unit every sink in :mod:`fusion.publish` consumes.
+"""One fused odometry output record, the unit every sink in :mod:`fusion.sinks` consumes.
 
 Frames follow ROS REP-105 and REP-103: the pose is ``child_frame_id`` (``base_footprint``, x
 forward, y left, z up) in ``frame_id`` (``odom``, ENU-like, z up); the twist is in the child

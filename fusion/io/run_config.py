@@ -3,7 +3,7 @@
 One file describes a robot and how to run the live pipeline on it. Tables (all optional
 except ``[chassis]`` on a real robot; every error names the file, the line and the key)::
 
-    [chassis]                     # seed 000's names, parsed by fusion.logdir (same as robot.toml)
+    [chassis]                     # seed 000's names (fusion.io.robot_toml, same as robot.toml)
     wheel_distance = 0.3          # m, distance between the wheel contact points
     speed_ratio = 5e-5            # m of wheel travel per encoder tick
     encode_sampling_time = 0.04   # s, firmware period
@@ -11,12 +11,12 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
     cmd_vel_angular_max = 2.0     # rad/s (optional)
     wheel_speed_max = 1.0         # m/s, curvature-preserving wheel limit (optional)
 
-    [frames]                      # REP-105 names and the IMU mount (fusion.logdir)
+    [frames]                      # REP-105 names and the IMU mount (fusion.io.logdir)
     odom = "odom"
     base = "base_footprint"
     imu_mount_rpy = [0.0, 0.0, 0.0]   # rad, URDF roll pitch yaw of the IMU in the base frame
 
-    [ekf]                         # any fusion.ekf.EkfNoise field (fusion.logdir)
+    [ekf]                         # any fusion.planar.ekf.EkfNoise field (fusion.io.logdir)
 
     [imu]
     source = "i2c:1"              # "i2c:N" (/dev/i2c-N), "sim" or "none"
@@ -46,7 +46,7 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
     speed = 1.0                   # robot time per wall second, simulated chassis only
     status = 10.0                 # s between status lines on stderr, 0 = none
 
-    [topics]                      # ROS topic names (fusion.publish.Topics), "" leaves one out
+    [topics]                      # ROS topic names (fusion.sinks.Topics); "" leaves one out
     odom = "/odom"
     tf = "/tf"
     imu = "/imu/data"
@@ -68,9 +68,10 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from fusion.kinematics import DiffDriveParams
-from fusion.logdir import RobotConfig, robot_config_from_tables
-from fusion.logs import LogFormatError
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.io.errors import LogFormatError
+from fusion.io.robot_toml import robot_config_from_tables
+from fusion.planar.robot import RobotConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -113,7 +114,7 @@ class RunConfig:
         tilt: tilt-compensate the gyro with the Mahony attitude.
         chassis: the DATA-uart2 port (device path or pyserial URL) or ``"sim"``.
         baudrate, command_timeout, silence_periods: serial link settings (bit/s, s, periods).
-        publish: sink specs (:func:`fusion.publish.open_sink`).
+        publish: sink specs (:func:`fusion.sinks.registry.open_sink`).
         publish_rate_hz: records per second, None for one per wheel frame.
         reorder_window: s (None: the pipeline's default for the IMU FIFO interval).
         topics: topic names (odom, tf, imu, wheel_left, wheel_right; None leaves one out).
@@ -207,7 +208,7 @@ def _sinks(v: Any) -> tuple[str, ...]:
     if not isinstance(v, list) or not all(isinstance(s, str) and s.strip() for s in v):
         raise ValueError(f"must be a list of sink specs like [\"jsonl\", \"mcap:out.mcap\"], "
                          f"got {v!r}")
-    from fusion.publish import open_sink
+    from fusion.sinks.registry import open_sink
 
     for spec in v:
         try:
@@ -234,7 +235,7 @@ def _topic(v: Any) -> str | None:
     return s
 
 
-#: table -> key -> (RunConfig field, check). [chassis], [frames], [ekf] go to fusion.logdir.
+#: table -> key -> (RunConfig field, check). [chassis], [frames], [ekf] go to fusion.io.logdir.
 SCHEMA: dict[str, dict[str, tuple[str, Check]]] = {
     "imu": {
         "source": ("imu", _imu_source),

@@ -49,8 +49,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion import quaternion as quat
 from fusion._jit import njit
+from fusion.geometry import quaternion as quat
 
 __all__ = [
     "DEFAULT_KI",

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion import quaternion as quat
+from fusion.geometry import quaternion as quat
 
 __all__ = ["OrientationErrors", "error_angles", "orientation_rmse"]
 

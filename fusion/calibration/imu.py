@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.samples import ImuSample
+from fusion.types.samples import ImuSample
 
 __all__ = [
     "AccelFit",
@@ -366,7 +366,7 @@ def pose_means(accel: ArrayLike, segments: Sequence[slice]) -> NDArray[np.float6
 def calibrate_recordings(
     rest: Any, poses: Any | None = None, *, gravity: float = STANDARD_GRAVITY
 ) -> ImuCalibration:
-    """Calibration from raw recordings (``fusion.mpu6050_csv.RawImuRecording``): the gyro
+    """Calibration from raw recordings (``fusion.io.mpu6050_csv.RawImuRecording``): the gyro
     bias from ``rest`` (refused if it moved), the accelerometer offset/scale from the still
     poses found in ``poses`` by ``static_segments``. The file names, the number of poses and
     the pose norms before/after (g) go into ``info``."""

@@ -4,7 +4,7 @@ A directory holding (format documented in ``datasets/LOGDIR.md``):
 
 - ``imu.csv``: ``t,gx,gy,gz,ax,ay,az[,mx,my,mz]`` (s, rad/s, m/s^2, uT; IMU frame, which is
   the body frame x forward, y left, z up unless ``robot.toml`` gives a mount rotation). Read by
-  :func:`fusion.logs.read_imu_csv`.
+  :func:`fusion.io.imu_csv.read_imu_csv`.
 - ``wheels.csv``: ``t,left,right``: host time stamp (s) of the end of each firmware period and
   the signed encoder ticks counted in that period (integers, as on the DATA-uart2 wire).
 - ``truth.csv`` (optional): ``t,x,y,yaw`` ground truth of base_footprint in odom (s, m, m,
@@ -13,7 +13,7 @@ A directory holding (format documented in ``datasets/LOGDIR.md``):
   m/tick, ``encode_sampling_time`` s, optional limits ``cmd_vel_linear_max`` m/s,
   ``cmd_vel_angular_max`` rad/s, ``wheel_speed_max`` m/s); optional ``[frames]`` (``odom``,
   ``base``, ``imu_mount_rpy`` = URDF roll, pitch, yaw in rad taking IMU-frame vectors into the
-  base frame); optional ``[ekf]`` with :class:`fusion.ekf.EkfNoise` field names.
+  base frame); optional ``[ekf]`` with :class:`fusion.planar.ekf.EkfNoise` field names.
 
 At least one of ``imu.csv`` and ``wheels.csv`` must exist. Every error names the file and,
 for CSV content, the line.
@@ -23,63 +23,26 @@ from __future__ import annotations
 
 import csv
 import math
-import sys
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion import quaternion as quat
-from fusion.ekf import EkfNoise
-from fusion.kinematics import TICKS_MAX, DiffDriveParams
-from fusion.logs import LogFormatError, read_imu_csv
+from fusion.geometry import quaternion as quat
+from fusion.geometry.kinematics import TICKS_MAX, DiffDriveParams
+from fusion.io.errors import LogFormatError
+from fusion.io.imu_csv import read_imu_csv
+from fusion.io.robot_toml import read_robot_toml, write_robot_toml
+from fusion.planar.robot import RobotConfig
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - exercised on Python 3.10 only
-    import tomli as tomllib
+__all__ = ["LogDir", "read_logdir", "read_truth_csv", "read_wheels_csv", "write_logdir"]
 
-__all__ = [
-    "LogDir",
-    "RobotConfig",
-    "read_logdir",
-    "read_robot_toml",
-    "read_truth_csv",
-    "read_wheels_csv",
-    "robot_config_from_tables",
-    "write_logdir",
-    "write_robot_toml",
-]
 
 WHEELS_COLUMNS = ("t", "left", "right")
+
+
 TRUTH_COLUMNS = ("t", "x", "y", "yaw")
-_CHASSIS_KEYS = {f.name for f in fields(DiffDriveParams)}
-_FRAME_KEYS = {"odom", "base", "imu_mount_rpy"}
-_EKF_KEYS = {f.name for f in fields(EkfNoise)}
-
-
-@dataclass(frozen=True)
-class RobotConfig:
-    """The content of ``robot.toml``.
-
-    Attributes:
-        chassis: geometry and limits (seed 000's names).
-        odom_frame, base_frame: REP-105 frame names of the published odometry.
-        imu_mount_rpy: URDF roll, pitch, yaw (rad) of the IMU in the base frame.
-        ekf: filter tuning (defaults where ``[ekf]`` is absent).
-    """
-
-    chassis: DiffDriveParams
-    odom_frame: str = "odom"
-    base_frame: str = "base_footprint"
-    imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    ekf: EkfNoise = field(default_factory=EkfNoise)
-
-    def imu_to_base(self) -> NDArray[np.float64]:
-        """Quaternion ``[w, x, y, z]`` taking IMU-frame vectors into the base frame."""
-        return quat.from_euler(*self.imu_mount_rpy)
 
 
 @dataclass
@@ -114,132 +77,6 @@ class LogDir:
         if not ts:
             raise ValueError(f"{self.path}: the log has no samples")
         return float(min(a[0] for a in ts)), float(max(a[-1] for a in ts))
-
-
-# -- robot.toml --------------------------------------------------------------------------------
-
-
-def _number(path: Path, table: str, key: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise LogFormatError(f"{path}: [{table}] {key} must be a number, got {value!r}")
-    return float(value)
-
-
-def read_robot_toml(path: str | Path) -> RobotConfig:
-    """Read ``robot.toml`` (see the module docstring).
-
-    Raises:
-        LogFormatError: invalid TOML, a missing ``[chassis]`` key, an unknown key (typos are
-            not silently ignored) or a value out of range; the message names the file.
-    """
-    path = Path(path)
-    try:
-        with path.open("rb") as fh:
-            doc = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise LogFormatError(f"{path}: invalid TOML: {exc}") from exc
-    unknown = set(doc) - {"chassis", "frames", "ekf"}
-    if unknown:
-        raise LogFormatError(f"{path}: unknown table(s) {sorted(unknown)}; "
-                             "allowed: chassis, frames, ekf")
-    return robot_config_from_tables(path, doc)
-
-
-def robot_config_from_tables(path: str | Path, doc: dict[str, Any]) -> RobotConfig:
-    """:class:`RobotConfig` from the ``[chassis]``, ``[frames]`` and ``[ekf]`` tables of an
-    already loaded TOML document (other tables are the caller's: :func:`read_robot_toml`
-    refuses them, :mod:`fusion.config` has its own). ``path`` names the file in errors.
-
-    Raises:
-        LogFormatError: as :func:`read_robot_toml`.
-    """
-    path = Path(path)
-    chassis = doc.get("chassis")
-    if not isinstance(chassis, dict):
-        raise LogFormatError(f"{path}: missing [chassis] table (wheel_distance, speed_ratio, "
-                             "encode_sampling_time)")
-    bad = set(chassis) - _CHASSIS_KEYS
-    if bad:
-        raise LogFormatError(f"{path}: [chassis] unknown key(s) {sorted(bad)}; "
-                             f"allowed: {sorted(_CHASSIS_KEYS)}")
-    for key in ("wheel_distance", "speed_ratio", "encode_sampling_time"):
-        if key not in chassis:
-            raise LogFormatError(f"{path}: [chassis] needs {key}")
-    values = {k: _number(path, "chassis", k, v) for k, v in chassis.items()}
-    try:
-        params = DiffDriveParams(**values)
-    except ValueError as exc:
-        raise LogFormatError(f"{path}: [chassis] {exc}") from exc
-
-    frames = doc.get("frames", {})
-    if not isinstance(frames, dict) or set(frames) - _FRAME_KEYS:
-        raise LogFormatError(f"{path}: [frames] allows only {sorted(_FRAME_KEYS)}")
-    rpy = frames.get("imu_mount_rpy", [0.0, 0.0, 0.0])
-    if not (isinstance(rpy, list) and len(rpy) == 3):
-        raise LogFormatError(f"{path}: [frames] imu_mount_rpy must be [roll, pitch, yaw] "
-                             f"in rad, got {rpy!r}")
-    rpy_t = tuple(_number(path, "frames", "imu_mount_rpy", v) for v in rpy)
-    for key in ("odom", "base"):
-        if key in frames and not isinstance(frames[key], str):
-            raise LogFormatError(f"{path}: [frames] {key} must be a string")
-
-    ekf_tab = doc.get("ekf", {})
-    if not isinstance(ekf_tab, dict) or set(ekf_tab) - _EKF_KEYS:
-        bad = sorted(set(ekf_tab) - _EKF_KEYS) if isinstance(ekf_tab, dict) else ekf_tab
-        raise LogFormatError(f"{path}: [ekf] unknown key(s) {bad}; allowed: {sorted(_EKF_KEYS)}")
-    ekf_values = {k: _number(path, "ekf", k, v) for k, v in ekf_tab.items()}
-    if "zupt_frames" in ekf_values:
-        ekf_values["zupt_frames"] = int(ekf_values["zupt_frames"])
-    try:
-        ekf = EkfNoise(**ekf_values)
-    except ValueError as exc:
-        raise LogFormatError(f"{path}: [ekf] {exc}") from exc
-    return RobotConfig(
-        chassis=params,
-        odom_frame=frames.get("odom", "odom"),
-        base_frame=frames.get("base", "base_footprint"),
-        imu_mount_rpy=rpy_t,  # type: ignore[arg-type]
-        ekf=ekf,
-    )
-
-
-def _toml_value(v: Any) -> str:
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, float) and math.isinf(v):
-        return "inf" if v > 0 else "-inf"
-    return repr(v)
-
-
-def write_robot_toml(path: str | Path, robot: RobotConfig | DiffDriveParams) -> None:
-    """Write ``robot.toml`` for ``robot`` (infinite limits are left out)."""
-    if isinstance(robot, DiffDriveParams):
-        robot = RobotConfig(chassis=robot)
-    c = robot.chassis
-    units = {"wheel_distance": "m", "speed_ratio": "m per encoder tick",
-             "encode_sampling_time": "s, firmware period", "cmd_vel_linear_max": "m/s",
-             "cmd_vel_angular_max": "rad/s", "wheel_speed_max": "m/s"}
-    lines = ["# robot.toml: chassis parameters with the names of the miiboo driver (seed 000)",
-             "[chassis]"]
-    for f in fields(DiffDriveParams):
-        v = getattr(c, f.name)
-        if isinstance(v, float) and math.isinf(v):
-            continue
-        lines.append(f"{f.name} = {v!r}  # {units.get(f.name, '')}")
-    lines += ["", "[frames]", f"odom = {_toml_value(robot.odom_frame)}",
-              f"base = {_toml_value(robot.base_frame)}",
-              f"imu_mount_rpy = {_toml_value(list(robot.imu_mount_rpy))}  # rad, URDF rpy"]
-    default = EkfNoise()
-    changed = {f.name: getattr(robot.ekf, f.name) for f in fields(EkfNoise)
-               if getattr(robot.ekf, f.name) != getattr(default, f.name)}
-    if changed:
-        lines += ["", "[ekf]"] + [f"{k} = {_toml_value(v)}" for k, v in changed.items()]
-    Path(path).write_text("\n".join(lines) + "\n")
-
-
-# -- CSV ---------------------------------------------------------------------------------------
 
 
 def _read_csv(path: Path, columns: tuple[str, ...]) -> tuple[NDArray[np.float64], NDArray]:

@@ -1,13 +1,4 @@
-"""Log readers: BROAD benchmark trials, plain IMU CSV files, ROS 1/2 bags and MCAP files.
-
-IMU CSV schema (header line required)::
-
-    t,gx,gy,gz,ax,ay,az[,mx,my,mz]
-
-``t`` in s (strictly increasing), gyro in rad/s, accelerometer (specific force) in m/s^2,
-magnetometer in uT, all in the body frame (x forward, y left, z up).
-
-Errors name the file and, where it applies, the line (1-based, as an editor shows it).
+"""ROS 1/2 bags and MCAP files.
 
 Bags (:func:`read_bag`, :func:`read_bag_imu`, :func:`read_bag_odometry`,
 :func:`read_bag_twist`, :func:`bag_topics`) through the pure-Python ``rosbags`` package
@@ -18,17 +9,10 @@ sensor_msgs/Imu, nav_msgs/Odometry, geometry_msgs/Twist and TwistStamped. Times 
 default each message's ``header.stamp`` (``stamps="header"``), or the time the bag recorded it
 (``stamps="bag"``, the only choice for Twist). Errors name the file and topic; a missing
 topic lists the topics present.
-
-DATA-uart2 captures of the chassis link (:func:`read_uart2_capture`): raw bytes as read from
-the port, or a timed capture, a text file whose first line is ``t,data`` and whose rows are
-``t`` (s, host clock, when the read returned) and ``data`` (the bytes of that read in hex),
-written by :class:`Uart2CaptureWriter`. Frames are decoded by
-:class:`drivers.chassis.WheelFrameParser`.
 """
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, field
@@ -38,243 +22,28 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion import quaternion as quat
+from fusion.io.errors import LogFormatError
+from fusion.io.imu_csv import ImuLog
 
 __all__ = [
-    "IMU_CSV_COLUMNS",
     "BagImuLog",
     "BagLog",
-    "BroadTrial",
-    "ImuLog",
-    "LogFormatError",
     "OdometryLog",
     "TwistLog",
-    "Uart2Capture",
-    "Uart2CaptureWriter",
     "bag_topics",
     "read_bag",
     "read_bag_imu",
     "read_bag_odometry",
     "read_bag_twist",
-    "read_broad",
-    "read_imu_csv",
-    "read_uart2_capture",
-    "write_attitude_csv",
 ]
 
-IMU_CSV_COLUMNS = ("t", "gx", "gy", "gz", "ax", "ay", "az")
-MAG_COLUMNS = ("mx", "my", "mz")
-ATTITUDE_CSV_COLUMNS = ("t", "qw", "qx", "qy", "qz", "roll", "pitch", "yaw")
-
-
-class LogFormatError(ValueError):
-    """A log file that does not match its format; the message names file and line."""
-
-
-@dataclass
-class ImuLog:
-    """IMU samples: ``t`` (N,) s, ``gyro`` (N, 3) rad/s, ``accel`` (N, 3) m/s^2, ``mag`` uT."""
-
-    t: NDArray[np.float64]
-    gyro: NDArray[np.float64]
-    accel: NDArray[np.float64]
-    mag: NDArray[np.float64] | None = None
-    source: str = ""
-
-    def __len__(self) -> int:
-        return len(self.t)
-
-
-@dataclass
-class BroadTrial(ImuLog):
-    """One BROAD trial: IMU data plus optical ground truth.
-
-    Attributes (beyond :class:`ImuLog`):
-        quat_ref: (N, 4) ground-truth attitude, ``[w, x, y, z]``, sensor -> earth (ENU-like,
-            z up); NaN rows where the markers were lost.
-        pos_ref: (N, 3) ground-truth position, m.
-        movement: (N,) bool, the motion phases the errors are computed over.
-        rate: sampling rate, Hz.
-        name: trial name (file stem).
-    """
-
-    quat_ref: NDArray[np.float64] | None = None
-    pos_ref: NDArray[np.float64] | None = None
-    movement: NDArray[np.bool_] | None = None
-    rate: float = 0.0
-    name: str = ""
-
-    def reference_initial_quaternion(self) -> NDArray[np.float64]:
-        """The initial state of the dataset's published Mahony runs, in ENU.
-
-        Exactly the dataset's recipe (datasets/broad/README.md), including its quirk: with
-        ``a``, ``m`` the first accelerometer and magnetometer samples, ``z = a``,
-        ``x = (z x -m) x z``, ``y = z x x``, ``R = [x, y, z]`` (normalised columns),
-        ``q0 = quat(R)``, returned as ``qz(+90 deg) * q0``. It is not the physically correct
-        attitude; use it only to reproduce the published numbers.
-        """
-        if self.mag is None:
-            raise ValueError(f"{self.source}: the trial has no magnetometer data")
-        z = self.accel[0]
-        x = np.cross(np.cross(z, -self.mag[0]), z)
-        y = np.cross(z, x)
-        R = np.column_stack([v / np.linalg.norm(v) for v in (x, y, z)])
-        q0 = quat.from_matrix(R)
-        qz = np.array([np.cos(np.pi / 4), 0.0, 0.0, np.sin(np.pi / 4)])
-        return quat.multiply(qz, q0)
-
-
-_BROAD_KEYS = ("imu_gyr", "imu_acc", "imu_mag", "opt_quat", "opt_pos", "movement", "sampling_rate")
-
-
-def read_broad(path: str | Path) -> BroadTrial:
-    """Read a BROAD trial from its ``.mat`` (scipy) or ``.hdf5``/``.h5`` (h5py) file."""
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".mat":
-        from scipy.io import loadmat
-        from scipy.io.matlab import MatReadError
-
-        try:
-            raw = loadmat(path, variable_names=_BROAD_KEYS)
-        except (MatReadError, ValueError, TypeError, OSError) as exc:
-            if isinstance(exc, FileNotFoundError):
-                raise
-            raise LogFormatError(f"{path}: not a readable MATLAB file ({exc})") from exc
-    elif suffix in (".hdf5", ".h5"):
-        try:
-            import h5py
-        except ImportError as exc:
-            raise ImportError(
-                f"{path}: reading HDF5 needs h5py: pip install 'diffbot-fusion[hdf5]'"
-            ) from exc
-        with h5py.File(path, "r") as f:
-            raw = {k: np.asarray(f[k]) for k in _BROAD_KEYS if k in f}
-    else:
-        raise LogFormatError(f"{path}: unknown BROAD file type {suffix!r} (want .mat or .hdf5)")
-    missing = [k for k in _BROAD_KEYS if k not in raw]
-    if missing:
-        raise LogFormatError(f"{path}: not a BROAD trial, missing {', '.join(missing)}")
-
-    def rows(key: str, width: int) -> NDArray[np.float64]:
-        a = np.asarray(raw[key], dtype=np.float64)
-        if a.ndim == 2 and a.shape[0] == width and a.shape[1] != width:
-            a = a.T  # column-major writers store (width, N)
-        if a.ndim != 2 or a.shape[1] != width:
-            raise LogFormatError(f"{path}: {key} has shape {a.shape}, expected (N, {width})")
-        return np.ascontiguousarray(a)
-
-    gyro, accel, mag = rows("imu_gyr", 3), rows("imu_acc", 3), rows("imu_mag", 3)
-    quat_ref, pos_ref = rows("opt_quat", 4), rows("opt_pos", 3)
-    movement = np.asarray(raw["movement"]).reshape(-1).astype(bool)
-    rate = float(np.asarray(raw["sampling_rate"]).reshape(-1)[0])
-    n = gyro.shape[0]
-    for key, arr in (("imu_acc", accel), ("imu_mag", mag), ("opt_quat", quat_ref),
-                     ("opt_pos", pos_ref), ("movement", movement)):
-        if arr.shape[0] != n:
-            raise LogFormatError(f"{path}: {key} has {arr.shape[0]} rows, imu_gyr has {n}")
-    if not rate > 0:
-        raise LogFormatError(f"{path}: sampling_rate must be > 0 Hz, got {rate}")
-    return BroadTrial(
-        t=np.arange(n) / rate, gyro=gyro, accel=accel, mag=mag, source=str(path),
-        quat_ref=quat_ref, pos_ref=pos_ref, movement=movement, rate=rate, name=path.stem,
-    )
-
-
-def read_imu_csv(path: str | Path) -> ImuLog:
-    """Read an IMU CSV (schema in the module docstring).
-
-    Raises :class:`LogFormatError` naming the file and line for a wrong header, a row with the
-    wrong number of fields or a non-numeric value, and timestamps that do not increase.
-    """
-    path = Path(path)
-    with path.open(newline="") as fh:
-        header_line = fh.readline()
-    header = [h.strip() for h in header_line.strip().split(",")]
-    width = len(header)
-    if tuple(header[:7]) != IMU_CSV_COLUMNS or width not in (7, 10) or (
-        width == 10 and tuple(header[7:]) != MAG_COLUMNS
-    ):
-        raise LogFormatError(
-            f"{path}:1: header must be {','.join(IMU_CSV_COLUMNS)}[,mx,my,mz], "
-            f"got {header_line.strip()!r}"
-        )
-    try:
-        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64)
-    except ValueError:
-        _raise_bad_csv_line(path, width)
-        raise
-    if data.shape[0] and data.shape[1] != width:
-        _raise_bad_csv_line(path, width)
-    if data.shape[0] == 0:
-        data = np.zeros((0, width))
-    t = data[:, 0].copy()
-    bad = np.flatnonzero(~(np.diff(t) > 0))
-    if bad.size:
-        line = int(bad[0]) + 3  # header is line 1, data row i is line i + 2
-        raise LogFormatError(
-            f"{path}:{line}: timestamp {t[bad[0] + 1]!r} does not increase "
-            f"(previous {t[bad[0]]!r})"
-        )
-    return ImuLog(
-        t=t,
-        gyro=np.ascontiguousarray(data[:, 1:4]),
-        accel=np.ascontiguousarray(data[:, 4:7]),
-        mag=np.ascontiguousarray(data[:, 7:10]) if width == 10 else None,
-        source=str(path),
-    )
-
-
-def _raise_bad_csv_line(path: Path, width: int) -> None:
-    """Find the first malformed data line of a CSV and raise naming it."""
-    with path.open(newline="") as fh:
-        reader = csv.reader(fh)
-        next(reader, None)
-        for lineno, row in enumerate(reader, start=2):
-            if not row:
-                continue
-            if len(row) != width:
-                raise LogFormatError(
-                    f"{path}:{lineno}: expected {width} fields, got {len(row)}"
-                )
-            for name, value in zip(_columns(width), row):
-                try:
-                    float(value)
-                except ValueError:
-                    raise LogFormatError(
-                        f"{path}:{lineno}: column {name!r} is not a number: {value!r}"
-                    ) from None
-
-
-def _columns(width: int) -> tuple[str, ...]:
-    return IMU_CSV_COLUMNS + (MAG_COLUMNS if width == 10 else ())
-
-
-def write_attitude_csv(
-    path: str | Path, t: NDArray, quaternions: NDArray
-) -> None:
-    """Write ``t,qw,qx,qy,qz,roll,pitch,yaw`` (s, quaternion body -> ENU, radians).
-
-    Written to a temporary file first and renamed, so an existing file is never left half
-    written.
-    """
-    path = Path(path)
-    q = np.asarray(quaternions, dtype=float)
-    euler = quat.to_euler(q)
-    table = np.column_stack([np.asarray(t, dtype=float), q, euler])
-    tmp = path.with_name(path.name + ".partial")
-    try:
-        np.savetxt(tmp, table, delimiter=",", header=",".join(ATTITUDE_CSV_COLUMNS),
-                   comments="", fmt="%.10g")
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-# -- ROS 1/2 bags and MCAP -------------------------------------------------------------------
 
 IMU_TYPES = ("sensor_msgs/Imu",)
+
+
 ODOMETRY_TYPES = ("nav_msgs/Odometry",)
+
+
 TWIST_TYPES = ("geometry_msgs/Twist", "geometry_msgs/TwistStamped")
 
 
@@ -703,177 +472,3 @@ def read_bag_twist(path: str | Path, topic: str = "/cmd_vel", *,
     log = read_bag(path, twist_topic=topic, stamps=stamps).twist
     assert log is not None
     return log
-
-
-# -- DATA-uart2 captures ---------------------------------------------------------------------
-
-UART2_CAPTURE_HEADER = "t,data"
-
-
-@dataclass
-class Uart2Capture:
-    """Wheel frames decoded from a DATA-uart2 capture.
-
-    Attributes:
-        left, right: (N,) int64 ticks counted in each frame's sampling period (left, right).
-        offset: (N,) int64 byte offset of each frame's first byte in the capture's stream.
-        t: (N,) s, each frame's stamp on the capture's host clock (timed captures; see
-            :func:`read_uart2_capture`), or None for a raw capture.
-        stats: the parser's counters (:class:`drivers.chassis.ParserStats` as a dict).
-        reads: number of reads (rows) of a timed capture, 0 for a raw one.
-        source: the file read.
-    """
-
-    left: NDArray[np.int64]
-    right: NDArray[np.int64]
-    offset: NDArray[np.int64]
-    t: NDArray[np.float64] | None
-    stats: dict[str, int]
-    reads: int = 0
-    source: str = ""
-
-    def __len__(self) -> int:
-        return len(self.left)
-
-    def wheel_ticks(self) -> list[Any]:
-        """The frames as :class:`fusion.samples.WheelTicks` (timed captures only)."""
-        from fusion.samples import WheelTicks
-
-        if self.t is None:
-            raise ValueError(f"{self.source}: a raw capture has no times; record a timed "
-                             "capture (Uart2CaptureWriter) to replay it on a clock")
-        return [WheelTicks(float(t), int(lft), int(rgt))
-                for t, lft, rgt in zip(self.t, self.left, self.right)]
-
-
-class Uart2CaptureWriter:
-    """Writes a timed DATA-uart2 capture: ``t,data`` rows (s, hex bytes), one per read.
-
-    Lines are flushed as they are written, so a capture survives a crash of the recorder up to
-    its last read. An existing file is a FileExistsError unless ``overwrite=True``.
-    """
-
-    def __init__(self, path: str | Path, *, overwrite: bool = False) -> None:
-        self.path = Path(path)
-        self._fh = self.path.open("w" if overwrite else "x", encoding="ascii", newline="\n")
-        self._fh.write(UART2_CAPTURE_HEADER + "\n")
-        self._last = -math.inf
-
-    def write(self, t: float, data: bytes | bytearray | memoryview) -> None:
-        """One read: its return time ``t`` (s) and its bytes."""
-        t = float(t)
-        if not math.isfinite(t) or t < self._last:
-            raise ValueError(f"{self.path}: read times must be finite and not decrease, got "
-                             f"{t!r} after {self._last!r}")
-        self._last = t
-        self._fh.write(f"{t!r},{bytes(data).hex()}\n")
-        self._fh.flush()
-
-    def close(self) -> None:
-        self._fh.close()
-
-    def __enter__(self) -> Uart2CaptureWriter:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
-
-def _read_timed_capture(path: Path) -> tuple[list[float], list[bytes]]:
-    times: list[float] = []
-    chunks: list[bytes] = []
-    with path.open(encoding="ascii", errors="replace", newline=None) as fh:
-        fh.readline()
-        for lineno, line in enumerate(fh, start=2):
-            line = line.strip()
-            if not line:
-                continue
-            parts = line.split(",")
-            if len(parts) != 2:
-                raise LogFormatError(f"{path}:{lineno}: expected 't,data', got {line[:60]!r}")
-            try:
-                t = float(parts[0])
-            except ValueError:
-                raise LogFormatError(f"{path}:{lineno}: t is not a number: {parts[0]!r}") from None
-            try:
-                data = bytes.fromhex(parts[1])
-            except ValueError:
-                raise LogFormatError(
-                    f"{path}:{lineno}: data is not hex bytes: {parts[1][:60]!r}") from None
-            if not math.isfinite(t) or (times and t < times[-1]):
-                raise LogFormatError(f"{path}:{lineno}: t = {parts[0]} is not finite or goes "
-                                     f"back in time (previous {times[-1] if times else None})")
-            times.append(t)
-            chunks.append(data)
-    return times, chunks
-
-
-def read_uart2_capture(
-    path: str | Path,
-    *,
-    max_ticks: int | None = None,
-    strict_sign: bool = True,
-    baudrate: int = 115200,
-    period: float = 0.04,
-) -> Uart2Capture:
-    """Decode a DATA-uart2 capture (raw bytes, or a timed ``t,data`` capture).
-
-    A timed capture is replayed read by read through :class:`drivers.chassis.FrameStamper`,
-    the stamping rule of :class:`drivers.serial_link.ChassisLink`: the read's time minus the
-    transmission time (10 bits per byte at ``baudrate``) of the bytes that followed the frame
-    up to the end of the read, never earlier than the previous read; a frame the parser holds
-    back is decided when the line has been quiet for more than ``2 * period`` s (as the link's
-    housekeeping does) or at the end. A capture recorded from the link's ``on_read`` hook
-    holds every read, empty ones included, and replays to exactly the frames and stamps the
-    link delivered; in a capture without empty reads, a gap of more than 2 periods between
-    two reads is taken as the quiet line the link would have seen.
-
-    Args:
-        path: the capture file.
-        max_ticks: the parser's plausibility bound, ticks per period (default: the parser's).
-        strict_sign: accept only sign bytes 0/1 (see :class:`drivers.chassis.WheelFrameParser`).
-        baudrate: line speed, for the transmission-time correction, bit/s.
-        period: firmware sampling period (seed 000's ``encode_sampling_time``), s.
-    """
-    from drivers.chassis import DEFAULT_MAX_TICKS, FrameStamper, WheelFrameParser
-
-    path = Path(path)
-    if baudrate <= 0 or not period > 0:
-        raise ValueError(f"baudrate and period must be > 0, got {baudrate}, {period}")
-    parser = WheelFrameParser(max_ticks=DEFAULT_MAX_TICKS if max_ticks is None else max_ticks,
-                              strict_sign=strict_sign)
-    with path.open("rb") as fh:
-        head = fh.read(len(UART2_CAPTURE_HEADER) + 2)
-    timed = head.rstrip(b"\r\n") == UART2_CAPTURE_HEADER.encode() or head.startswith(
-        (UART2_CAPTURE_HEADER + "\n").encode())
-    if not timed:
-        data = path.read_bytes()
-        off, left, right = parser.feed_arrays(data)
-        tail = parser.finish()
-        off = np.concatenate([off, [f.offset for f in tail]]).astype(np.int64)
-        left = np.concatenate([left, [f.left for f in tail]]).astype(np.int64)
-        right = np.concatenate([right, [f.right for f in tail]]).astype(np.int64)
-        return Uart2Capture(left=left, right=right, offset=off, t=None,
-                            stats=parser.stats.as_dict(), source=str(path))
-
-    times, chunks = _read_timed_capture(path)
-    # the link's own stamping rule, read by read (feed, then the quiet-line check)
-    stamper = FrameStamper(parser, baudrate=baudrate, period=period)
-    parts = []
-    prev_empty = True
-    for t_read, data in zip(times, chunks):
-        if data and not prev_empty:
-            # two data reads more than 2 periods apart with no timed-out read between: a
-            # capture that does not record empty reads (the link's reads time out after a
-            # period, so it would have checked the quiet line in the gap)
-            parts.append(stamper.poll(t_read))
-        parts.append(stamper.feed(t_read, data))
-        parts.append(stamper.poll(t_read))
-        prev_empty = not data
-    parts.append(stamper.finish())
-    parser.finish()
-    out_t = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0)
-    left, right, off = (np.concatenate([p[i] for p in parts]).astype(np.int64)
-                        if parts else np.zeros(0, dtype=np.int64) for i in (1, 2, 3))
-    return Uart2Capture(left=left, right=right, offset=off, t=np.asarray(out_t, dtype=float),
-                        stats=parser.stats.as_dict(), reads=len(times), source=str(path))

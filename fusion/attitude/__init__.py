@@ -1,0 +1,1 @@
+"""Attitude estimation from a gyro, an accelerometer and optionally a magnetometer."""

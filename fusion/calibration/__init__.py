@@ -1,0 +1,1 @@
+"""Calibration from recordings: IMU biases and scales, odometry geometry (UMBmark)."""

@@ -1,0 +1,1 @@
+"""Evaluation: orientation and trajectory error metrics, synthetic runs with ground truth."""

@@ -1,0 +1,152 @@
+"""``robot.toml``: read and write a :class:`fusion.planar.robot.RobotConfig` (format in
+``datasets/LOGDIR.md``). Every error names the file, the table and the key.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.io.errors import LogFormatError
+from fusion.planar.ekf import EkfNoise
+from fusion.planar.robot import RobotConfig
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+__all__ = ["read_robot_toml", "robot_config_from_tables", "write_robot_toml"]
+
+
+_CHASSIS_KEYS = {f.name for f in fields(DiffDriveParams)}
+
+
+_FRAME_KEYS = {"odom", "base", "imu_mount_rpy"}
+
+
+_EKF_KEYS = {f.name for f in fields(EkfNoise)}
+
+
+def _number(path: Path, table: str, key: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise LogFormatError(f"{path}: [{table}] {key} must be a number, got {value!r}")
+    return float(value)
+
+
+def read_robot_toml(path: str | Path) -> RobotConfig:
+    """Read ``robot.toml`` (see the module docstring).
+
+    Raises:
+        LogFormatError: invalid TOML, a missing ``[chassis]`` key, an unknown key (typos are
+            not silently ignored) or a value out of range; the message names the file.
+    """
+    path = Path(path)
+    try:
+        with path.open("rb") as fh:
+            doc = tomllib.load(fh)
+    except tomllib.TOMLDecodeError as exc:
+        raise LogFormatError(f"{path}: invalid TOML: {exc}") from exc
+    unknown = set(doc) - {"chassis", "frames", "ekf"}
+    if unknown:
+        raise LogFormatError(f"{path}: unknown table(s) {sorted(unknown)}; "
+                             "allowed: chassis, frames, ekf")
+    return robot_config_from_tables(path, doc)
+
+
+def robot_config_from_tables(path: str | Path, doc: dict[str, Any]) -> RobotConfig:
+    """:class:`RobotConfig` from the ``[chassis]``, ``[frames]`` and ``[ekf]`` tables of an
+    already loaded TOML document (other tables are the caller's: :func:`read_robot_toml`
+    refuses them, :mod:`fusion.io.run_config` has its own). ``path`` names the file in errors.
+
+    Raises:
+        LogFormatError: as :func:`read_robot_toml`.
+    """
+    path = Path(path)
+    chassis = doc.get("chassis")
+    if not isinstance(chassis, dict):
+        raise LogFormatError(f"{path}: missing [chassis] table (wheel_distance, speed_ratio, "
+                             "encode_sampling_time)")
+    bad = set(chassis) - _CHASSIS_KEYS
+    if bad:
+        raise LogFormatError(f"{path}: [chassis] unknown key(s) {sorted(bad)}; "
+                             f"allowed: {sorted(_CHASSIS_KEYS)}")
+    for key in ("wheel_distance", "speed_ratio", "encode_sampling_time"):
+        if key not in chassis:
+            raise LogFormatError(f"{path}: [chassis] needs {key}")
+    values = {k: _number(path, "chassis", k, v) for k, v in chassis.items()}
+    try:
+        params = DiffDriveParams(**values)
+    except ValueError as exc:
+        raise LogFormatError(f"{path}: [chassis] {exc}") from exc
+
+    frames = doc.get("frames", {})
+    if not isinstance(frames, dict) or set(frames) - _FRAME_KEYS:
+        raise LogFormatError(f"{path}: [frames] allows only {sorted(_FRAME_KEYS)}")
+    rpy = frames.get("imu_mount_rpy", [0.0, 0.0, 0.0])
+    if not (isinstance(rpy, list) and len(rpy) == 3):
+        raise LogFormatError(f"{path}: [frames] imu_mount_rpy must be [roll, pitch, yaw] "
+                             f"in rad, got {rpy!r}")
+    rpy_t = tuple(_number(path, "frames", "imu_mount_rpy", v) for v in rpy)
+    for key in ("odom", "base"):
+        if key in frames and not isinstance(frames[key], str):
+            raise LogFormatError(f"{path}: [frames] {key} must be a string")
+
+    ekf_tab = doc.get("ekf", {})
+    if not isinstance(ekf_tab, dict) or set(ekf_tab) - _EKF_KEYS:
+        bad = sorted(set(ekf_tab) - _EKF_KEYS) if isinstance(ekf_tab, dict) else ekf_tab
+        raise LogFormatError(f"{path}: [ekf] unknown key(s) {bad}; allowed: {sorted(_EKF_KEYS)}")
+    ekf_values = {k: _number(path, "ekf", k, v) for k, v in ekf_tab.items()}
+    if "zupt_frames" in ekf_values:
+        ekf_values["zupt_frames"] = int(ekf_values["zupt_frames"])
+    try:
+        ekf = EkfNoise(**ekf_values)
+    except ValueError as exc:
+        raise LogFormatError(f"{path}: [ekf] {exc}") from exc
+    return RobotConfig(
+        chassis=params,
+        odom_frame=frames.get("odom", "odom"),
+        base_frame=frames.get("base", "base_footprint"),
+        imu_mount_rpy=rpy_t,  # type: ignore[arg-type]
+        ekf=ekf,
+    )
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, float) and math.isinf(v):
+        return "inf" if v > 0 else "-inf"
+    return repr(v)
+
+
+def write_robot_toml(path: str | Path, robot: RobotConfig | DiffDriveParams) -> None:
+    """Write ``robot.toml`` for ``robot`` (infinite limits are left out)."""
+    if isinstance(robot, DiffDriveParams):
+        robot = RobotConfig(chassis=robot)
+    c = robot.chassis
+    units = {"wheel_distance": "m", "speed_ratio": "m per encoder tick",
+             "encode_sampling_time": "s, firmware period", "cmd_vel_linear_max": "m/s",
+             "cmd_vel_angular_max": "rad/s", "wheel_speed_max": "m/s"}
+    lines = ["# robot.toml: chassis parameters with the names of the miiboo driver (seed 000)",
+             "[chassis]"]
+    for f in fields(DiffDriveParams):
+        v = getattr(c, f.name)
+        if isinstance(v, float) and math.isinf(v):
+            continue
+        lines.append(f"{f.name} = {v!r}  # {units.get(f.name, '')}")
+    lines += ["", "[frames]", f"odom = {_toml_value(robot.odom_frame)}",
+              f"base = {_toml_value(robot.base_frame)}",
+              f"imu_mount_rpy = {_toml_value(list(robot.imu_mount_rpy))}  # rad, URDF rpy"]
+    default = EkfNoise()
+    changed = {f.name: getattr(robot.ekf, f.name) for f in fields(EkfNoise)
+               if getattr(robot.ekf, f.name) != getattr(default, f.name)}
+    if changed:
+        lines += ["", "[ekf]"] + [f"{k} = {_toml_value(v)}" for k, v in changed.items()]
+    Path(path).write_text("\n".join(lines) + "\n")

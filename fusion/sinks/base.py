@@ -1,0 +1,157 @@
+"""Sinks for fused odometry: JSON lines, CSV, rosbag2/MCAP files, a Foxglove live server, ROS 1.
+
+Every sink has the same small interface: ``open()``, ``write(record)`` with a
+:class:`fusion.types.fused.FusedOdometry`, ``close()``, and use as a context manager (``with sink:``
+opens it and closes it; an exception inside the block calls ``abort()`` instead, which for file
+sinks discards the partial output and leaves any existing file untouched).
+
+The ROS-shaped sinks publish seed 000's interface (topics configurable through :class:`Topics`):
+
+=====================  ======================  =================================================
+topic                  type                    content
+=====================  ======================  =================================================
+``/odom``              nav_msgs/Odometry       pose of ``child_frame_id`` in ``frame_id`` (m,
+                                               yaw-only quaternion), twist in the child frame
+                                               (m/s, rad/s), both covariances (6x6 row major)
+``/tf``                tf2_msgs/TFMessage      ``frame_id`` -> ``child_frame_id`` (odom ->
+                                               base_footprint)
+``/imu/data``          sensor_msgs/Imu         attitude (if known, else orientation covariance
+                                               [0] = -1), body rate rad/s, specific force m/s^2
+                                               (if known, else its covariance [0] = -1)
+``/wheel_left_speed``  std_msgs/Float32        left wheel rim speed, m/s (when the record has it)
+``/wheel_right_speed`` std_msgs/Float32        right wheel rim speed, m/s
+=====================  ======================  =================================================
+
+Stamps are the record's ``t`` (s) as integer nanoseconds; ROS time cannot be negative, so a
+record with ``t < 0`` is a ValueError in the ROS-shaped sinks. The two live sinks (the ROS 1
+node and the Foxglove server) also take velocity commands on ``/cmd_vel``
+(geometry_msgs/Twist) and hand ``(linear.x m/s, angular.z rad/s)`` to an ``on_cmd_vel``
+callback.
+
+Optional dependencies: ``rosbags`` for the bag sinks (``pip install 'diffbot-fusion[ros]'``),
+``foxglove-sdk`` for the live server (``[foxglove]``), Debian's ``python3-rospy`` and message
+packages for the ROS 1 node (:mod:`fusion.sinks.ros1`). They are imported when a sink opens.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from fusion.types.fused import FusedOdometry
+
+__all__ = ["Sink", "SinkError", "create_temp_file"]
+
+
+class SinkError(RuntimeError):
+    """A sink used out of order (write before open, after close) or a failed output."""
+
+
+class Sink:
+    """Base of all sinks: ``open()``, ``write(record)``, ``close()``, ``abort()``.
+
+    ``with sink:`` opens, and on leaving closes (normal exit) or aborts (an exception).
+    Subclasses implement ``_open``, ``_write``, ``_close`` and optionally ``_abort``.
+    """
+
+    def __init__(self) -> None:
+        self._state = "new"
+        self.records_written = 0
+
+    @property
+    def is_open(self) -> bool:
+        """True between ``open()`` and ``close()``/``abort()``."""
+        return self._state == "open"
+
+    def open(self) -> None:
+        """Acquire the output (file, server, node); a sink opens once."""
+        if self._state != "new":
+            raise SinkError(f"{self!r} was already opened")
+        self._open()
+        self._state = "open"
+
+    def write(self, record: FusedOdometry) -> None:
+        """Publish or store one record."""
+        if self._state != "open":
+            raise SinkError(f"{self!r} is not open (state {self._state})")
+        if not isinstance(record, FusedOdometry):
+            raise TypeError(f"sinks take FusedOdometry records, got {type(record).__name__}")
+        self._write(record)
+        self.records_written += 1
+
+    def close(self) -> None:
+        """Finish the output (files are complete and in place after this)."""
+        if self._state == "open":
+            self._state = "closed"
+            self._close()
+
+    def abort(self) -> None:
+        """Stop without finishing: file sinks discard their partial output."""
+        if self._state == "open":
+            self._state = "aborted"
+            self._abort()
+
+    def __enter__(self) -> Sink:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+
+    def _open(self) -> None:
+        pass
+
+    def _write(self, record: FusedOdometry) -> None:
+        raise NotImplementedError
+
+    def _close(self) -> None:
+        pass
+
+    def _abort(self) -> None:
+        self._close()
+
+
+def _temp_sibling(path: Path, *, directory: bool) -> Path:
+    """A fresh temporary name next to ``path`` (same file system, so a rename is atomic)."""
+    parent = path.parent
+    if not parent.is_dir():
+        raise FileNotFoundError(f"{path}: the folder {parent} does not exist")
+    prefix = f".{path.name}."
+    if directory:
+        # private while being built; only the bag folder made inside it is moved into place
+        return Path(tempfile.mkdtemp(prefix=prefix, suffix=".partial", dir=parent))
+    return create_temp_file(path)
+
+
+def create_temp_file(path: Path) -> Path:
+    """Create a fresh empty file next to ``path`` (``.<name>.<random>.partial``) with the
+    permissions an ordinary ``open(path, "w")`` would give (0666 minus the umask: 0644 under
+    umask 022), so the renamed output is not private the way a :func:`tempfile.mkstemp` file
+    (0600) would be."""
+    for _ in range(100):
+        name = path.parent / f".{path.name}.{secrets.token_hex(6)}.partial"
+        try:
+            fd = os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            continue
+        os.close(fd)
+        return name
+    raise FileExistsError(f"{path}: could not create a temporary file next to it")
+
+
+def _need(module: str, extra: str) -> Any:
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError as exc:
+        raise ImportError(
+            f"this sink needs the {module.split('.')[0]!r} package: "
+            f"pip install 'diffbot-fusion[{extra}]'"
+        ) from exc

@@ -1,0 +1,124 @@
+"""Text sinks: JSON lines (stdout or a file) and CSV.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from pathlib import Path
+from typing import IO
+
+from fusion.sinks.base import Sink, _temp_sibling
+from fusion.types.fused import FusedOdometry
+
+__all__ = ["FUSED_RECORD_CSV_COLUMNS", "CsvSink", "JsonLinesSink"]
+
+
+class JsonLinesSink(Sink):
+    """One JSON object per record and line (:meth:`FusedOdometry.to_dict`).
+
+    Args:
+        target: a text stream (default ``sys.stdout``; flushed after each line, never closed
+            by the sink), or a path written to a temporary file and renamed into place on
+            close (so an existing file is replaced only by a complete one).
+        flush: flush the stream after each line (live use).
+    """
+
+    def __init__(self, target: IO[str] | str | Path | None = None, *, flush: bool = True):
+        super().__init__()
+        self._target = target
+        self._flush = flush
+        self._stream: IO[str] | None = None
+        self._tmp: Path | None = None
+
+    def __repr__(self) -> str:
+        return f"JsonLinesSink({self._target if self._target is not None else 'stdout'})"
+
+    def _open(self) -> None:
+        if self._target is None or self._target == "-":
+            self._stream = sys.stdout
+        elif isinstance(self._target, (str, Path)):
+            path = Path(self._target)
+            self._tmp = _temp_sibling(path, directory=False)
+            self._stream = self._tmp.open("w", encoding="utf-8")
+        else:
+            self._stream = self._target
+
+    def _write(self, record: FusedOdometry) -> None:
+        assert self._stream is not None
+        self._stream.write(json.dumps(record.to_dict(), allow_nan=False,
+                                      separators=(",", ":")) + "\n")
+        if self._flush:
+            self._stream.flush()
+
+    def _close(self) -> None:
+        if self._tmp is not None:
+            assert self._stream is not None
+            self._stream.close()
+            self._tmp.replace(Path(self._target))  # type: ignore[arg-type]
+            self._tmp = None
+
+    def _abort(self) -> None:
+        if self._tmp is not None:
+            assert self._stream is not None
+            self._stream.close()
+            self._tmp.unlink(missing_ok=True)
+            self._tmp = None
+
+
+#: Columns of :class:`CsvSink` (the first six as in ``fusion replay``'s CSV).
+FUSED_RECORD_CSV_COLUMNS = (
+    "t", "x", "y", "yaw", "v", "w", "var_x", "var_y", "var_yaw", "cov_xy", "cov_x_yaw",
+    "cov_y_yaw", "var_v", "var_w", "wheel_left_speed", "wheel_right_speed",
+)
+
+
+class CsvSink(Sink):
+    """Fused records as CSV rows (:data:`FUSED_RECORD_CSV_COLUMNS`), one per record.
+
+    ``t`` s; ``x, y`` m and ``yaw`` rad (wrapped to (-pi, pi]) of ``child_frame_id`` in
+    ``frame_id``; ``v`` m/s, ``w`` rad/s; the pose covariance terms of x, y, yaw (m^2, m*rad,
+    rad^2) and the twist variances of vx and wz from the record's 6x6 matrices; wheel speeds
+    m/s (empty when the record has none). Numbers are written with Python's shortest exact
+    repr, so equal records give byte-identical files. Written to a temporary file and renamed
+    into place on close, like :class:`JsonLinesSink`.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        super().__init__()
+        self.path = Path(path)
+        self._tmp: Path | None = None
+        self._fh: IO[str] | None = None
+
+    def __repr__(self) -> str:
+        return f"CsvSink({str(self.path)!r})"
+
+    def _open(self) -> None:
+        self._tmp = _temp_sibling(self.path, directory=False)
+        self._fh = self._tmp.open("w", encoding="ascii", newline="\n")
+        self._fh.write(",".join(FUSED_RECORD_CSV_COLUMNS) + "\n")
+
+    def _write(self, record: FusedOdometry) -> None:
+        assert self._fh is not None
+        P, Q = record.pose_covariance, record.twist_covariance
+        yaw = math.remainder(record.yaw, math.tau)
+        if yaw == -math.pi:
+            yaw = math.pi
+        values = (record.t, record.x, record.y, yaw, record.v, record.w, P[0, 0], P[1, 1],
+                  P[5, 5], P[0, 1], P[0, 5], P[1, 5], Q[0, 0], Q[5, 5])
+        speeds = (record.wheel_left_speed, record.wheel_right_speed)
+        self._fh.write(",".join([*(repr(float(v)) for v in values),
+                                 *("" if s is None else repr(s) for s in speeds)]) + "\n")
+
+    def _close(self) -> None:
+        if self._tmp is not None and self._fh is not None:
+            self._fh.close()
+            self._tmp.replace(self.path)
+            self._tmp = None
+
+    def _abort(self) -> None:
+        if self._tmp is not None and self._fh is not None:
+            self._fh.close()
+            self._tmp.unlink(missing_ok=True)
+            self._tmp = None
