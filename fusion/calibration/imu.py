@@ -122,8 +122,13 @@ class ImuCalibration:
             raise ValueError(f"{source}: {exc}") from None
 
     def save(self, path: str | Path) -> None:
-        """Write the calibration as JSON (SI units, stated in the file)."""
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n", encoding="utf-8")
+        """Write the calibration as JSON (SI units, stated in the file), atomically
+        (:func:`fusion.io.atomic.atomic_write`: an existing file is replaced only by a
+        complete one)."""
+        from fusion.io.atomic import atomic_write
+
+        with atomic_write(path, encoding="utf-8") as fh:
+            fh.write(json.dumps(self.to_dict(), indent=2) + "\n")
 
     @classmethod
     def load(cls, path: str | Path) -> ImuCalibration:

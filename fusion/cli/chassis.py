@@ -20,7 +20,9 @@ import csv
 import math
 import sys
 import time
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -89,6 +91,25 @@ def step_metrics(t, y, target: float, tail: float = 0.25) -> StepMetrics:
 
 
 # -- commands --
+def _csv_rows(fh: Any, header: list[str], rows: Iterable[Sequence[Any]]) -> None:
+    w = csv.writer(fh, lineterminator="\n")
+    w.writerow(header)
+    w.writerows(rows)
+
+
+def _write_csv(path: str, header: list[str], rows: Iterable[Sequence[Any]]) -> None:
+    """``header`` and ``rows`` as a CSV file, written atomically (replaced only when complete)."""
+    from fusion.io.atomic import atomic_write
+
+    try:
+        with atomic_write(path, newline="") as fh:
+            _csv_rows(fh, header, rows)
+    except OSError as exc:
+        if str(path) in str(exc):  # the error names the file already
+            raise
+        raise CommandError(f"cannot write {path}: {exc.strerror or exc}") from exc
+
+
 def _cmd_decode(args) -> int:
     from drivers.chassis import WheelFrameParser
 
@@ -103,17 +124,10 @@ def _cmd_decode(args) -> int:
     rows = [(int(a), int(b), int(c)) for a, b, c in zip(left, right, off)]
     rows += [(f.left, f.right, f.offset) for f in tail]
     out = sys.stdout if args.output in (None, "-") else None
-    try:
-        fh = out or open(args.output, "w", newline="")
-    except OSError as exc:
-        raise CommandError(f"cannot write {args.output}: {exc.strerror}") from exc
-    try:
-        w = csv.writer(fh, lineterminator="\n")
-        w.writerow(["left", "right", "offset"])
-        w.writerows(rows)
-    finally:
-        if out is None:
-            fh.close()
+    if out is not None:
+        _csv_rows(out, ["left", "right", "offset"], rows)
+    else:
+        _write_csv(args.output, ["left", "right", "offset"], rows)
     s = parser.stats
     report = sys.stderr if out is not None else sys.stdout
     print(
@@ -257,13 +271,8 @@ def _cmd_step(args) -> int:
     y = np.array([getattr(f, wheel) for f in samples], dtype=float)
     m = step_metrics(t, y, args.ticks)
     if args.csv:
-        try:
-            with open(args.csv, "w", newline="") as fh:
-                w = csv.writer(fh, lineterminator="\n")
-                w.writerow(["t", "left", "right"])
-                w.writerows((f"{f.t - t0:.4f}", f.left, f.right) for f in samples)
-        except OSError as exc:
-            raise CommandError(f"cannot write {args.csv}: {exc.strerror}") from exc
+        _write_csv(args.csv, ["t", "left", "right"],
+                   [(f"{f.t - t0:.4f}", f.left, f.right) for f in samples])
     print(f"target {m.target:g} ticks/period ({wheel} wheel), {len(samples)} frames")
     print(f"rise time (10-90 %): {m.rise_time:.3f} s")
     print(f"overshoot: {m.overshoot:.1f} %")

@@ -27,9 +27,7 @@ error). Each file is written under a temporary name and renamed when complete.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
-import os
 import sys
 import time
 from dataclasses import dataclass, field
@@ -357,18 +355,13 @@ def _plot(report: DemoReport, path: Path) -> str | None:
     ax2.set_title("Yaw error against the simulator's truth")
     fig.suptitle("fusion demo: simulated miiboo chassis + MPU6050, live pipeline")
     fig.tight_layout()
-    from fusion.sinks.base import create_temp_file
+    from fusion.io.atomic import atomic_write
 
-    # created with the umask's permissions (mkstemp's would be 0600; changing the process
-    # umask to read it would race the link's and the sinks' threads)
-    tmp = create_temp_file(path)
     try:
-        fig.savefig(tmp, dpi=110, format="png")
-        os.replace(tmp, path)
+        with atomic_write(path, "wb") as fh:
+            fig.savefig(fh, dpi=110, format="png")
     finally:
         plt.close(fig)
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
     return None
 
 

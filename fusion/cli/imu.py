@@ -159,6 +159,11 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--count must be >= 1; got {args.count}")
     if args.realtime and not args.sim:
         raise ValueError("--realtime only applies to --sim")
+    from fusion.io.atomic import AtomicFile, check_target
+
+    for path in (args.output, args.save_calibration):
+        if path:
+            check_target(path)  # before the sensor is opened and calibrated
     status = sys.stderr
     imu = _open(args)
     try:
@@ -173,12 +178,13 @@ def run(args: argparse.Namespace) -> int:
         # Compile the filter now (numba, about a second the first time), not while the FIFO
         # fills: 85 frames last 0.85 s at 100 Hz.
         Mahony(sample_period=0.01).update(np.zeros(3), np.array([0.0, 0.0, 9.8]))
-        sink = args.output.open("w", encoding="utf-8") if args.output else sys.stdout
+        out = AtomicFile(args.output, encoding="utf-8") if args.output else None
         try:
-            _stream(imu, args, mahony, sink, status)
+            _stream(imu, args, mahony, out.file if out else sys.stdout, status)
         finally:
-            if args.output:
-                sink.close()
+            if out is not None:
+                # a recording: what was read is kept, also when Ctrl-C or an error stopped it
+                out.commit()
     finally:
         imu.close()
     return 0

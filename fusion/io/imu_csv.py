@@ -20,6 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.geometry import quaternion as quat
+from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 
 __all__ = ["IMU_CSV_COLUMNS", "ImuLog", "read_imu_csv", "write_attitude_csv"]
@@ -122,17 +123,12 @@ def write_attitude_csv(
 ) -> None:
     """Write ``t,qw,qx,qy,qz,roll,pitch,yaw`` (s, quaternion body -> ENU, radians).
 
-    Written to a temporary file first and renamed, so an existing file is never left half
-    written.
+    Written atomically (:func:`fusion.io.atomic.atomic_write`): an existing file is replaced
+    only by a complete one.
     """
-    path = Path(path)
     q = np.asarray(quaternions, dtype=float)
     euler = quat.to_euler(q)
     table = np.column_stack([np.asarray(t, dtype=float), q, euler])
-    tmp = path.with_name(path.name + ".partial")
-    try:
-        np.savetxt(tmp, table, delimiter=",", header=",".join(ATTITUDE_CSV_COLUMNS),
+    with atomic_write(path, encoding="ascii", newline="\n") as fh:
+        np.savetxt(fh, table, delimiter=",", header=",".join(ATTITUDE_CSV_COLUMNS),
                    comments="", fmt="%.10g")
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)

@@ -31,6 +31,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion.geometry import quaternion as quat
 from fusion.geometry.kinematics import TICKS_MAX, DiffDriveParams
+from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import read_imu_csv
 from fusion.io.robot_toml import read_robot_toml, write_robot_toml
@@ -184,16 +185,11 @@ def read_logdir(path: str | Path) -> LogDir:
 def _write_table(path: Path, header: tuple[str, ...], cols: list[ArrayLike],
                  fmts: list[str]) -> None:
     arrays = [np.asarray(c) for c in cols]
-    tmp = path.with_name(path.name + ".partial")
-    try:
-        with tmp.open("w", newline="") as fh:
-            fh.write(",".join(header) + "\n")
-            fmt = ",".join(fmts) + "\n"
-            for row in zip(*arrays, strict=True):
-                fh.write(fmt % row)
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
+    with atomic_write(path, encoding="ascii", newline="") as fh:
+        fh.write(",".join(header) + "\n")
+        fmt = ",".join(fmts) + "\n"
+        for row in zip(*arrays, strict=True):
+            fh.write(fmt % row)
 
 
 def write_logdir(
@@ -211,7 +207,9 @@ def write_logdir(
     """Write a log directory (created if needed); returns its path.
 
     Values are written with 17 significant digits (``%.17g``), so reading the directory back
-    gives the very same floats. Each file is written to a temporary name and renamed.
+    gives the very same floats. Each file is written atomically
+    (:func:`fusion.io.atomic.atomic_write`: replaced only by a complete one); the directory as
+    a whole is not (a failure part way leaves the files written before it).
     """
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)

@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from fusion.geometry.kinematics import DiffDriveParams
+from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 from fusion.planar.ekf import EkfNoise
 from fusion.planar.robot import RobotConfig
@@ -127,7 +128,8 @@ def _toml_value(v: Any) -> str:
 
 
 def write_robot_toml(path: str | Path, robot: RobotConfig | DiffDriveParams) -> None:
-    """Write ``robot.toml`` for ``robot`` (infinite limits are left out)."""
+    """Write ``robot.toml`` for ``robot`` (infinite limits are left out), atomically
+    (:func:`fusion.io.atomic.atomic_write`)."""
     if isinstance(robot, DiffDriveParams):
         robot = RobotConfig(chassis=robot)
     c = robot.chassis
@@ -149,4 +151,5 @@ def write_robot_toml(path: str | Path, robot: RobotConfig | DiffDriveParams) -> 
                if getattr(robot.ekf, f.name) != getattr(default, f.name)}
     if changed:
         lines += ["", "[ekf]"] + [f"{k} = {_toml_value(v)}" for k, v in changed.items()]
-    Path(path).write_text("\n".join(lines) + "\n")
+    with atomic_write(path, encoding="utf-8") as fh:
+        fh.write("\n".join(lines) + "\n")

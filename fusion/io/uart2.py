@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.io.atomic import AtomicFile
 from fusion.io.errors import LogFormatError
 
 __all__ = ["Uart2Capture", "Uart2CaptureWriter", "read_uart2_capture"]
@@ -62,13 +63,20 @@ class Uart2Capture:
 class Uart2CaptureWriter:
     """Writes a timed DATA-uart2 capture: ``t,data`` rows (s, hex bytes), one per read.
 
-    Lines are flushed as they are written, so a capture survives a crash of the recorder up to
-    its last read. An existing file is a FileExistsError unless ``overwrite=True``.
+    The capture is streamed into a hidden temporary file next to ``path``
+    (:class:`fusion.io.atomic.AtomicFile`) and moved to ``path`` by :meth:`close`, also when a
+    ``with`` block ends with an exception (KeyboardInterrupt included): the reads recorded so
+    far are kept, as complete lines. Lines are flushed as they are written, so after a hard
+    crash of the recorder (kill, power loss) the reads up to the last one are in the hidden
+    ``.<name>.<random>.partial`` file, and ``path`` is still the old file if there was one.
+    An existing file is a FileExistsError unless ``overwrite=True``.
     """
 
     def __init__(self, path: str | Path, *, overwrite: bool = False) -> None:
         self.path = Path(path)
-        self._fh = self.path.open("w" if overwrite else "x", encoding="ascii", newline="\n")
+        self._out = AtomicFile(self.path, "w", encoding="ascii", newline="\n",
+                               overwrite=overwrite)
+        self._fh = self._out.file
         self._fh.write(UART2_CAPTURE_HEADER + "\n")
         self._last = -math.inf
 
@@ -83,7 +91,8 @@ class Uart2CaptureWriter:
         self._fh.flush()
 
     def close(self) -> None:
-        self._fh.close()
+        """Finish the capture: it is at ``path`` after this."""
+        self._out.commit()
 
     def __enter__(self) -> Uart2CaptureWriter:
         return self

@@ -4,11 +4,11 @@
 from __future__ import annotations
 
 import contextlib
-import shutil
 from pathlib import Path
 from typing import Any
 
-from fusion.sinks.base import Sink, SinkError, _need, _temp_sibling
+from fusion.io.atomic import AtomicDirectory
+from fusion.sinks.base import Sink, SinkError, _need
 from fusion.sinks.cdr import _ros2_type, encode_cdr
 from fusion.sinks.ros_messages import MESSAGE_TYPES, Topics, ros_messages, stamp_ns
 from fusion.types.fused import FusedOdometry
@@ -52,27 +52,22 @@ class Rosbag2Sink(Sink):
         self.compression = compression
         self.topics = topics or Topics()
         self.overwrite = overwrite
-        self._tmpdir: Path | None = None
+        self._staged: AtomicDirectory | None = None
         self._writer: Any = None
         self._connections: dict[str, Any] = {}
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({str(self.path)!r})"
 
-    def _check_target(self) -> None:
-        if self.path.exists() and not self.overwrite:
-            raise FileExistsError(f"{self.path}: exists; choose another path or overwrite=True")
-
     def _open(self) -> None:
         rosbag2 = _need("rosbags.rosbag2", "ros")
         typesys = _need("rosbags.typesys", "ros")
-        self._check_target()
         self._ts = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
-        self._tmpdir = _temp_sibling(self.path, directory=True)
+        self._staged = AtomicDirectory(self.path, overwrite=self.overwrite)
         plugin = {"mcap": rosbag2.StoragePlugin.MCAP,
                   "sqlite3": rosbag2.StoragePlugin.SQLITE3}[self.storage]
         try:
-            self._writer = rosbag2.Writer(self._tmpdir / self._bag_name(), version=8,
+            self._writer = rosbag2.Writer(self._staged.staging / self._bag_name(), version=8,
                                           storage_plugin=plugin)
             if self.compression == "zstd":  # zstd-compressed MCAP chunks
                 self._writer.set_compression(rosbag2.CompressionMode.STORAGE,
@@ -92,10 +87,10 @@ class Rosbag2Sink(Sink):
             self._writer.write(self._connections[key], stamp_ns(record.t), data)
 
     def _finish_writer(self) -> Path:
-        assert self._writer is not None and self._tmpdir is not None
+        assert self._writer is not None and self._staged is not None
         writer, self._writer = self._writer, None
         writer.close()
-        return self._tmpdir / self._bag_name()
+        return self._staged.staging / self._bag_name()
 
     def _bag_name(self) -> str:
         return self.path.name
@@ -111,27 +106,17 @@ class Rosbag2Sink(Sink):
 
     def _install(self, built: Path) -> None:
         """Move the finished bag folder to ``path`` (replacing an old one if allowed)."""
-        self._check_target()
-        old = None
-        if self.path.exists():
-            assert self._tmpdir is not None
-            old = self._tmpdir / (self.path.name + ".old")
-            self.path.rename(old)
-        try:
-            built.rename(self.path)
-        except BaseException:
-            if old is not None:
-                old.rename(self.path)
-            raise
+        assert self._staged is not None
+        self._staged.commit(built)
 
     def _discard(self) -> None:
         if self._writer is not None:
             writer, self._writer = self._writer, None
             with contextlib.suppress(Exception):
                 writer.close()
-        if self._tmpdir is not None:
-            shutil.rmtree(self._tmpdir, ignore_errors=True)
-            self._tmpdir = None
+        if self._staged is not None:
+            self._staged.discard()
+            self._staged = None
 
     def _abort(self) -> None:
         self._discard()
@@ -158,10 +143,7 @@ class McapSink(Rosbag2Sink):
         return self.path.stem if self.path.suffix == ".mcap" else self.path.name
 
     def _install(self, built: Path) -> None:
-        self._check_target()
         files = sorted(built.glob("*.mcap"))
         if len(files) != 1:
             raise SinkError(f"{self.path}: expected one MCAP file in the bag, found {files}")
-        if self.path.is_dir():
-            raise IsADirectoryError(f"{self.path}: is a folder, not an .mcap file path")
-        files[0].replace(self.path)
+        super()._install(files[0])  # a folder at path is an IsADirectoryError

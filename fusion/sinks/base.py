@@ -35,12 +35,9 @@ packages for the ROS 1 node (:mod:`fusion.sinks.ros1`). They are imported when a
 
 from __future__ import annotations
 
-import os
-import secrets
-import tempfile
-from pathlib import Path
 from typing import Any
 
+from fusion.io.atomic import create_temp_file  # re-exported: fusion replay's outputs use it
 from fusion.types.fused import FusedOdometry
 
 __all__ = ["Sink", "SinkError", "create_temp_file"]
@@ -115,34 +112,6 @@ class Sink:
 
     def _abort(self) -> None:
         self._close()
-
-
-def _temp_sibling(path: Path, *, directory: bool) -> Path:
-    """A fresh temporary name next to ``path`` (same file system, so a rename is atomic)."""
-    parent = path.parent
-    if not parent.is_dir():
-        raise FileNotFoundError(f"{path}: the folder {parent} does not exist")
-    prefix = f".{path.name}."
-    if directory:
-        # private while being built; only the bag folder made inside it is moved into place
-        return Path(tempfile.mkdtemp(prefix=prefix, suffix=".partial", dir=parent))
-    return create_temp_file(path)
-
-
-def create_temp_file(path: Path) -> Path:
-    """Create a fresh empty file next to ``path`` (``.<name>.<random>.partial``) with the
-    permissions an ordinary ``open(path, "w")`` would give (0666 minus the umask: 0644 under
-    umask 022), so the renamed output is not private the way a :func:`tempfile.mkstemp` file
-    (0600) would be."""
-    for _ in range(100):
-        name = path.parent / f".{path.name}.{secrets.token_hex(6)}.partial"
-        try:
-            fd = os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        except FileExistsError:
-            continue
-        os.close(fd)
-        return name
-    raise FileExistsError(f"{path}: could not create a temporary file next to it")
 
 
 def _need(module: str, extra: str) -> Any:

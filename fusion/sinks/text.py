@@ -9,7 +9,8 @@ import sys
 from pathlib import Path
 from typing import IO
 
-from fusion.sinks.base import Sink, _temp_sibling
+from fusion.io.atomic import AtomicFile
+from fusion.sinks.base import Sink
 from fusion.types.fused import FusedOdometry
 
 __all__ = ["FUSED_RECORD_CSV_COLUMNS", "CsvSink", "JsonLinesSink"]
@@ -30,7 +31,7 @@ class JsonLinesSink(Sink):
         self._target = target
         self._flush = flush
         self._stream: IO[str] | None = None
-        self._tmp: Path | None = None
+        self._out: AtomicFile | None = None
 
     def __repr__(self) -> str:
         return f"JsonLinesSink({self._target if self._target is not None else 'stdout'})"
@@ -39,9 +40,8 @@ class JsonLinesSink(Sink):
         if self._target is None or self._target == "-":
             self._stream = sys.stdout
         elif isinstance(self._target, (str, Path)):
-            path = Path(self._target)
-            self._tmp = _temp_sibling(path, directory=False)
-            self._stream = self._tmp.open("w", encoding="utf-8")
+            self._out = AtomicFile(self._target, "w", encoding="utf-8")
+            self._stream = self._out.file
         else:
             self._stream = self._target
 
@@ -53,18 +53,12 @@ class JsonLinesSink(Sink):
             self._stream.flush()
 
     def _close(self) -> None:
-        if self._tmp is not None:
-            assert self._stream is not None
-            self._stream.close()
-            self._tmp.replace(Path(self._target))  # type: ignore[arg-type]
-            self._tmp = None
+        if self._out is not None:
+            self._out.commit()
 
     def _abort(self) -> None:
-        if self._tmp is not None:
-            assert self._stream is not None
-            self._stream.close()
-            self._tmp.unlink(missing_ok=True)
-            self._tmp = None
+        if self._out is not None:
+            self._out.discard()
 
 
 #: Columns of :class:`CsvSink` (the first six as in ``fusion replay``'s CSV).
@@ -88,15 +82,15 @@ class CsvSink(Sink):
     def __init__(self, path: str | Path) -> None:
         super().__init__()
         self.path = Path(path)
-        self._tmp: Path | None = None
+        self._out: AtomicFile | None = None
         self._fh: IO[str] | None = None
 
     def __repr__(self) -> str:
         return f"CsvSink({str(self.path)!r})"
 
     def _open(self) -> None:
-        self._tmp = _temp_sibling(self.path, directory=False)
-        self._fh = self._tmp.open("w", encoding="ascii", newline="\n")
+        self._out = AtomicFile(self.path, "w", encoding="ascii", newline="\n")
+        self._fh = self._out.file
         self._fh.write(",".join(FUSED_RECORD_CSV_COLUMNS) + "\n")
 
     def _write(self, record: FusedOdometry) -> None:
@@ -112,13 +106,9 @@ class CsvSink(Sink):
                                  *("" if s is None else repr(s) for s in speeds)]) + "\n")
 
     def _close(self) -> None:
-        if self._tmp is not None and self._fh is not None:
-            self._fh.close()
-            self._tmp.replace(self.path)
-            self._tmp = None
+        if self._out is not None:
+            self._out.commit()
 
     def _abort(self) -> None:
-        if self._tmp is not None and self._fh is not None:
-            self._fh.close()
-            self._tmp.unlink(missing_ok=True)
-            self._tmp = None
+        if self._out is not None:
+            self._out.discard()
