@@ -21,15 +21,6 @@ import pytest
 from fusion.io.atomic import AtomicDirectory, AtomicFile, atomic_write, create_temp_file
 
 
-@pytest.fixture(params=[0o022, 0o077, 0o002])
-def umask(request):
-    old = os.umask(request.param)
-    try:
-        yield request.param
-    finally:
-        os.umask(old)
-
-
 def _plain_open_mode(path: Path, existing_mode: int | None = None) -> int:
     """The mode a plain ``open(path, "w")`` leaves (on a new file, or on one of this mode)."""
     if existing_mode is not None:

@@ -21,15 +21,6 @@ from fusion.sinks.text import CsvSink, JsonLinesSink
 from fusion.types.fused import FusedOdometry
 
 
-@pytest.fixture(params=[0o022, 0o077, 0o002])
-def umask(request):
-    old = os.umask(request.param)
-    try:
-        yield request.param
-    finally:
-        os.umask(old)
-
-
 def _plain_mode(folder: Path) -> int:
     ref = folder / "reference.txt"
     with open(ref, "w") as fh:

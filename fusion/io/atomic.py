@@ -6,16 +6,16 @@ flushes and fsyncs it, and renames it over the target (:func:`os.replace`) only 
 writing finished; any exception in between, KeyboardInterrupt included, removes the temporary
 file and leaves the target as it was.
 
-Guarantee: at every moment, and after a crash or power loss at any point, ``path`` is either
-the old file (or absent, if there was none) or the complete new one, never a mix or a
-truncated file. A hard kill (SIGKILL, power loss) during the writing can leave the hidden
-``.partial`` file behind; nothing else does.
+Guarantee (for files; folders: :class:`AtomicDirectory`): at every moment, and after a crash
+or power loss at any point, ``path`` is either the old file (or absent, if there was none) or
+the complete new one, never a mix or a truncated file. A hard kill (SIGKILL, power loss)
+during the writing can leave the hidden ``.partial`` file behind; nothing else does.
 
 Permissions are those of a plain ``open(path, "w")``: a new file gets 0666 minus the umask
 (0644 under umask 022; not the 0600 of :func:`tempfile.mkstemp`), a replaced file keeps the
 permission bits of the file it replaces. The folder is checked before anything is written: a
 missing or read-only folder is an OSError that names the caller's ``path``, never the
-temporary name.
+temporary name. A symbolic link at ``path`` is replaced by the new file, not written through.
 
 :class:`AtomicDirectory` does the same for outputs built by another library under a name of
 its own choosing (a rosbag2 folder): they are built inside a private temporary folder next to
