@@ -13,7 +13,7 @@ from fusion.cli import main
 from fusion.cli.replay import FUSED_CSV_COLUMNS
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
 from fusion.geometry.quaternion import from_euler, rotate_inverse
-from fusion.io.logdir import write_logdir
+from fusion.io.logdir import write_logdir, write_synthetic_run
 from fusion.planar.ekf import fuse
 from fusion.planar.robot import RobotConfig
 
@@ -25,7 +25,7 @@ def run():
 
 @pytest.fixture(scope="module")
 def logdir(run, tmp_path_factory):
-    return run.write_logdir(tmp_path_factory.mktemp("logs") / "run4")
+    return write_synthetic_run(tmp_path_factory.mktemp("logs") / "run4", run)
 
 
 def _read(path):
@@ -174,7 +174,7 @@ def test_synth_then_replay_and_calibrate(tmp_path, capsys):
     assert sorted(p.name for p in d.iterdir()) == [
         "imu.csv", "robot.toml", "truth.csv", "wheels.csv"]
     # identical to the library's degraded mission with the same seed
-    again = degraded_mission(seed=5, duration=120.0).write_logdir(tmp_path / "again")
+    again = write_synthetic_run(tmp_path / "again", degraded_mission(seed=5, duration=120.0))
     for name in ("imu.csv", "wheels.csv", "truth.csv", "robot.toml"):
         assert (d / name).read_bytes() == (again / name).read_bytes()
     assert main(["replay", str(d), "-o", str(tmp_path / "f.csv")]) == 0

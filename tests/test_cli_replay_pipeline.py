@@ -25,7 +25,7 @@ import pytest
 from drivers.chassis import encode_wheel_frame
 from fusion.cli import main
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
-from fusion.io.logdir import write_logdir
+from fusion.io.logdir import write_logdir, write_synthetic_run
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.sources import logdir_events, replay
 from fusion.sinks.text import JsonLinesSink
@@ -36,7 +36,7 @@ def logs(tmp_path_factory):
     """Three short synthetic logs (20 s each) in one folder, and one robot.toml."""
     root = tmp_path_factory.mktemp("fleet")
     for seed in (1, 2, 3):
-        degraded_mission(seed=seed, duration=20.0).write_logdir(root / f"run{seed}")
+        write_synthetic_run(root / f"run{seed}", degraded_mission(seed=seed, duration=20.0))
     return root
 
 
@@ -102,7 +102,7 @@ def _umask() -> int:
 @pytest.mark.parametrize("suffix", [".csv", ".jsonl", ".mcap"])
 def test_a_failing_replay_leaves_an_existing_output_untouched(tmp_path, capsys, suffix):
     run = degraded_mission(seed=6, duration=10.0)
-    d = run.write_logdir(tmp_path / "bad")
+    d = write_synthetic_run(tmp_path / "bad", run)
     lines = (d / "wheels.csv").read_text().splitlines()
     lines[40] = "12.5,3,notanumber"
     (d / "wheels.csv").write_text("\n".join(lines) + "\n")

@@ -7,6 +7,7 @@ import textwrap
 
 import pytest
 
+from fusion.io.errors import LogFormatError
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.run_config import RUN_OPTIONS, SCHEMA, ConfigError, RunConfig, load_config
 
@@ -145,6 +146,9 @@ def test_every_fusion_run_option_can_come_from_the_file():
         ("[imu]\nsource = 'spi:0'\n", 2, ["[imu] source", "i2c:N"]),
         ("[publish]\nsinks = ['bogus']\n", 2, ["[publish] sinks", "unknown sink 'bogus'"]),
         ("[publish]\nsinks = ['mcap']\n", 2, ["[publish] sinks", "give a path"]),
+        ("[publish]\nsinks = ['foxglove:70000']\n", 2, ["[publish] sinks", "0..65535"]),
+        # ros1 is checked without rospy: only its spec, not the node
+        ("[publish]\nsinks = ['ros1:x']\n", 2, ["[publish] sinks", "takes no argument"]),
         ("[topics]\nodom = 'odom'\n", 2, ["[topics] odom", "absolute"]),
         ("[imu]\ntilt = 1\n", 2, ["[imu] tilt", "true or false"]),
         # an unknown table
@@ -167,6 +171,15 @@ def test_bad_content_names_file_line_and_key(tmp_path, text, line, words):
     assert msg.startswith(f"{path}:{line}:"), msg
     for w in words:
         assert w in msg, (w, msg)
+
+
+def test_config_error_is_not_a_log_format_error(tmp_path):
+    # a bad run configuration is not a malformed log: `except LogFormatError` must not catch it
+    path = write(tmp_path, "[imu]\nsorce = 'sim'\n", "bad.toml")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert isinstance(info.value, ValueError)
+    assert not isinstance(info.value, LogFormatError)
 
 
 def test_invalid_toml_names_file_and_line(tmp_path):

@@ -10,7 +10,7 @@ import pytest
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.errors import LogFormatError
-from fusion.io.logdir import read_logdir, read_wheels_csv, write_logdir
+from fusion.io.logdir import read_logdir, read_wheels_csv, write_logdir, write_synthetic_run
 from fusion.io.robot_toml import read_robot_toml, write_robot_toml
 from fusion.planar.robot import RobotConfig
 
@@ -45,7 +45,7 @@ def _logdir(tmp_path, toml=ROBOT_TOML, wheels="t,left,right\n0.04,1,2\n0.08,3,4\
 
 def test_synthetic_run_round_trips_exactly(tmp_path):
     run = degraded_mission(seed=2, duration=20.0)
-    run.write_logdir(tmp_path / "run")
+    write_synthetic_run(tmp_path / "run", run)
     log = read_logdir(tmp_path / "run")
     assert sorted(p.name for p in (tmp_path / "run").iterdir()) == [
         "imu.csv", "robot.toml", "truth.csv", "wheels.csv"]

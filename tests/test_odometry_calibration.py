@@ -19,6 +19,7 @@ from fusion.evaluation.synthetic import (
     stop,
     straight,
 )
+from fusion.io.logdir import write_synthetic_run
 from fusion.planar.odometry import WheelOdometry
 
 ROBOT = EXAMPLE_ROBOT
@@ -125,7 +126,7 @@ def test_cli_calibrate_odometry(tmp_path, capsys):
     from fusion.cli import main
 
     run = degraded_mission(seed=1, duration=150.0)
-    d = run.write_logdir(tmp_path / "run")
+    d = write_synthetic_run(tmp_path / "run", run)
     assert main(["calibrate", "odometry", str(d)]) == 0
     out = capsys.readouterr().out
     assert _value(out, "wheel_distance") == pytest.approx(run.true_wheel_distance, rel=0.003)
@@ -157,7 +158,7 @@ def test_cli_umbmark(tmp_path, capsys):
         dirs[direction] = []
         for s in range(2):
             run = simulate(square(side=4.0, direction=direction), ROBOT, ImuModel(), enc, seed=s)
-            dirs[direction].append(str(run.write_logdir(tmp_path / f"{direction}{s}")))
+            dirs[direction].append(str(write_synthetic_run(tmp_path / f"{direction}{s}", run)))
     assert main(["calibrate", "umbmark", "--cw", *dirs["cw"], "--ccw", *dirs["ccw"]]) == 0
     out = capsys.readouterr().out
     assert _value(out, "wheel_distance") == pytest.approx(0.3 * 1.03, rel=0.01)

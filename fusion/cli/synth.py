@@ -57,6 +57,7 @@ def run(args: argparse.Namespace) -> int:
         simulate,
         square,
     )
+    from fusion.io.logdir import write_synthetic_run
 
     out: Path = args.output
     if out.exists() and any(out.iterdir()):
@@ -79,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
                            left_scale_error=-0.5 * args.radius_mismatch,
                            right_scale_error=0.5 * args.radius_mismatch)
         run_ = simulate(segs, EXAMPLE_ROBOT, imu, enc, seed=args.seed)
-    run_.write_logdir(out, truth=not args.no_truth)
+    write_synthetic_run(out, run_, truth=not args.no_truth)
     print(f"{out}: {args.scenario}, {run_.duration:.1f} s, {run_.distance:.2f} m, "
           f"{run_.imu_t.size} IMU samples, {run_.ticks.shape[0]} wheel frames; true "
           f"wheel_distance {run_.true_wheel_distance:.5g} m (robot.toml says "

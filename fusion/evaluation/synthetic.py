@@ -360,15 +360,6 @@ class SyntheticRun:
         """Length of the run, s."""
         return float(self.truth_t[-1] - self.truth_t[0])
 
-    def write_logdir(self, path, truth: bool = True):
-        """Write the run as a log directory (``fusion.io.logdir``); returns its path."""
-        from fusion.io.logdir import write_logdir
-
-        return write_logdir(
-            path, self.robot, self.imu_t, self.gyro, self.accel, self.wheel_t, self.ticks,
-            self.truth_t if truth else None, self.truth if truth else None,
-        )
-
     def uart2_stream(self) -> tuple[bytes, NDArray[np.float64]]:
         """The wheel frames as the STM32 sends them on DATA-uart2 (seed 000 section 3.2).
 

@@ -25,6 +25,7 @@ import csv
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -37,7 +38,11 @@ from fusion.io.imu_csv import read_imu_csv
 from fusion.io.robot_toml import read_robot_toml, write_robot_toml
 from fusion.planar.robot import RobotConfig
 
-__all__ = ["LogDir", "read_logdir", "read_truth_csv", "read_wheels_csv", "write_logdir"]
+if TYPE_CHECKING:
+    from fusion.evaluation.synthetic import SyntheticRun
+
+__all__ = ["LogDir", "read_logdir", "read_truth_csv", "read_wheels_csv", "write_logdir",
+           "write_synthetic_run"]
 
 
 WHEELS_COLUMNS = ("t", "left", "right")
@@ -238,3 +243,14 @@ def write_logdir(
         _write_table(path / "truth.csv", TRUTH_COLUMNS,
                      [np.asarray(truth_t, dtype=float), *tr.T], [g17] * 4)
     return path
+
+
+def write_synthetic_run(path: str | Path, run: SyntheticRun, truth: bool = True) -> Path:
+    """Write a simulated run (:mod:`fusion.evaluation.synthetic`) as a log directory: its
+    nominal robot, IMU samples (rad/s, m/s^2), wheel ticks and, with ``truth``, the true pose
+    (m, rad). Returns the path.
+    """
+    return write_logdir(
+        path, run.robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks,
+        run.truth_t if truth else None, run.truth if truth else None,
+    )

@@ -69,8 +69,9 @@ from pathlib import Path
 from typing import Any
 
 from fusion.geometry.kinematics import DiffDriveParams
-from fusion.io.errors import LogFormatError
+from fusion.io.errors import ConfigError, LogFormatError
 from fusion.io.robot_toml import robot_config_from_tables
+from fusion.io.sink_spec import parse_sink_spec
 from fusion.planar.robot import RobotConfig
 
 if sys.version_info >= (3, 11):
@@ -87,10 +88,6 @@ __all__ = [
     "load_config",
     "parse_config",
 ]
-
-
-class ConfigError(LogFormatError):
-    """A configuration file that cannot be used (the message names file, line and key)."""
 
 
 #: Nominal chassis of the simulated robot (``sim``) and of ``fusion demo``: 0.3 m track,
@@ -114,7 +111,7 @@ class RunConfig:
         tilt: tilt-compensate the gyro with the Mahony attitude.
         chassis: the DATA-uart2 port (device path or pyserial URL) or ``"sim"``.
         baudrate, command_timeout, silence_periods: serial link settings (bit/s, s, periods).
-        publish: sink specs (:func:`fusion.sinks.registry.open_sink`).
+        publish: sink specs (:func:`fusion.io.sink_spec.parse_sink_spec`).
         publish_rate_hz: records per second, None for one per wheel frame.
         reorder_window: s (None: the pipeline's default for the IMU FIFO interval).
         topics: topic names (odom, tf, imu, wheel_left, wheel_right; None leaves one out).
@@ -208,15 +205,8 @@ def _sinks(v: Any) -> tuple[str, ...]:
     if not isinstance(v, list) or not all(isinstance(s, str) and s.strip() for s in v):
         raise ValueError(f"must be a list of sink specs like [\"jsonl\", \"mcap:out.mcap\"], "
                          f"got {v!r}")
-    from fusion.sinks.registry import open_sink
-
     for spec in v:
-        try:
-            kind = spec.partition(":")[0].strip().lower()
-            if kind not in ("ros1",):  # ros1 is checked when opened (it needs rospy)
-                open_sink(spec)
-        except ValueError as exc:
-            raise ValueError(str(exc)) from None
+        parse_sink_spec(spec)
     return tuple(s.strip() for s in v)
 
 

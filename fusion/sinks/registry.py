@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from fusion.io.sink_spec import parse_sink_spec
 from fusion.sinks.bag import McapSink, Rosbag2Sink
 from fusion.sinks.base import Sink
 from fusion.sinks.foxglove import FoxgloveSink
@@ -18,34 +19,21 @@ def open_sink(spec: str, *, topics: Topics | None = None) -> Sink:
     ``jsonl`` (stdout) | ``jsonl:PATH`` | ``csv:PATH`` | ``mcap:PATH`` (one .mcap file) |
     ``rosbag2:PATH`` (bag folder, MCAP storage) | ``foxglove`` (127.0.0.1:8765) |
     ``foxglove:PORT`` | ``foxglove:HOST:PORT`` | ``ros1`` (a ROS 1 node, :mod:`fusion.sinks.ros1`).
-    """
-    kind, _, arg = spec.partition(":")
-    kind = kind.strip().lower()
-    if kind == "jsonl":
-        return JsonLinesSink(arg or None)
-    if kind == "csv":
-        if not arg:
-            raise ValueError(f"sink {spec!r}: give a path, e.g. csv:fused.csv")
-        return CsvSink(arg)
-    if kind in ("mcap", "rosbag2"):
-        if not arg:
-            raise ValueError(f"sink {spec!r}: give a path, e.g. {kind}:out.mcap")
-        return McapSink(arg, topics=topics) if kind == "mcap" else Rosbag2Sink(arg, topics=topics)
-    if kind == "foxglove":
-        host, port = "127.0.0.1", "8765"
-        if arg:
-            host, _, port = arg.rpartition(":") if ":" in arg else ("127.0.0.1", "", arg)
-        try:
-            return FoxgloveSink(host or "127.0.0.1", int(port), topics=topics)
-        except ValueError as exc:
-            raise ValueError(f"sink {spec!r}: want foxglove[:HOST]:PORT ({exc})") from None
-    if kind == "ros1":
-        if arg:
-            raise ValueError(f"sink {spec!r}: ros1 takes no argument (use the config file)")
-        from fusion.sinks.ros1 import Ros1Sink
 
-        return Ros1Sink(topics=topics)
-    raise ValueError(
-        f"unknown sink {spec!r}: want jsonl[:PATH], csv:PATH, mcap:PATH, rosbag2:PATH, "
-        "foxglove[:HOST:PORT] or ros1"
-    )
+    Raises:
+        ValueError: a spec :func:`fusion.io.sink_spec.parse_sink_spec` rejects.
+    """
+    parsed = parse_sink_spec(spec)
+    if parsed.kind == "jsonl":
+        return JsonLinesSink(parsed.path)
+    if parsed.kind == "csv":
+        return CsvSink(parsed.path)
+    if parsed.kind == "mcap":
+        return McapSink(parsed.path, topics=topics)
+    if parsed.kind == "rosbag2":
+        return Rosbag2Sink(parsed.path, topics=topics)
+    if parsed.kind == "foxglove":
+        return FoxgloveSink(parsed.host, parsed.port, topics=topics)
+    from fusion.sinks.ros1 import Ros1Sink  # the only kind left (SINK_KINDS)
+
+    return Ros1Sink(topics=topics)
