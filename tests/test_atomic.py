@@ -277,11 +277,12 @@ def test_capture_writer_keeps_a_recording_stopped_by_an_exception(tmp_path: Path
 
 def test_calibration_save_to_a_missing_folder_names_it(tmp_path: Path) -> None:
     from fusion.calibration.imu import ImuCalibration
+    from fusion.io.imu_calibration import save_imu_calibration
 
     cal = ImuCalibration(np.zeros(3), np.zeros(3), np.ones(3))
     target = tmp_path / "nope" / "cal.json"
     with pytest.raises(FileNotFoundError, match=str(target)):
-        cal.save(target)
+        save_imu_calibration(cal, target)
 
 
 def test_cli_output_in_a_missing_folder_is_named(tmp_path: Path, capsys) -> None:

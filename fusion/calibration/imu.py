@@ -7,8 +7,8 @@ m/s^2. The model applied to a measurement is::
     accel_corrected = (accel - accel_offset) * accel_scale       (m/s^2, per axis)
 
 an axis-aligned model (no cross-axis terms): offset and scale per axis, the six numbers a set of
-static poses determines well. Calibrations are saved as a small JSON file (``save``/``load``),
-and ``drivers.mpu6050.MPU6050(calibration=...)`` applies them.
+static poses determines well. Calibrations are saved as a small JSON file
+(:mod:`fusion.io.imu_calibration`), and ``drivers.mpu6050.MPU6050(calibration=...)`` applies them.
 
 Default thresholds of the "at rest" check come from the bundled raw MPU6050 recordings
 (``datasets/mpu6050_raw``, DLPF 0, 100 Hz): at rest the gyro's per-sample standard deviation is
@@ -20,7 +20,6 @@ and well below what handling the sensor produces (several deg/s, 0.1 g).
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -120,27 +119,6 @@ class ImuCalibration:
             raise ValueError(f"{source}: missing key {exc.args[0]!r}") from None
         except ValueError as exc:
             raise ValueError(f"{source}: {exc}") from None
-
-    def save(self, path: str | Path) -> None:
-        """Write the calibration as JSON (SI units, stated in the file), atomically
-        (:func:`fusion.io.atomic.atomic_write`: an existing file is replaced only by a
-        complete one)."""
-        from fusion.io.atomic import atomic_write
-
-        with atomic_write(path, encoding="utf-8") as fh:
-            fh.write(json.dumps(self.to_dict(), indent=2) + "\n")
-
-    @classmethod
-    def load(cls, path: str | Path) -> ImuCalibration:
-        """Read a calibration written by ``save``; ``ValueError`` names the file on bad input."""
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}:{exc.lineno}: not valid JSON: {exc.msg}") from None
-        if not isinstance(d, dict):
-            raise ValueError(f"{path}: not an IMU calibration file")
-        return cls.from_dict(d, str(path))
 
 
 def _rows(name: str, a: ArrayLike) -> NDArray[np.float64]:

@@ -90,12 +90,13 @@ def register(subparsers: Any) -> None:
 
 def run_calibrate(args: argparse.Namespace) -> int:
     from fusion.calibration.imu import calibrate_recordings
+    from fusion.io.imu_calibration import save_imu_calibration
     from fusion.io.mpu6050_csv import read_mpu6050_csv
 
     rest = read_mpu6050_csv(args.rest)
     poses = read_mpu6050_csv(args.poses) if args.poses else None
     cal = calibrate_recordings(rest, poses)
-    cal.save(args.output)
+    save_imu_calibration(cal, args.output)
     bias = ", ".join(f"{v:+.3f}" for v in np.degrees(cal.gyro_bias))
     print(f"gyro bias ({bias}) deg/s from {len(rest)} samples")
     if poses is not None:
@@ -121,9 +122,9 @@ def _sim_motion(t_start: float) -> Any:
 
 def _open(args: argparse.Namespace) -> Any:
     from drivers.mpu6050 import MPU6050
-    from fusion.calibration.imu import ImuCalibration
+    from fusion.io.imu_calibration import load_imu_calibration
 
-    calibration = ImuCalibration.load(args.calibration) if args.calibration else None
+    calibration = load_imu_calibration(args.calibration) if args.calibration else None
     kw = dict(gyro_range_dps=args.gyro_range, accel_range_g=args.accel_range, dlpf=args.dlpf,
               sample_rate_hz=args.rate, calibration=calibration)
     if args.sim:
@@ -160,6 +161,7 @@ def run(args: argparse.Namespace) -> int:
     if args.realtime and not args.sim:
         raise ValueError("--realtime only applies to --sim")
     from fusion.io.atomic import AtomicFile, check_target
+    from fusion.io.imu_calibration import save_imu_calibration
 
     for path in (args.output, args.save_calibration):
         if path:
@@ -172,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
         if args.save_calibration:
             if imu.calibration is None:
                 raise ValueError("--save-calibration needs --calibrate or --calibration")
-            imu.calibration.save(args.save_calibration)
+            save_imu_calibration(imu.calibration, args.save_calibration)
             print(f"calibration written to {args.save_calibration}", file=status)
         mahony = Mahony(sample_period=1.0 / imu.sample_rate_hz)
         # Compile the filter now (numba, about a second the first time), not while the FIFO

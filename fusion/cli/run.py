@@ -276,9 +276,9 @@ def _open_imu(cfg, robot, clock):
 
     calibration = None
     if cfg.imu_calibration:
-        from fusion.calibration.imu import ImuCalibration
+        from fusion.io.imu_calibration import load_imu_calibration
 
-        calibration = ImuCalibration.load(cfg.imu_calibration)
+        calibration = load_imu_calibration(cfg.imu_calibration)
     kw = dict(gyro_range_dps=cfg.gyro_range_dps, accel_range_g=cfg.accel_range_g,
               dlpf=cfg.dlpf, sample_rate_hz=cfg.imu_rate_hz, calibration=calibration)
     if cfg.imu == "sim":
