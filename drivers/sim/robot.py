@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from fusion.types.constants import STANDARD_GRAVITY
+
 __all__ = [
     "MISSION",
     "LoopingMission",
@@ -234,7 +236,7 @@ class SimRobot:
         n = len(t)
         rate = np.zeros((n, 3))
         force = np.zeros((n, 3))
-        force[:, 2] = 9.80665
+        force[:, 2] = STANDARD_GRAVITY
         if t0.size:
             i = np.clip(np.searchsorted(t0, t, side="right") - 1, 0, t0.size - 1)
             w, v, a = ws[i], vs[i], acc[i]

@@ -45,12 +45,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.chassis import (
-    TICKS_MAX,
-    DebugCommandParser,
-    WheelFrameParser,
-    encode_wheel_frame,
-)
+from drivers.chassis import DebugCommandParser, WheelFrameParser, encode_wheel_frame
+from fusion.types.constants import TICKS_MAX
 
 __all__ = ["PtyStm32", "Stm32Sim", "Stm32SimParams", "main"]
 

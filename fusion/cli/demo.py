@@ -275,11 +275,12 @@ def freeze_heap() -> None:
 def warm_up(cfg) -> None:
     """Compile the numba cores before the clock starts (a cold cache takes ~15 s)."""
     from fusion.pipeline.core import FusionPipeline
+    from fusion.types.constants import STANDARD_GRAVITY
     from fusion.types.samples import ImuSample, WheelTicks
 
     pipe = FusionPipeline(cfg.robot)
     with pipe:
-        g, a = np.zeros(3), np.array([0.0, 0.0, 9.80665])
+        g, a = np.zeros(3), np.array([0.0, 0.0, STANDARD_GRAVITY])
         for k in range(1, 9):
             pipe.push(ImuSample(0.01 * k, g, a))
         pipe.push(WheelTicks(0.04, 0, 0))

@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.geometry.kinematics import DiffDriveParams
+from fusion.types.constants import STANDARD_GRAVITY as GRAVITY
 
 __all__ = [
     "EXAMPLE_ROBOT",
@@ -55,9 +56,6 @@ __all__ = [
     "stop",
     "straight",
 ]
-
-#: Standard gravity, m/s^2.
-GRAVITY = 9.80665
 
 
 # -- scenario building blocks ------------------------------------------------------------------

@@ -30,11 +30,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion.geometry import quaternion as quat
-from fusion.geometry.kinematics import TICKS_MAX, DiffDriveParams
+from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import read_imu_csv
 from fusion.io.robot_toml import read_robot_toml, write_robot_toml
 from fusion.planar.robot import RobotConfig
+from fusion.types.constants import TICKS_MAX
 
 __all__ = ["LogDir", "read_logdir", "read_truth_csv", "read_wheels_csv", "write_logdir"]
 
