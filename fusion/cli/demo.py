@@ -119,10 +119,6 @@ class DemoReport:
         ]
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return np.pi - np.mod(np.pi - a, 2 * np.pi)
-
-
 def run_demo(out: Path | None, *, speed: float = 6.0, mission=MISSION,
              params: SimRobotParams | None = None, plot: bool = True,
              log=print) -> DemoReport:
@@ -289,6 +285,8 @@ def warm_up(cfg) -> None:
 
 def _evaluate(report: DemoReport, robot: SimRobot, fused: np.ndarray,
               wheel: np.ndarray) -> None:
+    from fusion.geometry.angles import wrap_angle
+
     tr = np.array(robot.truth)
     report.duration = float(tr[-1, 0])
     report.distance = float(np.sum(np.hypot(np.diff(tr[:, 1]), np.diff(tr[:, 2]))))
@@ -309,7 +307,7 @@ def _evaluate(report: DemoReport, robot: SimRobot, fused: np.ndarray,
             continue
         truth = robot.truth_at(arr[:, 0] if name == "fused" else wheel_eval_t)
         err_xy = np.hypot(arr[:, 1] - truth[:, 0], arr[:, 2] - truth[:, 1])
-        err_yaw = _wrap(arr[:, 3] - truth[:, 2])
+        err_yaw = wrap_angle(arr[:, 3] - truth[:, 2])
         setattr(report, f"{name}_final_error", float(err_xy[-1]))
         setattr(report, f"{name}_yaw_rmse", float(np.sqrt(np.mean(err_yaw ** 2))))
         report.track[name] = arr

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.geometry.angles import wrap_angle
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.types.constants import STANDARD_GRAVITY as GRAVITY
 
@@ -415,7 +416,7 @@ class SyntheticRun:
             np.interp(t, self.truth_t, self.truth[:, 1]),
             np.interp(t, self.truth_t, yaw),
         ])
-        out[:, 2] = np.pi - np.mod(np.pi - out[:, 2], 2 * np.pi)
+        out[:, 2] = wrap_angle(out[:, 2])
         return out
 
 
@@ -570,7 +571,7 @@ def simulate(
     truth = np.column_stack([
         np.interp(t_imu, t_grid, x),
         np.interp(t_imu, t_grid, y),
-        np.pi - np.mod(np.pi - truth_yaw, 2 * np.pi),
+        wrap_angle(truth_yaw),
     ])
     return SyntheticRun(
         imu_t=imu_t,

@@ -39,6 +39,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.geometry.angles import wrap_angle
 from fusion.geometry.kinematics import DiffDriveParams
 
 __all__ = [
@@ -52,12 +53,6 @@ __all__ = [
 ]
 
 METHODS = ("midpoint", "arc", "euler")
-
-
-def wrap_angle(a: ArrayLike):
-    """Wrap an angle (rad) to (-pi, pi]."""
-    w = np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
-    return float(w) if np.ndim(a) == 0 else w
 
 
 @dataclass(frozen=True)
