@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.geometry.angles import wrap_angle
+from fusion.geometry.dead_reckoning import integrate
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.types.constants import STANDARD_GRAVITY as GRAVITY
 
@@ -498,14 +499,8 @@ def simulate(
     w = _rate_limit(w_cmd, max_angular_accel * dt)
     n = v.size
     t_grid = np.arange(n + 1) * dt  # knots; step i covers [t_i, t_i+1)
-    dyaw = w * dt
-    yaw = np.concatenate(([0.0], np.cumsum(dyaw)))
-    half = 0.5 * dyaw
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sinc = np.where(np.abs(half) < 1e-9, 1.0, np.sin(half) / np.where(half == 0, 1, half))
-    chord = v * dt * sinc
-    x = np.concatenate(([0.0], np.cumsum(chord * np.cos(yaw[:-1] + half))))
-    y = np.concatenate(([0.0], np.cumsum(chord * np.sin(yaw[:-1] + half))))
+    # exact arcs over each step: the truth at the knots
+    x, y, yaw = np.vstack([np.zeros(3), integrate(v * dt, w * dt, rule="arc")]).T
     distance = float(np.sum(np.abs(v)) * dt)
 
     # wheels: ground travel, then wheel rotation with slip, then encoder counts
