@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import pytest
 
 import drivers.chassis
@@ -43,3 +46,18 @@ def test_ticks_max_is_the_wire_limit():
 ])
 def test_public_names_are_the_canonical_constants(module, name, canonical):
     assert getattr(module, name) is getattr(constants, canonical)
+
+
+def test_drivers_import_only_the_leaf_packages_of_fusion():
+    code = (
+        "import importlib, sys\n"
+        "for m in ('drivers.chassis', 'drivers.mpu6050', 'drivers.serial_link',\n"
+        "          'drivers.slamware', 'drivers.sim.mpu6050', 'drivers.sim.stm32',\n"
+        "          'drivers.sim.robot'):\n"
+        "    importlib.import_module(m)\n"
+        "print(' '.join(sorted(k for k in sys.modules if k.startswith('fusion.'))))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out and all(m.startswith(("fusion.types", "fusion.geometry", "fusion._jit"))
+                       for m in out), out
