@@ -29,6 +29,18 @@ def test_rotations_match_scipy_and_invert(rpy):
     np.testing.assert_allclose(base_to_imu(R, imu_to_base(R, v)), v, rtol=0, atol=1e-13)
 
 
+@pytest.mark.parametrize("rpy", RPY)
+def test_mount_matrix_is_the_robot_config_rotation_bit_for_bit(rpy):
+    # the pipeline builds its matrix from RobotConfig.imu_to_base(): swapping it for
+    # mount_matrix must not move a bit
+    from fusion.geometry import quaternion as quat
+    from fusion.geometry.kinematics import DiffDriveParams
+    from fusion.planar.robot import RobotConfig
+
+    robot = RobotConfig(chassis=DiffDriveParams(0.3, 1e-4), imu_mount_rpy=tuple(rpy))
+    np.testing.assert_array_equal(mount_matrix(rpy), quat.to_matrix(robot.imu_to_base()))
+
+
 def test_one_vector_and_a_stack_give_the_same_floats():
     R = mount_matrix((0.4, -0.3, 1.2))
     v = np.random.default_rng(2).normal(size=(200, 3))
