@@ -23,9 +23,9 @@ import numpy as np
 from fusion.attitude.mahony import Mahony
 from fusion.evaluation.orientation import orientation_rmse
 from fusion.io.broad import read_broad
+from fusion.types.constants import STANDARD_GRAVITY as GRAVITY
 
 DATA = Path(__file__).resolve().parent.parent / "datasets" / "broad"
-GRAVITY = 9.80665
 
 
 def ours(tr):

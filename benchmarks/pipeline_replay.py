@@ -81,7 +81,8 @@ def streaming(run, seconds: float) -> tuple[float, int]:
 
 def bare_ekf(run) -> float:
     from fusion.attitude.mahony import Mahony
-    from fusion.planar.ekf import fuse, vertical_rate
+    from fusion.geometry.mount import vertical_rate
+    from fusion.planar.ekf import fuse
 
     t0 = time.perf_counter()
     q = Mahony(axes=6, sample_period=0.005).update_batch(run.gyro, run.accel,

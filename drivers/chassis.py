@@ -67,6 +67,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.types.constants import TICKS_MAX
+
 __all__ = [
     "DEBUG_FRAME_LEN",
     "DEFAULT_MAX_TICKS",
@@ -96,8 +98,6 @@ __all__ = [
 HEADER = b"\xff\xff"
 FRAME_LEN = 11
 DEBUG_FRAME_LEN = 15
-#: largest magnitude of a 24-bit field
-TICKS_MAX = (1 << 24) - 1
 #: default plausibility bound, ticks per period
 DEFAULT_MAX_TICKS = 100_000
 #: gains travel as round(|k| * GAIN_SCALE)

@@ -36,6 +36,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.types.constants import STANDARD_GRAVITY
 from fusion.types.samples import ImuSample
 
 __all__ = [
@@ -53,7 +54,6 @@ __all__ = [
     "gyro_factory_trim",
 ]
 
-STANDARD_GRAVITY = 9.80665  # m/s^2
 
 # Register addresses (register map rev 4.2).
 SELF_TEST_X = 0x0D

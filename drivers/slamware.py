@@ -30,6 +30,8 @@ import math
 import struct
 from dataclasses import dataclass
 
+from fusion.geometry.dead_reckoning import step
+
 __all__ = [
     "GET_BASE_MOTOR_DATA",
     "ROBOT_RADIUS_MM",
@@ -204,15 +206,13 @@ def deadreckon_from_wheels(
         raise ValueError(f"robot_radius_mm must be > 0, got {robot_radius_mm!r}")
     dyaw = (dr_mm - dl_mm) / 2.0 / robot_radius_mm
     d = 0.5 * (dl_mm + dr_mm)
-    if method == "seed":
-        phi, c = dyaw, d
-    elif method == "arc":
-        a = 0.5 * dyaw
-        phi = a
-        c = d * (math.sin(a) / a if a != 0.0 else 1.0)
+    if method == "seed":  # the chord of length d along the final heading
+        dx, dy = d * math.cos(dyaw), d * math.sin(dyaw)
+    elif method == "arc":  # one exact-arc step from the pose (0, 0, 0)
+        dx, dy, _ = step(0.0, 0.0, 0.0, d, dyaw, rule="arc")
     else:
         raise ValueError(f"method must be 'seed' or 'arc', got {method!r}")
-    return c * math.cos(phi), c * math.sin(phi), math.degrees(dyaw)
+    return dx, dy, math.degrees(dyaw)
 
 
 def pulses_per_metre(pulses_per_rev: float, wheel_diameter_m: float) -> float:

@@ -56,6 +56,7 @@ from numpy.typing import ArrayLike, NDArray
 
 # The host clock is the driver's (one definition); registers stay local on purpose.
 from drivers.mpu6050 import SystemClock
+from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = [
     "ArrayTrace",
@@ -65,7 +66,6 @@ __all__ = [
     "static_trace",
 ]
 
-STANDARD_GRAVITY = 9.80665  # m/s^2
 
 # Register addresses (register map rev 4.2), kept local to the simulator on purpose.
 _SELF_TEST_X, _SELF_TEST_Y, _SELF_TEST_Z, _SELF_TEST_A = 0x0D, 0x0E, 0x0F, 0x10

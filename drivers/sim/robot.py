@@ -18,6 +18,9 @@ from typing import Any
 
 import numpy as np
 
+from fusion.geometry.mount import base_to_imu, mount_matrix
+from fusion.types.constants import STANDARD_GRAVITY
+
 __all__ = [
     "MISSION",
     "LoopingMission",
@@ -153,7 +156,6 @@ class SimRobot:
                  data_link: str | None = None, keep_truth: bool = True) -> None:
         from drivers.sim.mpu6050 import SimulatedMPU6050
         from drivers.sim.stm32 import Stm32Sim, Stm32SimParams
-        from fusion.geometry import quaternion as quat
 
         self.clock = clock
         self.params = p = params or SimRobotParams()
@@ -164,7 +166,7 @@ class SimRobot:
                                            slip_noise=p.slip_noise, seed=p.seed,
                                            substeps=10, history=100))
         self.period = self.sim.params.period
-        self._mount_inv = quat.to_matrix(quat.from_euler(*p.imu_mount_rpy)).T
+        self._mount = mount_matrix(p.imu_mount_rpy)
         # the last 2 s of true motion, as arrays rebuilt once per period (the IMU reads only
         # recent instants; older ones are held at the oldest value)
         self._segments: deque[_Segment] = deque(maxlen=50)
@@ -234,15 +236,14 @@ class SimRobot:
         n = len(t)
         rate = np.zeros((n, 3))
         force = np.zeros((n, 3))
-        force[:, 2] = 9.80665
+        force[:, 2] = STANDARD_GRAVITY
         if t0.size:
             i = np.clip(np.searchsorted(t0, t, side="right") - 1, 0, t0.size - 1)
             w, v, a = ws[i], vs[i], acc[i]
             rate[:, 2] = w
             force[:, 0] = a
             force[:, 1] = v * w
-        M = self._mount_inv
-        return rate @ M.T, force @ M.T
+        return base_to_imu(self._mount, rate), base_to_imu(self._mount, force)
 
     # -- firmware loop -----------------------------------------------------------------------
     def _slip_at(self, t: float) -> tuple[float, float]:

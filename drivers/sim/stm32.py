@@ -45,12 +45,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from drivers.chassis import (
-    TICKS_MAX,
-    DebugCommandParser,
-    WheelFrameParser,
-    encode_wheel_frame,
-)
+from drivers.chassis import DebugCommandParser, WheelFrameParser, encode_wheel_frame
+from fusion.geometry.dead_reckoning import step, wheel_motion
+from fusion.types.constants import TICKS_MAX
 
 __all__ = ["PtyStm32", "Stm32Sim", "Stm32SimParams", "main"]
 
@@ -268,14 +265,8 @@ class Stm32Sim:
                 travel.append(d)
             dl = travel[0] * (1.0 - slip[0])
             dr = travel[1] * (1.0 - slip[1])
-            d = 0.5 * (dl + dr)
-            dth = (dr - dl) / p.wheel_distance
-            a = 0.5 * dth
-            chord = d * (math.sin(a) / a if abs(a) > 1e-12 else 1.0)
-            th = self.pose[2]
-            self.pose[0] += chord * math.cos(th + a)
-            self.pose[1] += chord * math.sin(th + a)
-            self.pose[2] = th + dth
+            x, y, th = self.pose.tolist()
+            self.pose[:] = step(x, y, th, *wheel_motion(dl, dr, p.wheel_distance), rule="arc")
 
     @property
     def wheel_speeds(self) -> tuple[float, float]:

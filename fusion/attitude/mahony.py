@@ -51,6 +51,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion._jit import njit
 from fusion.geometry import quaternion as quat
+from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = [
     "DEFAULT_KI",
@@ -62,7 +63,6 @@ __all__ = [
     "MahonyState",
 ]
 
-STANDARD_GRAVITY = 9.80665  # m/s^2
 
 # Defaults of the 6-axis filter, chosen by benchmarks/tune_mahony6.py on the ten bundled BROAD
 # trials (mean inclination RMSE 1.53 deg; Ki = 0.0005 costs 0.001 deg against Ki = 0 and keeps

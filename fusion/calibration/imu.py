@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.types.constants import STANDARD_GRAVITY
 from fusion.types.samples import ImuSample
 
 __all__ = [
@@ -44,7 +45,6 @@ __all__ = [
     "static_segments",
 ]
 
-STANDARD_GRAVITY = 9.80665  # m/s^2
 _FORMAT = "diffbot-fusion imu calibration"
 _DEG = math.pi / 180.0
 

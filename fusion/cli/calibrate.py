@@ -76,8 +76,8 @@ def _missing_what(parser) -> int:
 
 def run_odometry(args: argparse.Namespace) -> int:
     from fusion.calibration.odometry import calibrate_odometry
+    from fusion.geometry.mount import vertical_rate
     from fusion.io.logdir import read_logdir
-    from fusion.planar.ekf import vertical_rate
 
     if not args.input.is_dir():
         raise CommandError(f"{args.input}: not a log directory")

@@ -117,10 +117,6 @@ class DemoReport:
         ]
 
 
-def _wrap(a: np.ndarray) -> np.ndarray:
-    return np.pi - np.mod(np.pi - a, 2 * np.pi)
-
-
 def run_demo(out: Path | None, *, speed: float = 6.0, mission=MISSION,
              params: SimRobotParams | None = None, plot: bool = True,
              log=print) -> DemoReport:
@@ -273,11 +269,12 @@ def freeze_heap() -> None:
 def warm_up(cfg) -> None:
     """Compile the numba cores before the clock starts (a cold cache takes ~15 s)."""
     from fusion.pipeline.core import FusionPipeline
+    from fusion.types.constants import STANDARD_GRAVITY
     from fusion.types.samples import ImuSample, WheelTicks
 
     pipe = FusionPipeline(cfg.robot)
     with pipe:
-        g, a = np.zeros(3), np.array([0.0, 0.0, 9.80665])
+        g, a = np.zeros(3), np.array([0.0, 0.0, STANDARD_GRAVITY])
         for k in range(1, 9):
             pipe.push(ImuSample(0.01 * k, g, a))
         pipe.push(WheelTicks(0.04, 0, 0))
@@ -286,6 +283,8 @@ def warm_up(cfg) -> None:
 
 def _evaluate(report: DemoReport, robot: SimRobot, fused: np.ndarray,
               wheel: np.ndarray) -> None:
+    from fusion.geometry.angles import wrap_angle
+
     tr = np.array(robot.truth)
     report.duration = float(tr[-1, 0])
     report.distance = float(np.sum(np.hypot(np.diff(tr[:, 1]), np.diff(tr[:, 2]))))
@@ -306,7 +305,7 @@ def _evaluate(report: DemoReport, robot: SimRobot, fused: np.ndarray,
             continue
         truth = robot.truth_at(arr[:, 0] if name == "fused" else wheel_eval_t)
         err_xy = np.hypot(arr[:, 1] - truth[:, 0], arr[:, 2] - truth[:, 1])
-        err_yaw = _wrap(arr[:, 3] - truth[:, 2])
+        err_yaw = wrap_angle(arr[:, 3] - truth[:, 2])
         setattr(report, f"{name}_final_error", float(err_xy[-1]))
         setattr(report, f"{name}_yaw_rmse", float(np.sqrt(np.mean(err_yaw ** 2))))
         report.track[name] = arr

@@ -29,6 +29,8 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from fusion.types.constants import STANDARD_GRAVITY
+
 __all__ = ["register", "run", "run_calibrate"]
 
 _COLUMNS = "t,gx,gy,gz,ax,ay,az,temp,qw,qx,qy,qz,roll,pitch,yaw"
@@ -100,7 +102,7 @@ def run_calibrate(args: argparse.Namespace) -> int:
     bias = ", ".join(f"{v:+.3f}" for v in np.degrees(cal.gyro_bias))
     print(f"gyro bias ({bias}) deg/s from {len(rest)} samples")
     if poses is not None:
-        g = 9.80665
+        g = STANDARD_GRAVITY
         print(f"{cal.info['poses']} still poses; accel offset "
               f"({', '.join(f'{v:+.4f}' for v in cal.accel_offset / g)}) g, scale "
               f"({', '.join(f'{v:.4f}' for v in cal.accel_scale)}); worst pose norm error "
@@ -115,7 +117,7 @@ def _sim_motion(t_start: float) -> Any:
     def motion(t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         w = np.zeros((len(t), 3))
         w[:, 2] = np.radians(10.0) * (t - t_start >= _SIM_STILL_S)
-        return w, np.tile([0.0, 0.0, 9.80665], (len(t), 1))
+        return w, np.tile([0.0, 0.0, STANDARD_GRAVITY], (len(t), 1))
 
     return motion
 

@@ -34,7 +34,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.geometry.angles import wrap_angle
+from fusion.geometry.dead_reckoning import integrate
 from fusion.geometry.kinematics import DiffDriveParams
+from fusion.types.constants import STANDARD_GRAVITY as GRAVITY
 
 __all__ = [
     "EXAMPLE_ROBOT",
@@ -55,9 +58,6 @@ __all__ = [
     "stop",
     "straight",
 ]
-
-#: Standard gravity, m/s^2.
-GRAVITY = 9.80665
 
 
 # -- scenario building blocks ------------------------------------------------------------------
@@ -408,7 +408,7 @@ class SyntheticRun:
             np.interp(t, self.truth_t, self.truth[:, 1]),
             np.interp(t, self.truth_t, yaw),
         ])
-        out[:, 2] = np.pi - np.mod(np.pi - out[:, 2], 2 * np.pi)
+        out[:, 2] = wrap_angle(out[:, 2])
         return out
 
 
@@ -490,14 +490,8 @@ def simulate(
     w = _rate_limit(w_cmd, max_angular_accel * dt)
     n = v.size
     t_grid = np.arange(n + 1) * dt  # knots; step i covers [t_i, t_i+1)
-    dyaw = w * dt
-    yaw = np.concatenate(([0.0], np.cumsum(dyaw)))
-    half = 0.5 * dyaw
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sinc = np.where(np.abs(half) < 1e-9, 1.0, np.sin(half) / np.where(half == 0, 1, half))
-    chord = v * dt * sinc
-    x = np.concatenate(([0.0], np.cumsum(chord * np.cos(yaw[:-1] + half))))
-    y = np.concatenate(([0.0], np.cumsum(chord * np.sin(yaw[:-1] + half))))
+    # exact arcs over each step: the truth at the knots
+    x, y, yaw = np.vstack([np.zeros(3), integrate(v * dt, w * dt, rule="arc")]).T
     distance = float(np.sum(np.abs(v)) * dt)
 
     # wheels: ground travel, then wheel rotation with slip, then encoder counts
@@ -563,7 +557,7 @@ def simulate(
     truth = np.column_stack([
         np.interp(t_imu, t_grid, x),
         np.interp(t_imu, t_grid, y),
-        np.pi - np.mod(np.pi - truth_yaw, 2 * np.pi),
+        wrap_angle(truth_yaw),
     ])
     return SyntheticRun(
         imu_t=imu_t,

@@ -18,6 +18,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import stats
 
+from fusion.geometry.angles import wrap_angle
+
 __all__ = [
     "final_position_error_percent",
     "nees",
@@ -29,11 +31,6 @@ __all__ = [
     "wrap_angle",
     "yaw_rmse",
 ]
-
-
-def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
-    """Wrap angles (rad) to (-pi, pi]."""
-    return np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
 
 
 def _poses(p: ArrayLike, name: str) -> NDArray[np.float64]:

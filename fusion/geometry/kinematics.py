@@ -35,6 +35,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from fusion.types.constants import TICKS_MAX
+
 __all__ = [
     "TICKS_MAX",
     "DiffDriveParams",
@@ -47,9 +49,6 @@ __all__ = [
     "wheel_speeds_to_ticks",
     "wheel_speeds_to_twist",
 ]
-
-#: Largest magnitude a DATA-uart2 frame can carry per wheel: 24-bit unsigned magnitude.
-TICKS_MAX = (1 << 24) - 1
 
 
 @dataclass(frozen=True)

@@ -30,13 +30,14 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion.geometry import quaternion as quat
-from fusion.geometry.kinematics import TICKS_MAX, DiffDriveParams
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.geometry.mount import imu_to_base, mount_matrix
 from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import read_imu_csv
 from fusion.io.robot_toml import read_robot_toml, write_robot_toml
 from fusion.planar.robot import RobotConfig
+from fusion.types.constants import TICKS_MAX
 
 if TYPE_CHECKING:
     from fusion.evaluation.synthetic import SyntheticRun
@@ -173,11 +174,11 @@ def read_logdir(path: str | Path) -> LogDir:
     log = LogDir(path=path, robot=robot)
     if (path / "imu.csv").is_file():
         imu = read_imu_csv(path / "imu.csv")
-        q = robot.imu_to_base()
+        R = mount_matrix(robot.imu_mount_rpy)
         log.imu_t = imu.t
-        log.gyro = quat.rotate(q, imu.gyro) if imu.gyro.size else imu.gyro
-        log.accel = quat.rotate(q, imu.accel) if imu.accel.size else imu.accel
-        log.mag = quat.rotate(q, imu.mag) if imu.mag is not None and imu.mag.size else imu.mag
+        log.gyro = imu_to_base(R, imu.gyro) if imu.gyro.size else imu.gyro
+        log.accel = imu_to_base(R, imu.accel) if imu.accel.size else imu.accel
+        log.mag = imu_to_base(R, imu.mag) if imu.mag is not None and imu.mag.size else imu.mag
     if (path / "wheels.csv").is_file():
         log.wheel_t, log.ticks = read_wheels_csv(path / "wheels.csv")
     if log.imu_t is None and log.wheel_t is None:

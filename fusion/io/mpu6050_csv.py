@@ -20,9 +20,10 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.types.constants import STANDARD_GRAVITY
+
 __all__ = ["RawImuRecording", "format_header", "format_row", "read_mpu6050_csv"]
 
-STANDARD_GRAVITY = 9.80665  # m/s^2
 _HEADER = ["ax", "ay", "az", "gx", "gy", "gz"]
 
 

@@ -6,15 +6,9 @@ y left) expressed in ``odom``; x, y in m, theta in rad, CCW positive from the od
 gives it wrapped to (-pi, pi].
 
 One period moves the wheels by ``dl = ticks_l * speed_ratio`` and ``dr = ticks_r * speed_ratio``
-(m). With ``d = (dl + dr)/2`` and ``dtheta = (dr - dl)/L`` the pose update is
-``x += c*cos(phi)``, ``y += c*sin(phi)``, ``theta += dtheta`` where, by ``method``:
-
-- ``"midpoint"`` (seed 000's ``base_controller``): ``phi = theta + dtheta/2``, ``c = d``.
-  For a true circular arc it overstates the chord by the factor ``1/sinc(dtheta/2)``, an
-  error of about ``d*dtheta**2/24`` per period.
-- ``"arc"`` (exact for constant wheel speeds within a period): ``phi = theta + dtheta/2``,
-  ``c = d*sin(dtheta/2)/(dtheta/2)``, the chord of the arc.
-- ``"euler"`` (seed 004's twist integration): ``phi = theta``, ``c = d``.
+(m); the pose moves by one step of :mod:`fusion.geometry.dead_reckoning` with ``method`` as
+its rule: ``"midpoint"`` (seed 000's ``base_controller``, the default), ``"arc"`` (exact for
+constant wheel speeds within a period) or ``"euler"`` (seed 004's twist integration).
 
 Velocities are per period: ``v = d/T``, ``w = dtheta/T`` (T = ``encode_sampling_time``), the
 wheel speeds ``dl/T``, ``dr/T`` (m/s), as seed 000 publishes them.
@@ -39,6 +33,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.geometry.angles import wrap_angle
+from fusion.geometry.dead_reckoning import RULES, integrate, step_terms, wheel_motion
 from fusion.geometry.kinematics import DiffDriveParams
 
 __all__ = [
@@ -51,13 +47,7 @@ __all__ = [
     "wrap_angle",
 ]
 
-METHODS = ("midpoint", "arc", "euler")
-
-
-def wrap_angle(a: ArrayLike):
-    """Wrap an angle (rad) to (-pi, pi]."""
-    w = np.pi - np.mod(np.pi - np.asarray(a, dtype=float), 2.0 * np.pi)
-    return float(w) if np.ndim(a) == 0 else w
+METHODS = RULES
 
 
 @dataclass(frozen=True)
@@ -123,61 +113,11 @@ class OdometryState:
         return replace(self, cov=self.cov.copy())
 
 
-def _sinc_half(dth: NDArray[np.float64]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """``s = sin(a)/a`` with ``a = dth/2`` and its derivative ``ds/ddth``, series near 0."""
-    a = 0.5 * dth
-    small = np.abs(a) < 1e-4
-    a_safe = np.where(small, 1.0, a)
-    s = np.where(small, 1.0 - a * a / 6.0, np.sin(a_safe) / a_safe)
-    exact = (a_safe * np.cos(a_safe) - np.sin(a_safe)) / (a_safe * a_safe)
-    ds_da = np.where(small, -a / 3.0, exact)
-    return s, 0.5 * ds_da
-
-
-def _increments(theta_prev, d, dth, method: str):
-    """Per-period displacement in odom and the pieces of the Jacobians (vectorised)."""
-    if method == "euler":
-        phi = theta_prev
-        s = np.ones_like(d)
-        ds = np.zeros_like(d)
-        dphi_ddth = 0.0
-    elif method == "midpoint":
-        phi = theta_prev + 0.5 * dth
-        s = np.ones_like(d)
-        ds = np.zeros_like(d)
-        dphi_ddth = 0.5
-    elif method == "arc":
-        phi = theta_prev + 0.5 * dth
-        s, ds = _sinc_half(dth)
-        dphi_ddth = 0.5
-    else:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-    c = d * s
-    cos_phi = np.cos(phi)
-    sin_phi = np.sin(phi)
-    return c * cos_phi, c * sin_phi, c, s, ds, dphi_ddth, cos_phi, sin_phi
-
-
 def _advance(x, y, th, P, dl, dr, L, method, k_wheel, k_turn):
     """The core step on Python floats: pose and covariance (6 unique entries) after one
     period of wheel travel dl, dr (m). Used by every streaming and batch entry point."""
-    d = 0.5 * (dl + dr)
-    dth = (dr - dl) / L
-    if method == "midpoint":
-        phi = th + 0.5 * dth
-        s, ds, k = 1.0, 0.0, 0.5
-    elif method == "arc":
-        phi = th + 0.5 * dth
-        a = 0.5 * dth
-        if abs(a) < 1e-4:
-            s, ds = 1.0 - a * a / 6.0, -a / 6.0
-        else:
-            s, ds = math.sin(a) / a, 0.5 * (a * math.cos(a) - math.sin(a)) / (a * a)
-        k = 0.5
-    else:  # euler
-        phi = th
-        s, ds, k = 1.0, 0.0, 0.0
-    c = d * s
+    d, dth = wheel_motion(dl, dr, L)
+    c, phi, s, ds, k = step_terms(th, d, dth, method)
     cos_phi = math.cos(phi)
     sin_phi = math.sin(phi)
     # covariance P <- F P F^T + G Q G^T; F = I but for the heading column (a, b, 1)
@@ -247,14 +187,9 @@ def integrate_wheel_travel(
     dr = np.asarray(dr, dtype=float).reshape(-1)
     if dl.shape != dr.shape:
         raise ValueError(f"dl and dr must have the same length, got {dl.shape} and {dr.shape}")
-    x0, y0, th0 = (float(p) for p in pose0)
-    d = 0.5 * (dl + dr)
-    dth = (dr - dl) / wheel_distance
-    theta = np.cumsum(np.concatenate(([th0], dth)))
-    dx, dy, *_ = _increments(theta[:-1], d, dth, method)
-    x = np.cumsum(np.concatenate(([x0], dx)))[1:]
-    y = np.cumsum(np.concatenate(([y0], dy)))[1:]
-    return np.column_stack([x, y, theta[1:]])
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    return integrate(*wheel_motion(dl, dr, wheel_distance), pose0, method)
 
 
 class _DeadReckoner:

@@ -17,10 +17,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from fusion.types.constants import UNOBSERVED_VARIANCE
+
 __all__ = ["FusedOdometry", "yaw_quaternion"]
 
-#: Variance that ROS drivers (seed 000 among them) put on components they do not estimate.
-UNOBSERVED_VARIANCE = 99999.0
 
 
 def yaw_quaternion(yaw: float) -> NDArray[np.float64]:

@@ -1,0 +1,90 @@
+"""The IMU mount rotation and the rate about the world vertical (tilt compensation).
+
+Frames: the IMU frame is the sensor's own axes; the base frame is ``base_footprint`` (x forward,
+y left, z up, REP-103); the world frame is ENU (z up). The mount is given as URDF ``rpy`` of the
+IMU link in the base frame: roll about x, pitch about y, yaw about z, fixed axes, so
+``R = Rz(yaw) @ Ry(pitch) @ Rx(roll)`` takes IMU-frame vectors into the base frame.
+
+The products are written out term by term (``R[i][0]*x + R[i][1]*y + R[i][2]*z``), not left
+to BLAS, so that one sample (Python floats) and a batch (numpy columns) give the same floats:
+IEEE multiplication and addition round the same way in both, while a matrix product may fuse
+or reorder them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from fusion.geometry import quaternion as quat
+
+__all__ = ["base_to_imu", "imu_to_base", "mount_matrix", "vertical_rate"]
+
+
+def mount_matrix(rpy: ArrayLike) -> NDArray[np.float64]:
+    """(3, 3) rotation matrix taking IMU-frame vectors into the base frame.
+
+    Args:
+        rpy: URDF roll, pitch, yaw of the IMU in the base frame, rad.
+
+    Raises:
+        ValueError: ``rpy`` that is not three finite numbers.
+    """
+    r = np.asarray(rpy, dtype=float)
+    if r.shape != (3,) or not np.isfinite(r).all():
+        raise ValueError(f"rpy must be three finite angles in rad, got {rpy!r}")
+    return quat.to_matrix(quat.from_euler(r[0], r[1], r[2]))
+
+
+def _vectors(v: ArrayLike) -> NDArray[np.float64]:
+    a = np.asarray(v, dtype=np.float64)
+    if a.shape[-1:] != (3,):
+        raise ValueError(f"vectors must have shape (..., 3), got {a.shape}")
+    return a
+
+
+def imu_to_base(R: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
+    """IMU-frame vectors ``v`` (..., 3) -> base frame, ``R @ v`` for each (units of ``v``).
+
+    ``R`` is :func:`mount_matrix` (an array or nested lists). Same floats for one vector and
+    for a stack of them (module docstring).
+    """
+    R = np.asarray(R, dtype=np.float64).tolist()
+    a = _vectors(v)
+    x, y, z = a[..., 0], a[..., 1], a[..., 2]
+    return np.stack([R[0][0] * x + R[0][1] * y + R[0][2] * z,
+                     R[1][0] * x + R[1][1] * y + R[1][2] * z,
+                     R[2][0] * x + R[2][1] * y + R[2][2] * z], axis=-1)
+
+
+def base_to_imu(R: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
+    """Base-frame vectors ``v`` (..., 3) -> IMU frame, ``R.T @ v`` (what the sensor measures)."""
+    return imu_to_base(np.asarray(R, dtype=np.float64).T, v)
+
+
+def vertical_rate(gyro: ArrayLike, quaternion: ArrayLike | None = None) -> NDArray[np.float64]:
+    """Rate about the world vertical (rad/s) from body-frame gyro rates (..., 3).
+
+    With ``quaternion`` (scalar first ``[w, x, y, z]``, body -> world ENU, e.g. the Mahony
+    attitude; normalised here) the body rate is rotated into the world frame and its z
+    component returned: ``R[2, :] @ gyro``, the tilt-compensated yaw rate. Without it the
+    robot is taken as level and ``gyro[..., 2]`` is returned.
+
+    Raises:
+        ValueError: ``gyro`` not (..., 3) or ``quaternion`` not (..., 4).
+    """
+    g = np.asarray(gyro, dtype=float)
+    if g.shape[-1:] != (3,):
+        raise ValueError(f"gyro must have shape (..., 3), got {g.shape}")
+    if quaternion is None:
+        return g[..., 2].copy()
+    q = np.asarray(quaternion, dtype=float)
+    if q.shape[-1:] != (4,):
+        raise ValueError(f"quaternion must have shape (..., 4) [w, x, y, z], got {q.shape}")
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    n2 = w * w + x * x + y * y + z * z
+    # third row of the rotation matrix of the normalised quaternion
+    r20 = 2.0 * (x * z - w * y) / n2
+    r21 = 2.0 * (y * z + w * x) / n2
+    r22 = 1.0 - 2.0 * (x * x + y * y) / n2
+    return r20 * g[..., 0] + r21 * g[..., 1] + r22 * g[..., 2]
