@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.planar import _ekf_core as core
-from fusion.types.fused import FusedOdometry
+from fusion.types.fused import FusedOdometry, quaternion_norm
 
 __all__ = []
 
@@ -102,8 +102,8 @@ def _fast_record(f: dict[str, Any]) -> FusedOdometry:
     put(rec, "twist_covariance", twist)
     if q is not None:
         qa = np.array(q, dtype=np.float64)
-        # what FusedOdometry does: q / np.linalg.norm(q), and norm is sqrt(q.dot(q))
-        put(rec, "orientation", _frozen(qa / math.sqrt(qa.dot(qa))))
+        # what FusedOdometry does: q / quaternion_norm(q)
+        put(rec, "orientation", _frozen(qa / quaternion_norm(qa)))
     else:
         put(rec, "orientation", None)
     put(rec, "angular_velocity", _frozen(np.array(av, dtype=np.float64)))

@@ -19,13 +19,24 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion.types.constants import UNOBSERVED_VARIANCE
 
-__all__ = ["FusedOdometry", "yaw_quaternion"]
+__all__ = ["FusedOdometry", "quaternion_norm", "yaw_quaternion"]
 
 
 
 def yaw_quaternion(yaw: float) -> NDArray[np.float64]:
     """Quaternion ``[w, x, y, z]`` of a rotation by ``yaw`` (rad) about +z."""
     return np.array([math.cos(0.5 * yaw), 0.0, 0.0, math.sin(0.5 * yaw)])
+
+
+def quaternion_norm(q: NDArray[np.float64]) -> float:
+    """Euclidean norm of a (4,) quaternion, summed left to right in plain floats.
+
+    Not ``q @ q`` or ``np.linalg.norm``: those go through BLAS, whose kernel (and so the last
+    bit of the result) depends on the CPU, and the records must be the same bytes on every
+    machine (tests/test_pipeline_golden.py).
+    """
+    w, x, y, z = q.tolist()
+    return math.sqrt(w * w + x * x + y * y + z * z)
 
 
 def _frozen(a: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -132,7 +143,7 @@ class FusedOdometry:
             q = np.array(self.orientation, dtype=np.float64).reshape(-1)
             if q.shape != (4,) or not np.isfinite(q).all():
                 raise ValueError(f"orientation must be a finite [w, x, y, z], got {q.tolist()}")
-            n = math.sqrt(float(q @ q))
+            n = quaternion_norm(q)
             if abs(n - 1.0) > 1e-3:
                 raise ValueError(f"orientation must be a unit quaternion, norm is {n:.6g}")
             put("orientation", _frozen(q / n))
