@@ -39,6 +39,7 @@ class PhysicsRun:
         wheel_t, ticks: host stamps (s) of the wheel frames and their (M, 2) int64 counts
             (left, right) per firmware period.
         wheel_dead: (M,) bool, the frame fell in a dead-encoder window.
+        imu_t_true, wheel_t_end: the true sample times and period ends behind the stamps, s.
         truth_t: (K,) s at the physics rate.  truth: (K, 3) x, y (m), yaw (rad, continuous)
             of base_footprint in odom.  truth_v: forward speed, m/s.  truth_w: yaw rate,
             rad/s.  truth_gyro_bias: (K, 3) additive gyro bias in the IMU frame, rad/s (the
@@ -54,6 +55,8 @@ class PhysicsRun:
     wheel_t: NDArray[np.float64]
     ticks: NDArray[np.int64]
     wheel_dead: NDArray[np.bool_]
+    imu_t_true: NDArray[np.float64]
+    wheel_t_end: NDArray[np.float64]
     truth_t: NDArray[np.float64]
     truth: NDArray[np.float64]
     truth_v: NDArray[np.float64]
@@ -149,6 +152,7 @@ def simulate_physics(
         robot=nominal_robot(body, sensors),
         imu_t=imu["t"], gyro=imu["gyro"], accel=imu["accel"],
         wheel_t=enc["t"], ticks=enc["ticks"], wheel_dead=enc["dead"],
+        imu_t_true=imu["t_true"], wheel_t_end=enc["t_end"],
         truth_t=trace.t, truth=np.column_stack([trace.x, trace.y, trace.yaw]),
         truth_v=trace.u, truth_w=trace.r, truth_gyro_bias=sensors.gyro_bias_at(trace.t),
         truth_slip=(trace.slip_l > 0) | (trace.slip_r > 0),
