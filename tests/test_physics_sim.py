@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from fusion.evaluation.physics_sim import (
+    ERROR_GROUPS,
     BodyParams,
     ControllerParams,
     Mission,
@@ -252,3 +253,8 @@ def test_mount_tilt_rotates_gravity_like_scipy():
     # URDF rpy = fixed-axis x, y, z rotations taking IMU vectors into the base frame
     expected = Rotation.from_euler("xyz", rpy).inv().apply([0.0, 0.0, G])
     assert run.accel == pytest.approx(np.tile(expected, (run.imu_t.size, 1)), abs=1e-12)
+
+
+
+def test_every_error_group_together_is_all_errors():
+    assert with_errors(list(ERROR_GROUPS), seed=3) == all_errors(3)

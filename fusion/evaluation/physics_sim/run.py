@@ -135,7 +135,8 @@ def simulate_physics(
         body, controller: the robot (defaults of :class:`BodyParams`,
             :class:`ControllerParams`).
         dead_encoder_while_driving: if > 0, a dead-encoder window of this many seconds is
-            added where the robot drives throughout (:func:`driving_window`).
+            added where the robot drives throughout (:func:`driving_window`), starting after
+            60 s or a fifth of the mission, whichever is earlier.
     """
     sensors = sensors or SensorModel()
     body = body or BodyParams()
@@ -143,7 +144,8 @@ def simulate_physics(
                           sensors.radius_speed_coeff, sensors.separation_error)
     rng = np.random.default_rng([seed, 404])
     if dead_encoder_while_driving > 0:
-        window = driving_window(trace, dead_encoder_while_driving, rng)
+        window = driving_window(trace, dead_encoder_while_driving, rng,
+                                earliest=min(60.0, 0.2 * mission.duration))
         sensors = replace(sensors,
                           encoder_dead_windows=(*sensors.encoder_dead_windows, window))
     imu = sample_imu(trace, body, sensors, np.random.default_rng([seed, 505]))
