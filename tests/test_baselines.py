@@ -8,7 +8,13 @@ import math
 import numpy as np
 import pytest
 
-from fusion.evaluation.baselines import StopDetector, detect_stops, gyro_at_stops, wheel_only
+from fusion.evaluation.baselines import (
+    StopDetector,
+    detect_stops,
+    gyro_at_stops,
+    gyro_at_stops_twist,
+    wheel_only,
+)
 from fusion.geometry.kinematics import DiffDriveParams
 
 ROBOT = DiffDriveParams(wheel_distance=0.3, speed_ratio=1e-4, encode_sampling_time=0.04)
@@ -96,3 +102,16 @@ def test_short_pauses_are_ignored():
                                                (1.0, 0.0, (100, 100), False)])
     assert detect_stops(ROBOT, imu_t, gyro, accel, wheel_t, ticks,
                         StopDetector(min_duration=1.0)) == ([], [])
+
+
+def test_twist_form_equals_the_tick_form():
+    # twists of 0.04 s carrying the same distances as the ticks give the same track
+    phases = [(3.0, 0.01, (0, 0), False), (5.0, 0.21, (1000, 1000), True),
+              (3.0, -0.02, (0, 0), False), (5.0, -0.02, (1000, 1200), True)]
+    imu_t, gyro, accel, wheel_t, ticks = _log(phases)
+    a = gyro_at_stops(ROBOT, imu_t, gyro, accel, wheel_t, ticks)
+    v = ticks.mean(axis=1) * ROBOT.speed_ratio / 0.04
+    w = (ticks[:, 1] - ticks[:, 0]) * ROBOT.speed_ratio / 0.3 / 0.04
+    b = gyro_at_stops_twist(imu_t, gyro, accel, wheel_t, v, w)
+    assert np.array(b.stops) == pytest.approx(np.array(a.stops), abs=1e-12)
+    assert b.poses == pytest.approx(a.poses, abs=1e-12)

@@ -26,7 +26,14 @@ from numpy.typing import ArrayLike, NDArray
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.planar.odometry import WheelOdometry
 
-__all__ = ["GyroAtStops", "StopDetector", "detect_stops", "gyro_at_stops", "wheel_only"]
+__all__ = [
+    "GyroAtStops",
+    "StopDetector",
+    "detect_stops",
+    "gyro_at_stops",
+    "gyro_at_stops_twist",
+    "wheel_only",
+]
 
 
 def wheel_only(params: DiffDriveParams, ticks: ArrayLike) -> NDArray[np.float64]:
@@ -78,12 +85,11 @@ class GyroAtStops:
     rejected: list[tuple[float, float]] = field(default_factory=list)
 
 
-def _zero_runs(wheel_t: NDArray[np.float64], ticks: NDArray, period: float,
+def _zero_runs(frame_t: NDArray[np.float64], zero: NDArray[np.bool_], period: float,
                max_gap: float) -> list[tuple[float, float]]:
-    zero = np.all(ticks == 0, axis=1)
     runs: list[tuple[float, float]] = []
     start = last = None
-    for t, z in zip(wheel_t.tolist(), zero.tolist()):
+    for t, z in zip(frame_t.tolist(), zero.tolist()):
         if z and last is not None and t - last <= max_gap * period:
             last = t
             continue
@@ -97,21 +103,20 @@ def _zero_runs(wheel_t: NDArray[np.float64], ticks: NDArray, period: float,
     return runs
 
 
-def detect_stops(params: DiffDriveParams, imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike,
-                 wheel_t: ArrayLike, ticks: ArrayLike, detector: StopDetector | None = None
-                 ) -> tuple[list[tuple[float, float, float]], list[tuple[float, float]]]:
-    """Stops confirmed by wheels AND IMU: ``([(start s, end s, mean gyro z rad/s)], rejected)``
-    where ``rejected`` lists the zero-tick runs the IMU contradicted (see the module docstring).
-    """
-    det = detector or StopDetector()
+def _imu_arrays(imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike):
     imu_t = np.asarray(imu_t, dtype=float)
     gyro = np.asarray(gyro, dtype=float).reshape(-1, 3)
     accel = np.asarray(accel, dtype=float).reshape(-1, 3)
-    wheel_t = np.asarray(wheel_t, dtype=float)
-    ticks = np.asarray(ticks).reshape(-1, 2)
+    if not imu_t.size == gyro.shape[0] == accel.shape[0] or imu_t.size < 2:
+        raise ValueError(f"need at least 2 IMU samples with one gyro and accelerometer row "
+                         f"each, got {imu_t.size}, {gyro.shape}, {accel.shape}")
+    return imu_t, gyro, accel
+
+
+def _confirm(imu_t, gyro, accel, runs, det: StopDetector):
     stops: list[tuple[float, float, float]] = []
     rejected: list[tuple[float, float]] = []
-    for start, end in _zero_runs(wheel_t, ticks, params.encode_sampling_time, det.max_gap):
+    for start, end in runs:
         if end - start < det.min_duration:
             continue
         i0, i1 = np.searchsorted(imu_t, [start + det.edge, end - det.edge])
@@ -127,6 +132,36 @@ def detect_stops(params: DiffDriveParams, imu_t: ArrayLike, gyro: ArrayLike, acc
     return stops, rejected
 
 
+def detect_stops(params: DiffDriveParams, imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike,
+                 wheel_t: ArrayLike, ticks: ArrayLike, detector: StopDetector | None = None
+                 ) -> tuple[list[tuple[float, float, float]], list[tuple[float, float]]]:
+    """Stops confirmed by wheels AND IMU: ``([(start s, end s, mean gyro z rad/s)], rejected)``
+    where ``rejected`` lists the zero-tick runs the IMU contradicted (see the module docstring).
+    """
+    det = detector or StopDetector()
+    imu_t, gyro, accel = _imu_arrays(imu_t, gyro, accel)
+    zero = np.all(np.asarray(ticks).reshape(-1, 2) == 0, axis=1)
+    runs = _zero_runs(np.asarray(wheel_t, dtype=float), zero, params.encode_sampling_time,
+                      det.max_gap)
+    return _confirm(imu_t, gyro, accel, runs, det)
+
+
+def _track(imu_t, gyro_z, stops, rejected, frame_t, frame_dt, distance,
+           initial_bias) -> GyroAtStops:
+    bias = np.full(imu_t.size, float(initial_bias))
+    still = np.zeros(imu_t.size, dtype=bool)
+    for start, end, b in stops:
+        bias[imu_t >= end] = b
+        still[(imu_t >= start) & (imu_t <= end)] = True
+    rate = np.where(still, 0.0, gyro_z - bias)
+    heading = np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(imu_t))))
+    mid = np.interp(frame_t - 0.5 * frame_dt, imu_t, heading)
+    poses = np.column_stack([np.cumsum(distance * np.cos(mid)),
+                             np.cumsum(distance * np.sin(mid)),
+                             np.interp(frame_t, imu_t, heading)])
+    return GyroAtStops(frame_t, poses, stops, rejected)
+
+
 def gyro_at_stops(params: DiffDriveParams, imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike,
                   wheel_t: ArrayLike, ticks: ArrayLike, detector: StopDetector | None = None,
                   initial_bias: float = 0.0) -> GyroAtStops:
@@ -140,23 +175,39 @@ def gyro_at_stops(params: DiffDriveParams, imu_t: ArrayLike, gyro: ArrayLike, ac
         detector: stop criteria.
         initial_bias: gyro z bias used before the first stop, rad/s.
     """
-    imu_t = np.asarray(imu_t, dtype=float)
-    gyro = np.asarray(gyro, dtype=float).reshape(-1, 3)
+    imu_t, gyro, accel = _imu_arrays(imu_t, gyro, accel)
     wheel_t = np.asarray(wheel_t, dtype=float)
     ticks = np.asarray(ticks).reshape(-1, 2)
-    if imu_t.size < 2:
-        raise ValueError(f"need at least 2 IMU samples, got {imu_t.size}")
     stops, rejected = detect_stops(params, imu_t, gyro, accel, wheel_t, ticks, detector)
-    bias = np.full(imu_t.size, float(initial_bias))
-    still = np.zeros(imu_t.size, dtype=bool)
-    for start, end, b in stops:
-        bias[imu_t >= end] = b
-        still[(imu_t >= start) & (imu_t <= end)] = True
-    rate = np.where(still, 0.0, gyro[:, 2] - bias)
-    heading = np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(imu_t))))
     T = params.encode_sampling_time
     d = 0.5 * (ticks[:, 0] + ticks[:, 1]) * params.speed_ratio
-    mid = np.interp(wheel_t - 0.5 * T, imu_t, heading)
-    poses = np.column_stack([np.cumsum(d * np.cos(mid)), np.cumsum(d * np.sin(mid)),
-                             np.interp(wheel_t, imu_t, heading)])
-    return GyroAtStops(wheel_t, poses, stops, rejected)
+    return _track(imu_t, gyro[:, 2], stops, rejected, wheel_t, T, d, initial_bias)
+
+
+def gyro_at_stops_twist(imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike,
+                        twist_t: ArrayLike, v: ArrayLike, w: ArrayLike,
+                        detector: StopDetector | None = None, initial_bias: float = 0.0,
+                        still_v: float = 1e-3, still_w: float = 1e-3) -> GyroAtStops:
+    """:func:`gyro_at_stops` for odometry twists instead of ticks (e.g. a ROS bag's
+    nav_msgs/Odometry): a message with ``|v| < still_v`` (m/s) and ``|w| < still_w`` (rad/s)
+    counts as a zero frame, and message k moves ``v_k * (t_k - t_{k-1})`` (m; the first one
+    the median interval) along the heading at the middle of that interval.
+
+    Args:
+        imu_t, gyro, accel: IMU stamps (s) and (N, 3) base-frame readings (rad/s, m/s^2).
+        twist_t, v, w: message stamps (s), forward speed (m/s), yaw rate (rad/s).
+    """
+    imu_t, gyro, accel = _imu_arrays(imu_t, gyro, accel)
+    det = detector or StopDetector()
+    twist_t = np.asarray(twist_t, dtype=float)
+    v = np.asarray(v, dtype=float)
+    w = np.asarray(w, dtype=float)
+    if not twist_t.size == v.size == w.size or twist_t.size < 2:
+        raise ValueError(f"need at least 2 twists with one v and w each, got {twist_t.size}, "
+                         f"{v.size}, {w.size}")
+    period = float(np.median(np.diff(twist_t)))
+    dt = np.concatenate(([period], np.diff(twist_t)))
+    zero = (np.abs(v) < still_v) & (np.abs(w) < still_w)
+    stops, rejected = _confirm(imu_t, gyro, accel,
+                               _zero_runs(twist_t, zero, period, det.max_gap), det)
+    return _track(imu_t, gyro[:, 2], stops, rejected, twist_t, dt, v * dt, initial_bias)
