@@ -78,6 +78,18 @@ class BodyTrace:
 
 
 @njit
+def _tyre(sx, sy, k, cap):  # pragma: no cover - compiled or plain
+    """Floor force (N) on a contact patch sliding at (sx, sy) m/s, and its sliding speed (m/s;
+    0 while it grips): ``-k*s`` capped at ``cap`` (the friction circle)."""
+    fx = -k * sx
+    fy = -k * sy
+    f = math.hypot(fx, fy)
+    if f > cap:
+        return fx * cap / f, fy * cap / f, math.hypot(sx, sy)
+    return fx, fy, 0.0
+
+
+@njit
 def _loop(dt, v_cmd, w_cmd, mu, p, init, out):  # pragma: no cover - compiled or plain
     m, izz, d, L, L_nom, R_l, R_r, R_nom, c_speed, J, b_w, k, N, a_lim, al_lim, kp, ki, \
         tau_max = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], \
@@ -119,22 +131,8 @@ def _loop(dt, v_cmd, w_cmd, mu, p, init, out):  # pragma: no cover - compiled or
         sx_l = u - 0.5 * L * r - spin_l * re_l
         sx_r = u + 0.5 * L * r - spin_r * re_r
         cap = mu[i] * N
-        fx_l = -k * sx_l
-        fy_l = -k * lat
-        f = math.hypot(fx_l, fy_l)
-        slide_l = 0.0
-        if f > cap:
-            fx_l *= cap / f
-            fy_l *= cap / f
-            slide_l = math.hypot(sx_l, lat)
-        fx_r = -k * sx_r
-        fy_r = -k * lat
-        f = math.hypot(fx_r, fy_r)
-        slide_r = 0.0
-        if f > cap:
-            fx_r *= cap / f
-            fy_r *= cap / f
-            slide_r = math.hypot(sx_r, lat)
+        fx_l, fy_l, slide_l = _tyre(sx_l, lat, k, cap)
+        fx_r, fy_r, slide_r = _tyre(sx_r, lat, k, cap)
         # 4. Newton-Euler about the centre of mass (d ahead of the axle)
         fx = fx_l + fx_r
         fy = fy_l + fy_r
