@@ -1,6 +1,6 @@
 """Fused-odometry accuracy: wheel-only, gyro baselines and fused EKF on two simulators and a bag.
 
-Run: python benchmarks/ekf_accuracy.py [--seeds N] [--duration S] [--skip-bag]
+Run: python benchmarks/ekf_accuracy.py [--seeds N] [--duration S] [--skip-bag] [--breakdown SEED]
 
 (i) The kinematic simulator, fusion.evaluation.synthetic.degraded_mission (robot.toml's
 wheel_distance 3 % off, 0.5 % left/right radius mismatch, gyro z bias 0.5 deg/s with a 2e-5
@@ -19,9 +19,10 @@ model): scenarios "plain" (white noise, constant gyro bias), "all" (every sensor
 low-friction patches) and "all+dead" (plus 8 s of zero ticks on both wheels while driving).
 Contenders: wheel only, gyro at stops, and the fused EKF with the DEFAULT EkfNoise fed the
 IMU's z rate as logged (robot.toml says the mount is level, as the owner believes). Errors at
-every wheel frame against the truth at the frame's host stamp. NEES of the EKF pose (x, y, yaw)
-with the covariances it reports (fusion.planar.ekf.pose_covariances) at its wheel-frame rows:
-fraction of rows inside the two-sided 95 % chi-square bounds for 3 dof.
+every wheel frame (baselines) or IMU sample (EKF rows) against the truth at the row's host
+stamp. NEES of the EKF pose (x, y, yaw) with the covariances it reports
+(fusion.planar.ekf.pose_covariances) at those rows: fraction of rows inside the two-sided 95 %
+chi-square bounds for 3 dof.
 
 (iii) The bundled Jackal bag (datasets/rosbag/jackal_sim_test2.bag, a Gazebo simulation): no
 independent ground truth. Yaw reference: the bag's IMU orientation (the simulator's attitude;
@@ -30,6 +31,8 @@ odometry turns 7.5 times as far: the skid-steer twist is not a yaw reference). P
 reference: the odometry speed integrated along that yaw (a pseudo-reference, it shares the
 speed with every contender). Also printed: against the bag's own odometry pose, and the largest
 step between consecutive fused rows against 3 x the largest twist speed x the row interval.
+
+With ``--breakdown SEED``: the physics simulator with one error at a time on that seed.
 
 Printed per contender: final position error in % of the distance travelled and yaw RMSE (deg),
 mean and worst over the seeds.
@@ -45,7 +48,13 @@ from pathlib import Path
 import numpy as np
 
 from fusion.evaluation.baselines import gyro_at_stops, gyro_at_stops_twist, wheel_only
-from fusion.evaluation.physics_sim import physics_scenario
+from fusion.evaluation.physics_sim import (
+    ERROR_GROUPS,
+    indoor_mission,
+    physics_scenario,
+    simulate_physics,
+    with_errors,
+)
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
 from fusion.evaluation.trajectory import (
     final_position_error_percent,
@@ -61,8 +70,10 @@ from fusion.planar.odometry import TwistOdometry, WheelOdometry
 
 ROBOT = EXAMPLE_ROBOT
 BAG = Path(__file__).resolve().parent.parent / "datasets" / "rosbag" / "jackal_sim_test2.bag"
-WHEEL_ROWS = 1  # FusedTrack.kind of a wheel frame
-TWIST_ROWS = 3  # FusedTrack.kind of an odometry twist
+# The EKF is scored at its gyro rows (FusedTrack.kind 0; one per IMU sample, as `fusion replay`
+# writes them), whose state refers to the row's stamp; a wheel row's state refers to the middle
+# of its period, 20 ms before its stamp (FusedTrack.t_filter).
+GYRO_ROWS = 0
 
 
 def gyro_heading(run) -> tuple[np.ndarray, np.ndarray]:
@@ -110,12 +121,30 @@ def kinematic_section(seeds: int, duration: float) -> None:
         stops = gyro_at_stops(ROBOT, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
         results["gyro at stops"].append(_errors(stops.poses, tw, run.distance))
         track, _ = fuse(ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, noise)
-        g = track.kind == 0
+        g = track.kind == GYRO_ROWS
         results["fused EKF"].append(_errors(track.states[g], run.truth_at(track.t[g]),
                                             run.distance))
     print(f"(i) kinematic simulator: {seeds} degraded missions of {duration:.0f} s (3 % "
           "separation error, 0.5 % radius mismatch, 0.5 deg/s gyro bias + walk, slip patches)")
     _table(results)
+
+
+def score_physics_run(run) -> tuple[dict[str, tuple[float, float]], float]:
+    """Errors of the three contenders on one physics run, and the EKF's NEES fraction."""
+    robot = run.robot.chassis
+    tw = run.truth_at(run.wheel_t)
+    out = {"wheel only": _errors(wheel_only(robot, run.ticks), tw, run.distance)}
+    stops = gyro_at_stops(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
+    out["gyro at stops"] = _errors(stops.poses, tw, run.distance)
+    track, _ = fuse(robot, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks)
+    k = track.kind == GYRO_ROWS
+    est = track.states[k, :3]
+    truth = run.truth_at(track.t[k])
+    out["fused EKF"] = _errors(est, truth, run.distance)
+    if not np.isfinite(track.states[k]).all():
+        return out, math.nan
+    values = nees(pose_errors(est, truth), pose_covariances(track.states[k]))
+    return out, nees_fraction_within(values, 3)
 
 
 def physics_section(seeds: int, duration: float) -> None:
@@ -125,22 +154,11 @@ def physics_section(seeds: int, duration: float) -> None:
             "wheel only": [], "gyro at stops": [], "fused EKF": []}
         inside: list[float] = []
         for seed in range(seeds):
-            run = physics_scenario(scenario, seed=seed, duration=duration)
-            robot = run.robot.chassis
-            tw = run.truth_at(run.wheel_t)
-            results["wheel only"].append(_errors(wheel_only(robot, run.ticks), tw, run.distance))
-            stops = gyro_at_stops(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
-            results["gyro at stops"].append(_errors(stops.poses, tw, run.distance))
-            track, _ = fuse(robot, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks)
-            k = track.kind == WHEEL_ROWS
-            est = track.states[k, :3]
-            truth = run.truth_at(track.t[k])
-            results["fused EKF"].append(_errors(est, truth, run.distance))
-            if np.isfinite(track.states[k]).all():
-                values = nees(pose_errors(est, truth), pose_covariances(track.states[k]))
-                inside.append(nees_fraction_within(values, 3))
-            else:
-                inside.append(math.nan)
+            scores, fraction = score_physics_run(
+                physics_scenario(scenario, seed=seed, duration=duration))
+            for name, value in scores.items():
+                results[name].append(value)
+            inside.append(fraction)
         print(f"\n(ii) physics simulator, scenario {scenario!r}: {seeds} seeds x "
               f"{duration:.0f} s")
         _table(results)
@@ -148,6 +166,23 @@ def physics_section(seeds: int, duration: float) -> None:
         print(f"EKF pose NEES (x, y, yaw) inside its 95 % bounds [{lo:.3f}, {hi:.3f}]: "
               f"{100 * f.mean():.1f} % of the rows on average, {100 * f.min():.1f} % in the "
               "worst run")
+
+
+def breakdown_section(seed: int, duration: float) -> None:
+    """One error at a time on the physics simulator (plain sensors plus that error)."""
+    print(f"\n(ii-b) physics simulator, one error at a time, seed {seed}, {duration:.0f} s: "
+          "final pos. error % / yaw RMSE deg; EKF NEES inside 95 %")
+    print(f"{'error':16s} {'wheel only':>16s} {'gyro at stops':>16s} {'fused EKF':>16s} "
+          f"{'NEES in':>8s}")
+    for name in ("none", *ERROR_GROUPS, "low-friction", "dead-encoder", "moving-start"):
+        mission = indoor_mission(seed, duration, low_friction=name == "low-friction",
+                                 moving_start=name == "moving-start")
+        sensors = with_errors([name] if name in ERROR_GROUPS else [], seed=seed)
+        run = simulate_physics(mission, sensors, seed,
+                               dead_encoder_while_driving=8.0 if name == "dead-encoder" else 0)
+        scores, fraction = score_physics_run(run)
+        cells = " ".join(f"{a:7.2f} /{b:7.2f}" for a, b in scores.values())
+        print(f"{name:16s} {cells} {100 * fraction:7.1f}%")
 
 
 def bag_section() -> None:
@@ -178,7 +213,7 @@ def bag_section() -> None:
                                                       odom.w).poses
     robot = DiffDriveParams(wheel_distance=0.5, speed_ratio=1e-4, encode_sampling_time=0.02)
     track, _ = fuse(robot, imu.t, imu.gyro[:, 2], twist_t=t, twist_v=odom.v, twist_w=odom.w)
-    k = track.kind == TWIST_ROWS
+    k = track.kind == GYRO_ROWS
     fused = track.states[k, :3]
     contenders["fused EKF"] = np.column_stack([np.interp(t, track.t[k], fused[:, j])
                                                for j in range(3)])
@@ -202,10 +237,14 @@ def main() -> None:
     ap.add_argument("--seeds", type=int, default=8)
     ap.add_argument("--duration", type=float, default=300.0, help="mission length, s")
     ap.add_argument("--skip-bag", action="store_true", help="leave out section (iii)")
+    ap.add_argument("--breakdown", type=int, metavar="SEED",
+                    help="also one physics error at a time on this seed")
     args = ap.parse_args()
     kinematic_section(args.seeds, args.duration)
     sys.stdout.flush()
     physics_section(args.seeds, args.duration)
+    if args.breakdown is not None:
+        breakdown_section(args.breakdown, args.duration)
     if not args.skip_bag:
         bag_section()
 
