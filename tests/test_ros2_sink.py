@@ -210,6 +210,12 @@ def test_spec_and_registry() -> None:
     assert isinstance(sink, Ros2Sink) and sink.topics.imu is None and not sink.is_open
 
 
+def test_without_cyclonedds_the_error_says_which_extra(monkeypatch) -> None:
+    monkeypatch.setitem(sys.modules, "cyclonedds.domain", None)  # as if not installed
+    with pytest.raises(ImportError, match=r"pip install 'diffbot-fusion\[ros2\]'"):
+        Ros2Sink().open()
+
+
 def test_non_finite_commands_are_dropped_and_counted() -> None:
     got = []
     sink = Ros2Sink(on_cmd_vel=lambda v, w: got.append((v, w)))

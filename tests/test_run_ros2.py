@@ -43,6 +43,8 @@ def test_ros2_cmd_vel_drives_the_simulated_chassis_and_odom_comes_back(tmp_path,
             if "running:" in line or not line:
                 break
         assert "publishing to ros2" in "".join(lines), "".join(lines)
+        domain = ros2_env["ROS_DOMAIN_ID"]
+        assert f"ROS 2 topics on DDS domain {domain} (ROS_DOMAIN_ID)" in "".join(lines)
         time.sleep(1.0)  # the robot stands still: with ros2 only /cmd_vel moves it
         # 0.3 m/s for 3 s, then 1 s of zero command
         peer = subprocess.run([sys.executable, str(PEER), "drive", "--cmd-vel", "0.3", "0.0",

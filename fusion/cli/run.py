@@ -205,6 +205,8 @@ def run(args: argparse.Namespace) -> int:
         for sink in sinks:
             if hasattr(sink, "host") and hasattr(sink, "port"):
                 err(f"Foxglove server: connect to ws://{sink.host}:{sink.port}")
+            elif hasattr(sink, "domain_id"):
+                err(f"ROS 2 topics on DDS domain {sink.domain_id} (ROS_DOMAIN_ID)")
         if sim:
             robot = SimRobot(clock, SimRobotParams(), keep_truth=False)
         port = robot.port if sim else cfg.chassis
