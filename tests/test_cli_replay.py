@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from fusion.cli import main
-from fusion.io.fused_csv import FUSED_CSV_COLUMNS, read_fused_csv
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
 from fusion.geometry.quaternion import from_euler, rotate_inverse
+from fusion.io.fused_csv import FUSED_CSV_COLUMNS, read_fused_csv
 from fusion.io.logdir import write_logdir, write_synthetic_run
 from fusion.planar.ekf import fuse
 from fusion.planar.robot import RobotConfig

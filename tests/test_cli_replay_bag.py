@@ -22,9 +22,9 @@ import pytest
 
 from fusion.attitude.mahony import Mahony
 from fusion.cli import main
+from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.fused_csv import write_fused_csv
 from fusion.jobs.replay import fused_table
-from fusion.geometry.kinematics import DiffDriveParams
 from fusion.pipeline.core import FusionPipeline
 from fusion.planar.ekf import fuse, vertical_rate
 from fusion.planar.robot import RobotConfig
