@@ -10,8 +10,13 @@ Sources: ``--imu i2c:N`` (an MPU6050 on /dev/i2c-N, read through its FIFO), ``si
 simulated chip, moving with the simulated chassis) or ``none``; ``--chassis`` a serial port
 (device path, ``socket://host:port``, anything pyserial's ``serial_for_url`` opens), ``sim``
 (the simulated STM32 firmware on a pseudo-terminal) or ``none``. Sinks (``--publish``, comma
-separated): ``jsonl[:PATH]``, ``mcap:PATH``, ``rosbag2:PATH``, ``foxglove[:HOST:PORT]``,
-``ros1`` (seed 000's node: /odom, /tf, /imu/data, wheel speeds; /cmd_vel drives the wheels).
+separated): ``jsonl[:PATH]``, ``csv:PATH``, ``mcap:PATH``, ``rosbag2:PATH``,
+``foxglove[:HOST:PORT]``, ``ros1`` (seed 000's node: /odom, /tf, /imu/data, wheel speeds;
+/cmd_vel drives the wheels). The ``jsonl``, ``csv`` and ``mcap`` files are recorded live: they
+grow in place and are synced to the disk every second, so a crash or a power cut loses at most
+the last second (an MCAP file then lacks its summary section; ``fusion replay`` and
+:func:`fusion.io.bags.read_bag` read it up to its last complete chunk). A ``rosbag2`` folder
+appears only when the run stops cleanly.
 A Foxglove client's geometry_msgs/Twist on /cmd_vel (the Teleop panel) drives the wheels too.
 
 Every option can come from the ``--config`` file (:mod:`fusion.io.run_config`, see
@@ -59,7 +64,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--baudrate", type=int, help="chassis baud rate (115200)")
     p.add_argument("--publish", metavar="SINKS",
                    help="comma-separated sinks: ros1, foxglove[:HOST:PORT], mcap:PATH, "
-                        "rosbag2:PATH, jsonl[:PATH] (default jsonl on stdout)")
+                        "rosbag2:PATH, jsonl[:PATH], csv:PATH (default jsonl on stdout); "
+                        "jsonl, csv and mcap files are synced every second (a crash loses "
+                        "at most the last second)")
     p.add_argument("--publish-rate", type=float, metavar="HZ",
                    help="records per second (0: one per wheel frame, the default)")
     p.add_argument("--duration", type=float, metavar="S",
@@ -129,7 +136,7 @@ def _sinks_for(cfg, cmd_vel) -> list:
                                   frame_id=cfg.robot.odom_frame,
                                   child_frame_id=cfg.robot.base_frame))
         else:
-            sink = open_sink(spec, topics=topics)
+            sink = open_sink(spec, topics=topics, live=True)  # files survive a crash
             if kind == "foxglove":  # the Teleop panel's /cmd_vel drives the robot like ROS's
                 sink.cmd_vel_topic = cfg.cmd_vel_topic
                 sink.on_cmd_vel = cmd_vel
