@@ -96,6 +96,7 @@ ACCEL_LSB_PER_G = {2: 16384.0, 4: 8192.0, 8: 4096.0, 16: 2048.0}
 _RETRY_ERRNOS = {_errno.EIO, _errno.EREMOTEIO, _errno.ENXIO}
 _FIFO_SIZE = 1024
 _FRAME = 12  # accel x, y, z then gyro x, y, z, big-endian int16
+_FRAME_TEMP = 14  # accel x, y, z, temperature, gyro x, y, z (TEMP_FIFO_EN on)
 _I2C_FUNC_I2C = 0x00000001  # smbus2.I2cFunc.I2C: the adapter does plain I2C (i2c_rdwr)
 _SELF_TEST_LIMIT = 0.14  # product specification: change from factory trim within +-14 %
 
@@ -148,7 +149,8 @@ class FifoRead:
         lost: number of samples estimated lost to an overflow or a failed read (from the
             time since the last delivered sample and the sample rate; +-1).
         transactions: I2C transactions this call issued.
-        raw: the frames as read, (len(samples), 6) int16 counts: accel x, y, z, gyro x, y, z.
+        raw: the frames as read, (len(samples), 6) int16 counts: accel x, y, z, gyro x, y, z
+            (the temperature of a ``enable_fifo(temperature=True)`` frame is in the samples).
     """
 
     samples: list[ImuSample]
@@ -411,6 +413,7 @@ class MPU6050:
         self._data_rdy_on = True
         self.fresh: bool | None = None
         self._fifo_on = False
+        self._frame = _FRAME
         self._fifo_index = 0
         self._fifo_clock = _FifoClock(0.0, 0.01)
         self._fifo_last_t = -math.inf
@@ -720,14 +723,19 @@ class MPU6050:
         )
 
     # ------------------------------------------------------------------ FIFO
-    def enable_fifo(self) -> None:
+    def enable_fifo(self, *, temperature: bool = False) -> None:
         """Put accel + gyro x, y, z (12-byte frames) into the FIFO, reset it and start.
 
         Samples are then collected with ``read_fifo()``. At 1 kHz the 1024-byte FIFO holds
         85 frames (85 ms), and at 400 kHz each frame takes 0.27 ms to read, during which new
         ones arrive: read at least every 60 ms (benchmarks/mpu6050_transactions.py).
+
+        ``temperature=True`` adds the die temperature to each frame (TEMP_FIFO_EN: 14-byte
+        frames, so the FIFO holds 73 of them), and the samples carry it (deg C).
         """
-        self._write_byte(FIFO_EN, 0x78)  # XG, YG, ZG, ACCEL
+        self._frame = _FRAME_TEMP if temperature else _FRAME
+        # XG, YG, ZG, ACCEL (+ TEMP)
+        self._write_byte(FIFO_EN, 0xF8 if temperature else 0x78)
         self._fifo_reset()
         self._fifo_on = True
 
@@ -774,13 +782,14 @@ class MPU6050:
         t_count = self.clock.monotonic()
         d = self._read_block(FIFO_COUNTH, 2)
         count = (d[0] << 8) | d[1]
-        if overflow or count % _FRAME or count >= _FIFO_SIZE - _FRAME + 1:
+        frame = self._frame
+        if overflow or count % frame or count >= _FIFO_SIZE - frame + 1:
             return self._recover(overflow=True, before=before)
-        n = count // _FRAME
+        n = count // frame
         if n == 0:
             return FifoRead([], transactions=self.stats.transactions - before)
         try:
-            data = self._read_block(FIFO_R_W, n * _FRAME)
+            data = self._read_block(FIFO_R_W, n * frame)
         except MPU6050Error:
             return self._recover(overflow=False, before=before)
         # n frames more since the reset were there when FIFO_COUNT was read, the next not.
@@ -794,14 +803,20 @@ class MPU6050:
             shift = min(max(times[0] - follow, -0.05 * step), 0.05 * step)
             times = times - times[0] + follow + shift
         self._fifo_last_t = float(times[-1])
-        counts = np.frombuffer(data, dtype=">i2").reshape(n, 6).astype(np.int16)
+        words = np.frombuffer(data, dtype=">i2").reshape(n, frame // 2).astype(np.int16)
+        temps: list[float | None] = [None] * n
+        if frame == _FRAME_TEMP:  # accel, temperature, gyro
+            temps = [float(v) / 340.0 + 36.53 for v in words[:, 3]]
+            counts = np.ascontiguousarray(np.delete(words, 3, axis=1))
+        else:
+            counts = words
         raw = counts.astype(float)
         accel, gyro = self._to_si(raw[:, :3], raw[:, 3:], calibrated)
         samples = []
         for i in range(n):
             t = float(times[i])
-            self._check_stuck(data[i * _FRAME : (i + 1) * _FRAME], t, per_sample=True)
-            samples.append(ImuSample(t, gyro[i], accel[i]))
+            self._check_stuck(counts[i].astype(">i2").tobytes(), t, per_sample=True)
+            samples.append(ImuSample(t, gyro[i], accel[i], None, temps[i]))
         self._fifo_index += n
         return FifoRead(samples, transactions=self.stats.transactions - before, raw=counts)
 

@@ -15,9 +15,10 @@ def register(subparsers) -> None:
         description=(
             "Run the Mahony filter over INPUT and write t,qw,qx,qy,qz,roll,pitch,yaw "
             "(quaternion body -> world ENU, angles in radians), one row per input sample. "
-            "INPUT is a BROAD trial (.mat, .hdf5) or a CSV with the header "
-            "t,gx,gy,gz,ax,ay,az[,mx,my,mz] (s, rad/s, m/s^2, uT). With ground truth (BROAD), "
-            "the benchmark's errors are printed."
+            "INPUT is a BROAD trial (.mat, .hdf5) or an IMU CSV whose header has "
+            "t,gx,gy,gz,ax,ay,az[,mx,my,mz] (s, rad/s, m/s^2, uT; other columns, such as "
+            "those fusion imu adds, are ignored). With ground truth (BROAD), the benchmark's "
+            "errors are printed."
         ),
     )
     p.add_argument("input", type=Path, help="BROAD trial or IMU CSV")
