@@ -54,7 +54,8 @@ def register(subparsers: Any) -> None:
                     "the command line wins. Ctrl-C stops cleanly (files complete).",
     )
     p.add_argument("--config", type=Path, help="robot configuration file (TOML)")
-    p.add_argument("--imu", help="i2c:N (bus number), sim or none (default sim)")
+    p.add_argument("--imu", help="i2c:N (bus number), sim or none (default: sim with "
+                                 "--chassis sim, else none)")
     p.add_argument("--address", type=lambda s: int(s, 0), help="MPU6050 address (0x68)")
     p.add_argument("--rate", type=float, metavar="HZ", help="IMU sample rate (default 100)")
     p.add_argument("--calibration", help="IMU calibration JSON (fusion imu-calibrate)")
@@ -107,8 +108,17 @@ def _config(args: argparse.Namespace):
         _imu_source(cfg.imu)
     except ValueError as exc:
         raise CommandError(f"--imu {exc}") from None
+    if cfg.imu == "sim" and cfg.chassis != "sim" and args.imu is None:
+        # the default IMU is the simulated one, which moves with the simulated chassis only
+        from dataclasses import replace
+
+        cfg = replace(cfg, imu="none")
+        if cfg.chassis != "none":
+            print(f"fusion run: no --imu given: fusing the wheel odometry of {cfg.chassis} "
+                  "alone (give --imu i2c:N for an MPU6050 on /dev/i2c-N)", file=sys.stderr)
     if cfg.imu == "none" and cfg.chassis == "none":
-        raise CommandError("nothing to fuse: --imu and --chassis are both none")
+        raise CommandError("nothing to fuse: --imu and --chassis are both none (the "
+                           "simulated IMU needs --chassis sim)")
     if cfg.chassis not in ("sim", "none") and args.config is None:
         raise CommandError(f"--chassis {cfg.chassis} is a real robot: give --config "
                            "robot.toml with its [chassis] table (wheel_distance, speed_ratio, "

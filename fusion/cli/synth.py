@@ -34,7 +34,8 @@ def register(subparsers) -> None:
     p.add_argument("--side", type=float, default=4.0, help="square side, m (default 4)")
     p.add_argument("--duration", type=float, default=300.0,
                    help="mission length, s (default 300)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed: the same seed gives the same files (default 0)")
     p.add_argument("--separation-error", type=float, default=0.03,
                    help="true wheel distance is robot.toml's times (1 + this) (default 0.03)")
     p.add_argument("--radius-mismatch", type=float, default=0.005,
@@ -57,9 +58,13 @@ def run(args: argparse.Namespace) -> int:
         simulate,
         square,
     )
+    from fusion.io.atomic import check_target
     from fusion.io.logdir import write_synthetic_run
 
     out: Path = args.output
+    check_target(out, folder_ok=True)  # its parent folder exists and is writable
+    if out.exists() and not out.is_dir():
+        raise CommandError(f"{out}: is a file; give a new directory")
     if out.exists() and any(out.iterdir()):
         raise CommandError(f"{out}: exists and is not empty; choose a new directory")
     if not -0.5 < args.separation_error < 0.5 or not -0.5 < args.radius_mismatch < 0.5:
