@@ -174,3 +174,33 @@ def test_simulated_stm32_removes_its_links_on_sigterm(tmp_path: Path) -> None:
     while any(links.iterdir()) and time.monotonic() < deadline:
         time.sleep(0.05)
     assert list(links.iterdir()) == []  # no dead links left behind
+
+
+README = (ROOT / "README.md").read_text(encoding="utf-8")
+
+
+def _readme_commands() -> list[str]:
+    """The README's shell lines (backslash continuations joined), in order."""
+    return README.replace("\\\n", " ").splitlines()
+
+
+@pytest.mark.parametrize("name", ["imu.csv", "uart2.bin", "chassis.uart2"])
+def test_readme_inputs_are_produced_before_they_are_used(name: str) -> None:
+    first = next(line for line in _readme_commands() if name in line.split("#")[0])
+    produces = (f"-o {name}", f"> {name}", f" {name}  ")  # -o, a redirect, cp's target
+    assert any(p in first.split("#")[0] + "  " for p in produces), first
+
+
+def test_readme_bag_examples_use_topics_the_bundled_bag_has() -> None:
+    from fusion.io.bags import bag_topics
+
+    lines = [line for line in _readme_commands() if "datasets/rosbag/" in line
+             and "--" in line and "fusion replay" in line]
+    assert lines
+    for line in lines:
+        words = line.split()
+        bag = next(w for w in words if w.startswith("datasets/rosbag/"))
+        topics = bag_topics(ROOT / bag)
+        for opt in ("--imu-topic", "--odom-topic"):
+            if opt in words:
+                assert words[words.index(opt) + 1] in topics, (line, sorted(topics))
