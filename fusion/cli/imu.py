@@ -135,7 +135,8 @@ def _open(args: argparse.Namespace) -> Any:
         from drivers.sim.mpu6050 import SimClock, SimulatedMPU6050, SystemClock
 
         clock = SystemClock() if args.realtime else SimClock()
-        sim = SimulatedMPU6050(_sim_motion(clock.monotonic()), address=args.address, clock=clock,
+        # the simulated chip is wired like a breakout with AD0 low: it answers at 0x68 only
+        sim = SimulatedMPU6050(_sim_motion(clock.monotonic()), address=0x68, clock=clock,
                                gyro_bias_dps=(0.8, -0.5, 0.3), gyro_noise_dps=0.05,
                                accel_noise_g=0.003, seed=1, model_dlpf=True)
         return MPU6050(sim, args.address, clock=clock, **kw)
@@ -164,6 +165,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--count must be >= 1; got {args.count}")
     if args.realtime and not args.sim:
         raise ValueError("--realtime only applies to --sim")
+    if args.raw and args.calibration:
+        raise ValueError("--calibration does not apply to --raw (raw counts are written "
+                         "uncalibrated; --save-calibration keeps a --calibrate result)")
     from fusion.io.atomic import AtomicFile, check_target
     from fusion.io.imu_calibration import save_imu_calibration
 

@@ -167,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
     from fusion.pipeline.live import LiveRunner
 
     cfg = _config(args)
+    _refuse_options_without_effect(args, cfg)
     if args.duration is not None and not args.duration > 0:
         raise CommandError(f"--duration must be > 0 s, got {args.duration}")
     if not 0.1 <= cfg.speed <= 20:
@@ -286,6 +287,22 @@ def run(args: argparse.Namespace) -> int:
         gc.unfreeze()
     err(_status(pipe, runner) + f"; done after {time.monotonic() - wall0:.1f} s")
     return 0
+
+
+def _refuse_options_without_effect(args: argparse.Namespace, cfg) -> None:
+    """An option given for a source that does not use it is an error, not silently ignored."""
+    real_imu = cfg.imu.startswith("i2c:")
+    for given, applies, what in (
+            (args.address, real_imu, "--address applies to --imu i2c:N only (the simulated "
+                                     "chip answers at 0x68)"),
+            (args.baudrate, cfg.chassis not in ("sim", "none"),
+             "--baudrate applies to a real --chassis port only"),
+            (args.rate, cfg.imu != "none", "--rate sets the IMU sample rate: not with --imu "
+                                           "none"),
+            (args.calibration, cfg.imu != "none", "--calibration is an IMU calibration: not "
+                                                  "with --imu none")):
+        if given is not None and not applies:
+            raise CommandError(what)
 
 
 def _open_imu(cfg, robot, clock):
