@@ -105,7 +105,7 @@ def test_errors_exit_2_with_a_message(tmp_path, capsys):
     d.mkdir()
     (d / "robot.toml").write_text("[chassis]\nwheel_distance = 0.3\n")
     assert main(["replay", str(d), "-o", str(tmp_path / "o.csv")]) == 2
-    assert "robot.toml: [chassis] needs speed_ratio" in capsys.readouterr().err
+    assert "robot.toml:1: [chassis] needs speed_ratio" in capsys.readouterr().err  # with its line
     assert not (tmp_path / "o.csv").exists()
 
 

@@ -124,11 +124,6 @@ def check_imports_resolve(code: str, line: int, skip: set[str]) -> None:
                     f"{node.module}.{alias.name}"), f"README.md:{line}: {alias.name}"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "drivers.mpu6050: a read() right after MPU6050(...) returns the sample the chip took "
-    "before ACCEL_CONFIG was written (reset range +-2 g) scaled for the configured range: "
-    "2 g at rest with accel_range_g=4; configure() does not wait for the first sample at the "
-    "new range (read(wait=True) is right)"))
 def test_first_read_after_configuration_is_in_the_configured_range():
     from drivers.mpu6050 import MPU6050
     from drivers.sim.mpu6050 import SimulatedMPU6050, static_trace

@@ -15,9 +15,10 @@ def register(subparsers) -> None:
         description=(
             "Run the Mahony filter over INPUT and write t,qw,qx,qy,qz,roll,pitch,yaw "
             "(quaternion body -> world ENU, angles in radians), one row per input sample. "
-            "INPUT is a BROAD trial (.mat, .hdf5) or a CSV with the header "
-            "t,gx,gy,gz,ax,ay,az[,mx,my,mz] (s, rad/s, m/s^2, uT). With ground truth (BROAD), "
-            "the benchmark's errors are printed."
+            "INPUT is a BROAD trial (.mat, .hdf5) or an IMU CSV whose header has "
+            "t,gx,gy,gz,ax,ay,az[,mx,my,mz] (s, rad/s, m/s^2, uT; other columns, such as "
+            "those fusion imu adds, are ignored). With ground truth (BROAD), the benchmark's "
+            "errors are printed."
         ),
     )
     p.add_argument("input", type=Path, help="BROAD trial or IMU CSV")
@@ -35,12 +36,14 @@ def register(subparsers) -> None:
 def run(args: argparse.Namespace) -> int:
     from fusion.attitude.mahony import PRESETS, Mahony
     from fusion.evaluation.orientation import orientation_rmse
+    from fusion.io.atomic import check_target
     from fusion.io.broad import BroadTrial, read_broad
     from fusion.io.imu_csv import read_imu_csv, write_attitude_csv
 
     path: Path = args.input
     if not path.exists():
         raise CommandError(f"{path}: no such file")
+    check_target(args.output)  # before the work, naming the user's path
     if path.suffix.lower() in (".mat", ".hdf5", ".h5"):
         log = read_broad(path)
     elif path.suffix.lower() == ".csv":
@@ -71,9 +74,10 @@ def run(args: argparse.Namespace) -> int:
     c = filt.counters
     skipped = {"gyro rows skipped": c.gyro_skipped, "accelerometer rows unusable":
                c.accel_skipped, "magnetometer rows unusable": c.mag_skipped}
-    for what, n in skipped.items():
+    for (what, n), rows in zip(skipped.items(), _unusable_rows(log, mag)):
         if n:
-            print(f"warning: {n} {what} (see fusion.attitude.mahony for the policy)")
+            print(f"warning: {n} {what} (see fusion.attitude.mahony for the policy): "
+                  f"{_name_rows(log, rows)}")
     bias = filt.gyro_bias
     print(f"gyro bias estimate (rad/s): {bias[0]:+.5f} {bias[1]:+.5f} {bias[2]:+.5f}")
     if isinstance(log, BroadTrial):
@@ -83,3 +87,30 @@ def run(args: argparse.Namespace) -> int:
         if args.axes == 6:
             print("(a 6-axis filter cannot observe heading: compare inclination)")
     return 0
+
+
+def _unusable_rows(log, mag) -> list:
+    """Indexes of the rows the filter skips (non-finite gyro) or cannot correct with (a zero
+    or non-finite accelerometer or magnetometer vector), as fusion.attitude.mahony counts
+    them."""
+    import numpy as np
+
+    def bad(v):
+        return ~np.isfinite(v).all(axis=1) | (np.linalg.norm(v, axis=1) == 0)
+
+    gyro = ~np.isfinite(log.gyro).all(axis=1)
+    accel = bad(log.accel) & ~gyro
+    mags = bad(mag) & ~gyro if mag is not None else np.zeros(len(gyro), bool)
+    return [np.flatnonzero(m) for m in (gyro, accel, mags)]
+
+
+def _name_rows(log, rows, most: int = 10) -> str:
+    """``FILE lines 5, 9`` for an IMU CSV, ``samples 3, 7 (from 0)`` for other logs."""
+    from fusion.io.imu_csv import imu_csv_line
+
+    shown = [int(i) for i in rows[:most]]
+    more = f" and {len(rows) - most} more" if len(rows) > most else ""
+    if str(log.source).lower().endswith(".csv"):
+        lines = ", ".join(str(imu_csv_line(log, i)) for i in shown)
+        return f"{log.source} line{'s' if len(rows) > 1 else ''} {lines}{more}"
+    return f"sample{'s' if len(rows) > 1 else ''} {', '.join(map(str, shown))}{more} (from 0)"

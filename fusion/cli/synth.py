@@ -34,20 +34,22 @@ def register(subparsers) -> None:
     p.add_argument("output", type=Path, help="log directory to create")
     p.add_argument("--scenario", choices=("mission", "square", "figure8"), default="mission",
                    help="random mission (default), UMBmark square, or figure eight")
-    p.add_argument("--direction", choices=("cw", "ccw"), default="ccw",
-                   help="square direction (default ccw)")
-    p.add_argument("--side", type=float, default=4.0, help="square side, m (default 4)")
-    p.add_argument("--duration", type=float, default=300.0,
-                   help="mission length, s (default 300)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--direction", choices=("cw", "ccw"),
+                   help="square direction (default ccw; square only)")
+    p.add_argument("--side", type=float, help="square side, m (default 4; square only)")
+    p.add_argument("--duration", type=float,
+                   help="mission length, s (default 300; mission only)")
+    p.add_argument("--seed", type=int, default=0,
+                   help="random seed: the same seed gives the same files (default 0)")
     p.add_argument("--separation-error", type=float, default=0.03,
                    help="true wheel distance is robot.toml's times (1 + this) (default 0.03)")
     p.add_argument("--radius-mismatch", type=float, default=0.005,
                    help="right/left wheel radius ratio - 1, split evenly (default 0.005)")
     p.add_argument("--gyro-bias", type=float, default=0.5,
                    help="gyro z bias, deg/s (default 0.5)")
-    p.add_argument("--slip-patches", type=int, default=3,
-                   help="1 s windows where one wheel over-counts by 30 %% (mission only)")
+    p.add_argument("--slip-patches", type=int,
+                   help="1 s windows where one wheel over-counts by 30 %% (default 3; mission "
+                        "only)")
     p.add_argument("--no-truth", action="store_true", help="do not write truth.csv")
     p.add_argument("--simulator", choices=("kinematic", "physics"), default="kinematic",
                    help="kinematic sampler (default; the options above) or the 1 kHz physics "
@@ -133,11 +135,26 @@ def run(args: argparse.Namespace) -> int:
         simulate,
         square,
     )
+    from fusion.io.atomic import check_target
     from fusion.io.logdir import write_synthetic_run
 
     out: Path = args.output
+    check_target(out, folder_ok=True)  # its parent folder exists and is writable
+    if out.exists() and not out.is_dir():
+        raise CommandError(f"{out}: is a file; give a new directory")
     if out.exists() and any(out.iterdir()):
         raise CommandError(f"{out}: exists and is not empty; choose a new directory")
+    only = {"--direction": (args.direction, "square"), "--side": (args.side, "square"),
+            "--duration": (args.duration, "mission"),
+            "--slip-patches": (args.slip_patches, "mission")}
+    for option, (value, scenario) in only.items():
+        if value is not None and args.scenario != scenario:
+            raise CommandError(f"{option} applies to --scenario {scenario} only (this is "
+                               f"{args.scenario})")
+    args.direction = args.direction or "ccw"
+    args.side = 4.0 if args.side is None else args.side
+    args.duration = 300.0 if args.duration is None else args.duration
+    args.slip_patches = 3 if args.slip_patches is None else args.slip_patches
     if args.duration <= 10:
         raise CommandError(f"--duration must be > 10 s, got {args.duration}")
     if args.simulator == "physics":

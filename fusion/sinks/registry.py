@@ -14,8 +14,14 @@ from fusion.sinks.text import CsvSink, JsonLinesSink
 __all__ = ["open_sink"]
 
 
-def open_sink(spec: str, *, topics: Topics | None = None) -> Sink:
+def open_sink(spec: str, *, topics: Topics | None = None, live: bool = False) -> Sink:
     """A sink from a command-line spec (not yet opened).
+
+    ``live=True`` (``fusion run``) records the ``jsonl:PATH``, ``csv:PATH`` and ``mcap:PATH``
+    files live: they grow in place and are synced every second, so a crash loses at most the
+    last second (:mod:`fusion.io.incremental`). Offline (the default, ``fusion replay``) each
+    file is replaced atomically by a complete one. A ``rosbag2`` folder is always built aside
+    and moved into place when it is closed.
 
     ``jsonl`` (stdout) | ``jsonl:PATH`` | ``csv:PATH`` | ``mcap:PATH`` (one .mcap file) |
     ``rosbag2:PATH`` (bag folder, MCAP storage) | ``foxglove`` (127.0.0.1:8765) |
@@ -27,11 +33,11 @@ def open_sink(spec: str, *, topics: Topics | None = None) -> Sink:
     """
     parsed = parse_sink_spec(spec)
     if parsed.kind == "jsonl":
-        return JsonLinesSink(parsed.path)
+        return JsonLinesSink(parsed.path, live=live)
     if parsed.kind == "csv":
-        return CsvSink(parsed.path)
+        return CsvSink(parsed.path, live=live)
     if parsed.kind == "mcap":
-        return McapSink(parsed.path, topics=topics)
+        return McapSink(parsed.path, topics=topics, live=live)
     if parsed.kind == "rosbag2":
         return Rosbag2Sink(parsed.path, topics=topics)
     if parsed.kind == "foxglove":
