@@ -59,19 +59,19 @@ def register(subparsers) -> None:
         "error names: radius, radius-speed, separation, gyro-scale, gyro-cross-axis, "
         "g-sensitivity, temperature, vibration, mount-tilt, quantisation, frame-loss, stamps, "
         "clock, low-friction (see fusion.evaluation.physics_sim.sensor_model)")
-    phys.add_argument("--errors", choices=("all", "plain"), default="all",
+    phys.add_argument("--errors", choices=("all", "plain"), default=None,
                       help="all: every error and three low-friction patches (default); plain: "
                            "white noise, a constant gyro bias and a fine encoder only")
     phys.add_argument("--with", dest="with_errors", action="append", default=[],
                       metavar="NAME", help="switch this error on (repeatable)")
     phys.add_argument("--without", dest="without_errors", action="append", default=[],
                       metavar="NAME", help="switch this error off (repeatable)")
-    phys.add_argument("--dead-encoder", type=float, default=0.0, metavar="S",
+    phys.add_argument("--dead-encoder", type=float, default=None, metavar="S",
                       help="S seconds of zero ticks on both wheels while the robot drives "
                            "(default 0: none)")
     phys.add_argument("--moving-start", action="store_true",
                       help="the robot is already driving at t = 0")
-    phys.add_argument("--truth-rate", type=float, default=200.0,
+    phys.add_argument("--truth-rate", type=float, default=None,
                       help="rows per second of truth.csv (the physics runs at 1000; default 200)")
     p.set_defaults(func=run)
 
@@ -138,6 +138,17 @@ def run(args: argparse.Namespace) -> int:
     from fusion.io.atomic import check_target
     from fusion.io.logdir import write_synthetic_run
 
+    physics_only = {"--errors": args.errors, "--with": args.with_errors or None,
+                    "--without": args.without_errors or None,
+                    "--dead-encoder": args.dead_encoder,
+                    "--moving-start": args.moving_start or None, "--truth-rate": args.truth_rate}
+    if args.simulator != "physics":
+        given = [name for name, value in physics_only.items() if value is not None]
+        if given:
+            raise CommandError(f"{', '.join(given)} applies to --simulator physics only")
+    args.errors = args.errors or "all"
+    args.dead_encoder = 0.0 if args.dead_encoder is None else args.dead_encoder
+    args.truth_rate = 200.0 if args.truth_rate is None else args.truth_rate
     out: Path = args.output
     check_target(out, folder_ok=True)  # its parent folder exists and is writable
     if out.exists() and not out.is_dir():
