@@ -67,6 +67,7 @@ from fusion.planar import _ekf_core as core
 from fusion.planar.ekf import PlanarEKF
 from fusion.planar.robot import RobotConfig
 from fusion.types.fused import FusedOdometry
+from fusion.types.lifecycle import Lifecycle
 from fusion.types.samples import ImuSample, WheelTicks
 
 __all__ = ["FusionPipeline", "PipelineStats", "WheelGap"]
@@ -142,7 +143,7 @@ def _matrix_or_none(q: NDArray[np.float64]) -> list[list[float]] | None:
     return None if np.array_equal(R, np.eye(3)) else R.tolist()
 
 
-class FusionPipeline:
+class FusionPipeline(Lifecycle):
     """Mahony attitude + planar EKF over time-stamped IMU and wheel events, into sinks.
 
     Args:
@@ -260,11 +261,12 @@ class FusionPipeline:
         self._m_per_s = chassis.speed_ratio / self.period
         self._wheel_shift = 0.5 * self.period  # a frame's effective time: stamp - this - latency
 
-    # -- lifecycle --------------------------------------------------------------------------
-    def open(self) -> FusionPipeline:
-        """Open the sinks (a sink that fails to open closes the ones already open)."""
-        if self._state != "new":
-            raise RuntimeError("the pipeline was already opened")
+    # -- lifecycle (fusion.types.lifecycle.Lifecycle: open, close, abort, with) -------------
+    def _reuse_error(self) -> Exception:
+        return RuntimeError("the pipeline was already opened")
+
+    def _open(self) -> None:
+        """Open the sinks (a sink that fails to open aborts the ones already open)."""
         opened = []
         try:
             for sink in self.sinks:
@@ -274,19 +276,13 @@ class FusionPipeline:
             for sink in opened:
                 sink.abort()
             raise
-        self._state = "open"
-        return self
 
-    def close(self) -> None:
-        """Fuse what the reorder buffer still holds, publish, and close the sinks."""
-        if self._state != "open":
-            return
-        try:
-            self.flush()
-        except BaseException:
-            self.abort()
-            raise
-        self._state = "closed"
+    def _finish(self) -> None:
+        """At close: fuse what the reorder buffer still holds and publish it."""
+        self.flush()
+
+    def _close(self) -> None:
+        """Close every sink, then raise the first error (the others noted on it)."""
         errors = []
         for sink in self.sinks:
             try:
@@ -294,29 +290,18 @@ class FusionPipeline:
             except Exception as exc:  # close every sink, then report
                 errors.append(exc)
         if errors:
+            if hasattr(errors[0], "add_note"):  # Python >= 3.11
+                for other in errors[1:]:
+                    errors[0].add_note(f"also failed to close: {other!r}")
             raise errors[0]
 
-    def abort(self) -> None:
-        """Stop without finishing: sinks are aborted (file sinks discard partial output)."""
-        if self._state != "open":
-            return
-        self._state = "aborted"
+    def _abort(self) -> None:
+        """Abort every sink (file sinks discard partial output)."""
         for sink in self.sinks:
             try:
                 sink.abort()
             except Exception:  # aborting: keep going
                 continue
-
-    def __enter__(self) -> FusionPipeline:
-        if self._state == "new":
-            self.open()
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
 
     def _check_open(self) -> None:
         if self._state != "open":

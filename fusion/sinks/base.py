@@ -41,6 +41,7 @@ from typing import Any
 
 from fusion.io.atomic import create_temp_file  # re-exported: fusion replay's outputs use it
 from fusion.types.fused import FusedOdometry
+from fusion.types.lifecycle import Lifecycle
 
 __all__ = ["Sink", "SinkError", "create_temp_file"]
 
@@ -49,8 +50,9 @@ class SinkError(RuntimeError):
     """A sink used out of order (write before open, after close) or a failed output."""
 
 
-class Sink:
-    """Base of all sinks: ``open()``, ``write(record)``, ``close()``, ``abort()``.
+class Sink(Lifecycle):
+    """Base of all sinks: ``open()``, ``write(record)``, ``close()``, ``abort()``
+    (:class:`fusion.types.lifecycle.Lifecycle`).
 
     ``with sink:`` opens, and on leaving closes (normal exit) or aborts (an exception).
     Subclasses implement ``_open``, ``_write``, ``_close`` and optionally ``_abort``.
@@ -60,17 +62,8 @@ class Sink:
         self._state = "new"
         self.records_written = 0
 
-    @property
-    def is_open(self) -> bool:
-        """True between ``open()`` and ``close()``/``abort()``."""
-        return self._state == "open"
-
-    def open(self) -> None:
-        """Acquire the output (file, server, node); a sink opens once."""
-        if self._state != "new":
-            raise SinkError(f"{self!r} was already opened")
-        self._open()
-        self._state = "open"
+    def _reuse_error(self) -> Exception:
+        return SinkError(f"{self!r} was already opened")
 
     def write(self, record: FusedOdometry) -> None:
         """Publish or store one record."""
@@ -81,39 +74,8 @@ class Sink:
         self._write(record)
         self.records_written += 1
 
-    def close(self) -> None:
-        """Finish the output (files are complete and in place after this)."""
-        if self._state == "open":
-            self._state = "closed"
-            self._close()
-
-    def abort(self) -> None:
-        """Stop without finishing: file sinks discard their partial output."""
-        if self._state == "open":
-            self._state = "aborted"
-            self._abort()
-
-    def __enter__(self) -> Sink:
-        self.open()
-        return self
-
-    def __exit__(self, exc_type, exc, tb) -> None:
-        if exc_type is None:
-            self.close()
-        else:
-            self.abort()
-
-    def _open(self) -> None:
-        pass
-
     def _write(self, record: FusedOdometry) -> None:
         raise NotImplementedError
-
-    def _close(self) -> None:
-        pass
-
-    def _abort(self) -> None:
-        self._close()
 
 
 def _need(module: str, extra: str) -> Any:
