@@ -248,3 +248,40 @@ def test_plot_and_its_missing_dependency(logs, tmp_path):
     assert proc.returncode == 2
     assert "--plot needs matplotlib: pip install 'diffbot-fusion[demo]'" in proc.stderr
     assert not (tmp_path / "g.csv").exists() and not (tmp_path / "q.png").exists()
+
+
+def test_replay_options_act_on_a_log_directory_or_are_refused(logs, tmp_path, capsys):
+    """--robot and --imu-mount-rpy change a log directory's output (and say so); --format,
+    --jobs, --level and --imu-mount-rpy are refused where they do not apply."""
+    import dataclasses
+
+    from fusion.io.robot_toml import read_robot_toml, write_robot_toml
+
+    log = logs / "run2"
+    base = tmp_path / "base.csv"
+    assert main(["replay", str(log), "-o", str(base)]) == 0
+    robot = read_robot_toml(log / "robot.toml")
+    other = tmp_path / "other.toml"
+    write_robot_toml(other, dataclasses.replace(
+        robot, chassis=dataclasses.replace(robot.chassis,
+                                           wheel_distance=robot.chassis.wheel_distance * 1.1)))
+    capsys.readouterr()
+    assert main(["replay", str(log), "-o", str(tmp_path / "r.csv"), "--robot", str(other)]) == 0
+    assert f"robot: {other}" in capsys.readouterr().out
+    assert (tmp_path / "r.csv").read_bytes() != base.read_bytes()
+    assert main(["replay", str(log), "-o", str(tmp_path / "m.csv"), "--imu-mount-rpy",
+                 "3.14159", "0", "0"]) == 0
+    assert "from --imu-mount-rpy" in capsys.readouterr().out
+    assert (tmp_path / "m.csv").read_bytes() != base.read_bytes()
+    assert main(["replay", str(log), "--robot", str(tmp_path / "nope.toml"), "-o",
+                 str(tmp_path / "n.csv")]) == 2
+    assert "nope.toml" in capsys.readouterr().err
+    refusals = [
+        (["--format", "mcap", "-o", str(tmp_path / "f.csv")], "--format applies to a folder"),
+        (["--jobs", "2", "-o", str(tmp_path / "f.csv")], "--jobs applies to a folder"),
+    ]
+    for extra, message in refusals:
+        assert main(["replay", str(log), *extra]) == 2
+        assert message in capsys.readouterr().err
+    assert main(["replay", str(logs), "-o", str(tmp_path / "out"), "--robot", str(other)]) == 2
+    assert "--robot applies to one log directory" in capsys.readouterr().err

@@ -56,8 +56,9 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--output", type=Path, required=True,
                    help="fused.csv | fused.mcap | fused.jsonl (format by suffix); for a folder "
                         "of logs, the folder to write one output per log into")
-    p.add_argument("--format", choices=sorted(set(OUTPUT_FORMATS.values())), default="csv",
-                   help="output format of each log of a folder of logs (default csv)")
+    p.add_argument("--format", choices=sorted(set(OUTPUT_FORMATS.values())), default=None,
+                   help="output format of each log of a folder of logs (default csv; a single "
+                        "output's format comes from its suffix)")
     p.add_argument("--level", action="store_true",
                    help="take the robot as level: use the gyro's z axis as the yaw rate "
                         "(default: tilt-compensate with the Mahony attitude)")
@@ -71,8 +72,8 @@ def register(subparsers) -> None:
     p.add_argument("-j", "--jobs", type=int, default=None,
                    help="worker processes for a folder of logs (default: the CPU count)")
     p.add_argument("--robot", type=Path,
-                   help="robot.toml for a capture (required) or a bag (wheel_distance and "
-                        "[ekf] tuning; optional)")
+                   help="robot.toml for a capture (required), a bag (wheel_distance and "
+                        "[ekf] tuning; optional) or a log directory (instead of its own)")
     bag = p.add_argument_group("ROS bags")
     bag.add_argument("--imu-topic", help="sensor_msgs/Imu topic (bags only)")
     bag.add_argument("--odom-topic", help="nav_msgs/Odometry topic of the wheel odometry "
@@ -80,8 +81,8 @@ def register(subparsers) -> None:
     bag.add_argument("--imu-mount-rpy", type=float, nargs=3, metavar=("R", "P", "Y"),
                      default=None,
                      help="URDF roll pitch yaw (rad) taking IMU-frame vectors into the base "
-                          "frame (bags only; default: imu_mount_rpy of --robot, else 0 0 0; "
-                          "a log directory has it in robot.toml)")
+                          "frame, for a bag or a log directory (default: imu_mount_rpy of "
+                          "--robot, else of the log's robot.toml, else 0 0 0)")
     p.set_defaults(func=run)
 
 
@@ -228,7 +229,20 @@ def run(args: argparse.Namespace) -> int:
     if args.imu_topic or args.odom_topic:
         raise CommandError(f"{path}: --imu-topic/--odom-topic are for ROS bags; this is not "
                            "a .bag, .mcap or ROS 2 bag folder")
+    folder = path.is_dir() and not (path / "robot.toml").is_file()
+    if args.format is not None and not folder:
+        fmt = OUTPUT_FORMATS.get(args.output.suffix.lower())
+        if fmt != args.format:
+            raise CommandError(f"--format applies to a folder of logs; the output "
+                               f"{args.output} is {fmt or 'of no known type'} by its suffix")
+    if args.jobs is not None and not folder:
+        raise CommandError("--jobs applies to a folder of logs only")
     if path.is_file():
+        for given, option in ((args.level, "--level"),
+                              (args.imu_mount_rpy is not None, "--imu-mount-rpy")):
+            if given:
+                raise CommandError(f"{option} does not apply to a DATA-uart2 capture (it has "
+                                   "no IMU); it applies to log directories and bags")
         if path.suffix.lower() not in CAPTURE_SUFFIXES:
             raise CommandError(f"{path}: is a file; replay takes a log directory "
                                "(robot.toml, imu.csv, wheels.csv; see datasets/LOGDIR.md), a "
@@ -244,13 +258,28 @@ def run(args: argparse.Namespace) -> int:
         _print_result(r, level_note=False)
         print("DATA-uart2 capture: wheel odometry only (no gyro to fuse)")
         return 0
-    if not (path / "robot.toml").is_file():
+    if folder:
         logs = job.find_log_dirs(path)
         if logs:
+            for given, option in ((args.robot is not None, "--robot"),
+                                  (args.imu_mount_rpy is not None, "--imu-mount-rpy")):
+                if given:
+                    raise CommandError(f"{option} applies to one log directory, a capture "
+                                       "or a bag; each log of a folder uses its own robot.toml")
             return _run_folder(args, logs)
     job.output_format(args.output)
+    robot = None
+    if args.robot is not None:
+        from fusion.io.robot_toml import read_robot_toml
+
+        robot = read_robot_toml(args.robot)
+        print(f"robot: {args.robot} (instead of {path / 'robot.toml'})")
+    if args.imu_mount_rpy is not None:
+        print("IMU mount: roll {:.4f} pitch {:.4f} yaw {:.4f} rad from --imu-mount-rpy "
+              "(instead of robot.toml's)".format(*args.imu_mount_rpy))
     with _BarContext(args.progress, path.name) as bar:
         r = job.replay_logdir(path, args.output, tilt=not args.level, plot=args.plot,
+                              robot=robot, imu_mount_rpy=args.imu_mount_rpy,
                               progress=bar.callback)
     _print_result(r)
     return 0
@@ -297,7 +326,7 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
     out_dir.mkdir(parents=True, exist_ok=True)
     if args.plot is not None:
         args.plot.mkdir(parents=True, exist_ok=True)
-    ext = {"csv": ".csv", "mcap": ".mcap", "jsonl": ".jsonl"}[args.format]
+    ext = {"csv": ".csv", "mcap": ".mcap", "jsonl": ".jsonl"}[args.format or "csv"]
     work = [job.LogJob(str(p), str(out_dir / (p.name + ext)), not args.level,
                        None if args.plot is None else str(args.plot / (p.name + ".png")))
             for p in logs]

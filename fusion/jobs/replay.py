@@ -230,19 +230,24 @@ def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.fl
 
 def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                   plot: str | Path | None = None, robot: RobotConfig | None = None,
+                  imu_mount_rpy: tuple[float, float, float] | None = None,
                   progress: Progress | None = None) -> ReplayResult:
     """Replay a log directory into ``output``; optionally draw ``plot`` (PNG).
 
-    ``robot`` replaces the directory's own robot.toml (geometry, IMU mount, EKF tuning).
+    ``robot`` replaces the directory's own robot.toml (geometry, IMU mount, EKF tuning);
+    ``imu_mount_rpy`` (URDF roll, pitch, yaw, rad) replaces the IMU mount of either.
     Raises on bad input, leaving no partial output.
     """
     path, output = Path(path), Path(output)
     log = read_logdir(path, imu_frame="imu")
+    robot = robot or log.robot
+    if imu_mount_rpy is not None:
+        robot = dataclasses.replace(robot, imu_mount_rpy=tuple(float(a) for a in imu_mount_rpy))
     if log.wheel_t is None or log.wheel_t.size == 0:
         raise ValueError(f"{path}: wheels.csv is missing or empty; the fused odometry needs "
                          "the wheel encoder frames")
     streams = Streams(log.imu_t, log.gyro, log.accel, log.wheel_t, log.ticks)
-    return _finish(path, output, robot or log.robot, streams, log.truth_t, log.truth,
+    return _finish(path, output, robot, streams, log.truth_t, log.truth,
                    tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats)
 
 
