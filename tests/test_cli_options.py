@@ -152,6 +152,21 @@ TABLE: dict[str, dict[str, list[Row]]] = {
                        refused("figure8", "--duration applies to --scenario mission only",
                                "--duration", "15")],
         "--seed": [changes(k, "--seed", "7") for k in ("mission", "square", "figure8")],
+        # the physics simulator: its own options refused with the kinematic one (the
+        # kinematic options under --simulator physics have no rows yet)
+        "--simulator": [changes("mission", "--simulator", "physics"),
+                        refused("square", "--simulator physics runs missions only",
+                                "--simulator", "physics"),
+                        refused("figure8", "--simulator physics runs missions only",
+                                "--simulator", "physics")],
+        **{opt: [refused(k, f"{opt} applies to --simulator physics only", *argv)
+                 for k in ("mission", "square", "figure8")]
+           for opt, argv in (("--errors", ("--errors", "plain")),
+                             ("--with", ("--with", "vibration")),
+                             ("--without", ("--without", "vibration")),
+                             ("--dead-encoder", ("--dead-encoder", "8")),
+                             ("--moving-start", ("--moving-start",)),
+                             ("--truth-rate", ("--truth-rate", "100")))},
         "--separation-error": [changes(k, "--separation-error", "0.1")
                                for k in ("mission", "square", "figure8")],
         "--radius-mismatch": [changes(k, "--radius-mismatch", "0.05")

@@ -12,17 +12,18 @@ simulated chip, moving with the simulated chassis) or ``none``; ``--chassis`` a 
 (the simulated STM32 firmware on a pseudo-terminal) or ``none``. Sinks (``--publish``, comma
 separated): ``jsonl[:PATH]``, ``csv:PATH``, ``mcap:PATH``, ``rosbag2:PATH``,
 ``foxglove[:HOST:PORT]``, ``ros1`` (seed 000's node: /odom, /tf, /imu/data, wheel speeds;
-/cmd_vel drives the wheels). The ``jsonl``, ``csv`` and ``mcap`` files are recorded live: they
-grow in place and are synced to the disk every second, so a crash or a power cut loses at most
-the last second (an MCAP file then lacks its summary section; ``fusion replay`` and
-:func:`fusion.io.bags.read_bag` read it up to its last complete chunk). A ``rosbag2`` folder
+/cmd_vel drives the wheels), ``ros2`` (the same topics for ROS 2 over DDS, domain
+``ROS_DOMAIN_ID``; /cmd_vel drives the wheels). The ``jsonl``, ``csv`` and ``mcap`` files are
+recorded live: they grow in place and are synced to the disk every second, so a crash or a power
+cut loses at most the last second (an MCAP file then lacks its summary section; ``fusion replay``
+and :func:`fusion.io.bags.read_bag` read it up to its last complete chunk). A ``rosbag2`` folder
 appears only when the run stops cleanly.
 A Foxglove client's geometry_msgs/Twist on /cmd_vel (the Teleop panel) drives the wheels too.
 
 Every option can come from the ``--config`` file (:mod:`fusion.io.run_config`, see
 :data:`fusion.io.run_config.RUN_OPTIONS`); an option on the command line wins. With ``sim`` for the
 chassis the robot drives ``fusion demo``'s mission in a loop (or follows /cmd_vel with
-``ros1``; with ``foxglove`` until the first /cmd_vel from a client). Runs until Ctrl-C
+``ros1`` or ``ros2``; with ``foxglove`` until the first /cmd_vel from a client). Runs until Ctrl-C
 (or SIGTERM, or ``--duration``): the sources stop, the sinks are closed, and the files are
 complete. Status lines go to standard error.
 """
@@ -48,7 +49,7 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "run",
         help="live fused odometry from the IMU and the chassis, published to ROS 1, "
-             "Foxglove, MCAP or JSON lines",
+             "ROS 2, Foxglove, MCAP or JSON lines",
         description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Mahony + EKF -> "
                     "sinks. Every option can come from --config (TOML, see fusion.io.run_config); "
                     "the command line wins. Ctrl-C stops cleanly (files complete).",
@@ -64,7 +65,7 @@ def register(subparsers: Any) -> None:
                         "(default sim)")
     p.add_argument("--baudrate", type=int, help="chassis baud rate (115200)")
     p.add_argument("--publish", metavar="SINKS",
-                   help="comma-separated sinks: ros1, foxglove[:HOST:PORT], mcap:PATH, "
+                   help="comma-separated sinks: ros1, ros2, foxglove[:HOST:PORT], mcap:PATH, "
                         "rosbag2:PATH, jsonl[:PATH], csv:PATH (default jsonl on stdout); "
                         "jsonl, csv and mcap files are synced every second (a crash loses "
                         "at most the last second)")
@@ -147,7 +148,7 @@ def _sinks_for(cfg, cmd_vel) -> list:
                                   child_frame_id=cfg.robot.base_frame))
         else:
             sink = open_sink(spec, topics=topics, live=True)  # files survive a crash
-            if kind == "foxglove":  # the Teleop panel's /cmd_vel drives the robot like ROS's
+            if kind in ("foxglove", "ros2"):  # their /cmd_vel drives the robot like ROS 1's
                 sink.cmd_vel_topic = cfg.cmd_vel_topic
                 sink.on_cmd_vel = cmd_vel
             sinks.append(sink)
@@ -187,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     clock = ScaledClock(cfg.speed) if sim else time.monotonic
     link_holder: dict[str, Any] = {}
 
-    def on_cmd_vel(v: float, w: float) -> None:  # a rospy / Foxglove server thread
+    def on_cmd_vel(v: float, w: float) -> None:  # a rospy / DDS / Foxglove server thread
         link = link_holder.get("link")
         if link is not None:
             link_holder["external"] = True  # a client drives now: the mission stops
@@ -221,6 +222,8 @@ def run(args: argparse.Namespace) -> int:
         for sink in sinks:
             if hasattr(sink, "host") and hasattr(sink, "port"):
                 err(f"Foxglove server: connect to ws://{sink.host}:{sink.port}")
+            elif hasattr(sink, "domain_id"):
+                err(f"ROS 2 topics on DDS domain {sink.domain_id} (ROS_DOMAIN_ID)")
         if sim:
             robot = SimRobot(clock, SimRobotParams(), keep_truth=False)
         port = robot.port if sim else cfg.chassis
@@ -246,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
             robot.start()
         runner = LiveRunner(pipe, link=link, imu=imu, fifo_interval=cfg.fifo_interval).start()
         t0 = clock()
-        drive = sim and not any(s.strip().lower() == "ros1" for s in cfg.publish)
+        drive = sim and not any(s.strip().lower() in ("ros1", "ros2") for s in cfg.publish)
         state = {"status": time.monotonic()}
         mission = LoopingMission(link, chassis, clock, t0)
 

@@ -36,7 +36,8 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
     silence_periods = 5.0         # periods without a frame before the link reports silence
 
     [publish]
-    sinks = ["ros1"]              # jsonl[:PATH] mcap:PATH rosbag2:PATH foxglove[:HOST:PORT] ros1
+    sinks = ["ros1"]              # jsonl[:PATH] mcap:PATH rosbag2:PATH foxglove[:HOST:PORT]
+                                  # ros1 ros2
     rate_hz = 10.0                # records per second (seed 000: 10 Hz); 0 = every wheel frame
     reorder_window = 0.06         # s events are held to be put in time order (default: enough
                                   # for the IMU FIFO interval plus half a wheel period)
@@ -115,7 +116,7 @@ class RunConfig:
         publish_rate_hz: records per second, None for one per wheel frame.
         reorder_window: s (None: the pipeline's default for the IMU FIFO interval).
         topics: topic names (odom, tf, imu, wheel_left, wheel_right; None leaves one out).
-        cmd_vel_topic: velocity command topic of the ROS 1 sink, or None.
+        cmd_vel_topic: velocity command topic of the ROS 1, ROS 2 and Foxglove sinks, or None.
         duration: s to run, None until stopped; speed: robot time per wall second
             (simulated chassis); status: s between status lines, 0 none.
         source: the file this came from, or None.

@@ -7,6 +7,7 @@ from fusion.io.sink_spec import parse_sink_spec
 from fusion.sinks.bag import McapSink, Rosbag2Sink
 from fusion.sinks.base import Sink
 from fusion.sinks.foxglove import FoxgloveSink
+from fusion.sinks.ros2 import Ros2Sink
 from fusion.sinks.ros_messages import Topics
 from fusion.sinks.text import CsvSink, JsonLinesSink
 
@@ -24,7 +25,8 @@ def open_sink(spec: str, *, topics: Topics | None = None, live: bool = False) ->
 
     ``jsonl`` (stdout) | ``jsonl:PATH`` | ``csv:PATH`` | ``mcap:PATH`` (one .mcap file) |
     ``rosbag2:PATH`` (bag folder, MCAP storage) | ``foxglove`` (127.0.0.1:8765) |
-    ``foxglove:PORT`` | ``foxglove:HOST:PORT`` | ``ros1`` (a ROS 1 node, :mod:`fusion.sinks.ros1`).
+    ``foxglove:PORT`` | ``foxglove:HOST:PORT`` | ``ros1`` (a ROS 1 node, :mod:`fusion.sinks.ros1`) |
+    ``ros2`` (ROS 2 topics over DDS, :mod:`fusion.sinks.ros2`; domain ``ROS_DOMAIN_ID``).
 
     Raises:
         ValueError: a spec :func:`fusion.io.sink_spec.parse_sink_spec` rejects.
@@ -40,6 +42,8 @@ def open_sink(spec: str, *, topics: Topics | None = None, live: bool = False) ->
         return Rosbag2Sink(parsed.path, topics=topics)
     if parsed.kind == "foxglove":
         return FoxgloveSink(parsed.host, parsed.port, topics=topics)
+    if parsed.kind == "ros2":
+        return Ros2Sink(topics=topics)
     from fusion.sinks.ros1 import Ros1Sink  # the only kind left (SINK_KINDS)
 
     return Ros1Sink(topics=topics)

@@ -15,12 +15,14 @@ import sys
 from pathlib import Path
 from typing import IO
 
+from fusion.geometry.angles import wrap_angle_scalar
 from fusion.io.atomic import AtomicFile
+from fusion.io.fused_csv import FUSED_CSV_COLUMNS, format_fused_row
 from fusion.io.incremental import DEFAULT_SYNC_INTERVAL, IncrementalFile
 from fusion.sinks.base import Sink
 from fusion.types.fused import FusedOdometry
 
-__all__ = ["FUSED_RECORD_CSV_COLUMNS", "CsvSink", "JsonLinesSink"]
+__all__ = ["CsvSink", "JsonLinesSink"]
 
 
 class _FileOutput(Sink):
@@ -97,23 +99,16 @@ class JsonLinesSink(_FileOutput):
         self._synced()
 
 
-#: Columns of :class:`CsvSink` (the first six as in ``fusion replay``'s CSV).
-FUSED_RECORD_CSV_COLUMNS = (
-    "t", "x", "y", "yaw", "v", "w", "var_x", "var_y", "var_yaw", "cov_xy", "cov_x_yaw",
-    "cov_y_yaw", "var_v", "var_w", "wheel_left_speed", "wheel_right_speed",
-)
-
-
 class CsvSink(_FileOutput):
-    """Fused records as CSV rows (:data:`FUSED_RECORD_CSV_COLUMNS`), one per record.
+    """Fused records as rows of the fused CSV (:mod:`fusion.io.fused_csv`), one per record.
 
     ``t`` s; ``x, y`` m and ``yaw`` rad (wrapped to (-pi, pi]) of ``child_frame_id`` in
-    ``frame_id``; ``v`` m/s, ``w`` rad/s; the pose covariance terms of x, y, yaw (m^2, m*rad,
-    rad^2) and the twist variances of vx and wz from the record's 6x6 matrices; wheel speeds
-    m/s (empty when the record has none). Numbers are written with Python's shortest exact
-    repr, so equal records give byte-identical files. Written to a temporary file and renamed
-    into place on close, like :class:`JsonLinesSink`, or with ``live=True`` recorded live
-    (crash-safe, synced every ``sync_interval`` s; see the module docstring).
+    ``frame_id``; ``v`` m/s, ``w`` rad/s; the pose covariance terms of x, y, yaw and the twist
+    variances of vx and wz from the record's 6x6 matrices; wheel speeds m/s. A record carries
+    no EKF bias states: those cells are empty (``fusion replay`` fills them). Written to a
+    temporary file and renamed into place on close, like :class:`JsonLinesSink`, or with
+    ``live=True`` recorded live (crash-safe, synced every ``sync_interval`` s; see the module
+    docstring).
     """
 
     def __init__(self, path: str | Path, *, live: bool = False,
@@ -127,17 +122,16 @@ class CsvSink(_FileOutput):
 
     def _open(self) -> None:
         self._fh = self._open_file(self.path, encoding="ascii", newline="\n")
-        self._fh.write(",".join(FUSED_RECORD_CSV_COLUMNS) + "\n")
+        self._fh.write(",".join(FUSED_CSV_COLUMNS) + "\n")
 
     def _write(self, record: FusedOdometry) -> None:
         assert self._fh is not None
         P, Q = record.pose_covariance, record.twist_covariance
-        yaw = math.remainder(record.yaw, math.tau)
-        if yaw == -math.pi:
-            yaw = math.pi
-        values = (record.t, record.x, record.y, yaw, record.v, record.w, P[0, 0], P[1, 1],
-                  P[5, 5], P[0, 1], P[0, 5], P[1, 5], Q[0, 0], Q[5, 5])
-        speeds = (record.wheel_left_speed, record.wheel_right_speed)
-        self._fh.write(",".join([*(repr(float(v)) for v in values),
-                                 *("" if s is None else repr(s) for s in speeds)]) + "\n")
+        yaw = record.yaw
+        if not -math.pi < yaw <= math.pi:  # wrapping a wrapped angle again may move its last bit
+            yaw = wrap_angle_scalar(yaw)
+        self._fh.write(format_fused_row((
+            record.t, record.x, record.y, yaw, record.v, record.w,
+            None, None, None, P[0, 0], P[1, 1], P[5, 5], P[0, 1], P[0, 5], P[1, 5],
+            Q[0, 0], Q[5, 5], record.wheel_left_speed, record.wheel_right_speed)))
         self._synced()
