@@ -101,7 +101,7 @@ def test_sigkill_keeps_every_record_up_to_the_last_sync(tmp_path: Path) -> None:
     # the same records in every file, in the same order (MCAP stamps are whole ns)
     n = min(len(records), len(odom))
     assert [round(r["t"] * 1e9) for r in records[:n]] == stamps[:n]
-    rows = np.loadtxt(tmp_path / "run.csv", delimiter=",", skiprows=1, usecols=range(6))  # t..w
+    rows = np.loadtxt(tmp_path / "run.csv", delimiter=",", skiprows=1, usecols=[0], ndmin=2)
     assert rows.shape[0] >= reported
     np.testing.assert_array_equal(rows[:n, 0], [r["t"] for r in records[:n]])
 
@@ -124,7 +124,7 @@ def test_sigterm_finishes_the_files(tmp_path: Path) -> None:
         summary = make_reader(fh).get_summary()
     assert summary.statistics.channel_message_counts[1] == len(stamps)
     assert read_bag(tmp_path / "run.mcap", odom_topic="/odom").note == ""
-    rows = np.loadtxt(tmp_path / "run.csv", delimiter=",", skiprows=1, usecols=range(6))  # t..w
+    rows = np.loadtxt(tmp_path / "run.csv", delimiter=",", skiprows=1, usecols=[0], ndmin=2)
     assert rows.shape[0] == len(stamps)
 
 

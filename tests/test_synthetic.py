@@ -234,29 +234,27 @@ def test_accelerate_ramps_the_command_linearly():
 
 class _RegisterReplay:
     """A register file on a fake I2C bus that serves the synthetic data registers, one
-    14-byte sample per burst read at ACCEL_XOUT_H (0x3B), or 15 bytes from INT_STATUS (0x3A)
-    with DATA_RDY set (a new sample every read); PWR_MGMT_1's reset bit self-clears and
-    WHO_AM_I (0x75) reads 0x68, as on the chip."""
+    14-byte sample per burst read at ACCEL_XOUT_H (0x3B), or at INT_STATUS (0x3A) preceded by
+    DATA_RDY (a new sample for every read); PWR_MGMT_1's reset bit self-clears and WHO_AM_I
+    (0x75) reads 0x68, as on the chip."""
 
     def __init__(self, rows):
         self.regs = bytearray(128)
         self.regs[0x75] = 0x68
-        self.regs[0x3A] = 0x01  # DATA_RDY_INT
         self.rows = rows
         self.k = 0
 
     def read_byte_data(self, addr, reg):
-        return self.regs[reg]
+        return 0x01 if reg == 0x3A else self.regs[reg]  # INT_STATUS: DATA_RDY
 
     def write_byte_data(self, addr, reg, value):
         self.regs[reg] = value & 0x7F if reg == 0x6B else value
 
     def read_i2c_block_data(self, addr, reg, length):
         if reg in (0x3A, 0x3B):
-            head = [0x01] if reg == 0x3A else []
-            row = self.rows[self.k]
+            row = list(self.rows[self.k])
             self.k += 1
-            return (head + list(row))[:length]
+            return ([0x01, *row] if reg == 0x3A else row)[:length]
         return list(self.regs[reg:reg + length])
 
 
