@@ -41,7 +41,7 @@ _S, S_LEN = _layout(
     ("last_dt", 1), ("pending_dt", 1), ("started", 1), ("acc_seen", 1),
     ("delta", 1), ("mag_time", 1), ("ref_norm", 1), ("ref_dip", 1), ("ref_time", 1),
     ("cand_norm", 1), ("cand_dip", 1), ("cand_time", 1), ("disturbed", 1), ("hold_time", 1),
-    ("gap", 1),
+    ("gap", 1), ("heading_unc", 1),
 )
 _P, P_LEN = _layout(
     ("gravity", 1), ("tau_acc", 1), ("motion_bias", 1), ("rest_bias", 1),
@@ -50,7 +50,7 @@ _P, P_LEN = _layout(
     ("rest_tau", 1), ("max_gap", 1),
     ("mag_tau", 1), ("mag_norm_tol", 1), ("mag_dip_tol", 1), ("mag_hold", 1),
     ("mag_slow_factor", 1), ("mag_new_time", 1), ("mag_new_rate", 1), ("mag_ref_tau", 1),
-    ("mag_init_time", 1),
+    ("mag_init_time", 1), ("mag_gate", 1), ("mag_gate_scale", 1),
 )
 _C, C_LEN = _layout(
     ("gyro_skipped", 1), ("accel_skipped", 1), ("mag_skipped", 1), ("gaps", 1),
@@ -69,7 +69,8 @@ LAST_DT, PENDING_DT, STARTED, ACC_SEEN = (_S["last_dt"], _S["pending_dt"], _S["s
 DELTA, MAG_TIME, REF_NORM, REF_DIP, REF_TIME = (_S["delta"], _S["mag_time"], _S["ref_norm"],
                                                  _S["ref_dip"], _S["ref_time"])
 CAND_NORM, CAND_DIP, CAND_TIME = _S["cand_norm"], _S["cand_dip"], _S["cand_time"]
-DISTURBED, HOLD_TIME, GAP = _S["disturbed"], _S["hold_time"], _S["gap"]
+DISTURBED, HOLD_TIME, GAP, HEADING_UNC = (_S["disturbed"], _S["hold_time"], _S["gap"],
+                                          _S["heading_unc"])
 
 P_G, P_TAU_ACC, P_MOTION_BIAS, P_REST_BIAS = (_P["gravity"], _P["tau_acc"], _P["motion_bias"],
                                               _P["rest_bias"])
@@ -82,7 +83,8 @@ P_MAG_TAU, P_MAG_NORM_TOL, P_MAG_DIP_TOL, P_MAG_HOLD = (_P["mag_tau"], _P["mag_n
                                                        _P["mag_dip_tol"], _P["mag_hold"])
 P_MAG_SLOW, P_MAG_NEW_TIME, P_MAG_NEW_RATE = (_P["mag_slow_factor"], _P["mag_new_time"],
                                              _P["mag_new_rate"])
-P_MAG_REF_TAU, P_MAG_INIT_TIME = _P["mag_ref_tau"], _P["mag_init_time"]
+P_MAG_REF_TAU, P_MAG_INIT_TIME, P_MAG_GATE, P_MAG_GATE_SCALE = (
+    _P["mag_ref_tau"], _P["mag_init_time"], _P["mag_gate"], _P["mag_gate_scale"])
 
 C_GYRO_SKIP, C_ACC_SKIP, C_MAG_SKIP = _C["gyro_skipped"], _C["accel_skipped"], _C["mag_skipped"]
 C_GAPS, C_REST, C_MAG_DIST = _C["gaps"], _C["rest_samples"], _C["mag_disturbed"]
@@ -243,6 +245,10 @@ def mag_step(S, P, C, q0, q1, q2, q3, mx, my, mz, rate, dt):
     horizontal = math.sqrt(ex * ex + ey * ey)
     dip = math.atan2(ez, horizontal)
     measured = math.atan2(ex, ey)  # rotation about up that brings the field onto +y (north)
+    innovation = wrap_angle(measured - S[DELTA])
+    # How far the heading may have moved since the field was last trusted: turning adds
+    # mag_gate_scale of the angle turned (gyro scale error), trusted updates shrink it.
+    S[HEADING_UNC] += P[P_MAG_GATE_SCALE] * rate * dt
 
     if S[REF_TIME] < P[P_MAG_INIT_TIME]:
         # First seconds: the reference is the running mean; the field is trusted.
@@ -253,7 +259,9 @@ def mag_step(S, P, C, q0, q1, q2, q3, mx, my, mz, rate, dt):
         disturbed = False
     else:
         ok = (abs(norm - S[REF_NORM]) < P[P_MAG_NORM_TOL] * S[REF_NORM]
-              and abs(dip - S[REF_DIP]) < P[P_MAG_DIP_TOL])
+              and abs(dip - S[REF_DIP]) < P[P_MAG_DIP_TOL]
+              and (abs(innovation) < P[P_MAG_GATE] + S[HEADING_UNC]
+                   or S[MAG_TIME] < P[P_MAG_TAU]))
         if ok:
             disturbed = False
             S[HOLD_TIME] = 0.0
@@ -292,11 +300,12 @@ def mag_step(S, P, C, q0, q1, q2, q3, mx, my, mz, rate, dt):
         if start > gain:
             gain = start
         S[MAG_TIME] += dt
+        S[HEADING_UNC] *= 1.0 - gain
     elif S[HOLD_TIME] > P[P_MAG_HOLD]:
         gain = 1.0 - math.exp(-dt / (tau * P[P_MAG_SLOW]))
     else:
         gain = 0.0
-    S[DELTA] = wrap_angle(S[DELTA] + gain * wrap_angle(measured - S[DELTA]))
+    S[DELTA] = wrap_angle(S[DELTA] + gain * innovation)
     return True
 
 

@@ -107,6 +107,10 @@ class KeelParams:
         mag_new_field_rate: least rate that counts as turning for that, rad/s.
         mag_reference_time_constant: adaptation of the reference norm and dip, s.
         mag_initial_time: the reference is the running mean over this first time, s.
+        mag_heading_gate: once converged, a heading innovation larger than this (plus
+            ``mag_gate_scale`` times the angle turned since the field was last trusted, which
+            covers gyro scale errors) marks the field as disturbed, rad.
+        mag_gate_scale: see ``mag_heading_gate`` (dimensionless, rad per rad turned).
     """
 
     sample_period: float | None = None
@@ -136,6 +140,8 @@ class KeelParams:
     mag_new_field_rate: float = 20.0 * _DEG
     mag_reference_time_constant: float = 30.0
     mag_initial_time: float = 2.0
+    mag_heading_gate: float = 5.0 * _DEG
+    mag_gate_scale: float = 0.03
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -170,7 +176,8 @@ class KeelParams:
             "mag_hold": self.mag_hold_time, "mag_slow_factor": self.mag_slow_factor,
             "mag_new_time": self.mag_new_field_time, "mag_new_rate": self.mag_new_field_rate,
             "mag_ref_tau": self.mag_reference_time_constant,
-            "mag_init_time": self.mag_initial_time,
+            "mag_init_time": self.mag_initial_time, "mag_gate": self.mag_heading_gate,
+            "mag_gate_scale": self.mag_gate_scale,
         }
         for name, value in values.items():
             p[core.P_INDEX[name]] = value

@@ -158,6 +158,7 @@ def _integration_periods(dts: NDArray, gyro_ok: NDArray, max_gap: float):
     if good.size:
         start = np.concatenate([[total[good[0]] - dts[good[0]]], total[good[:-1]]])
         dt_int[good] = total[good] - start
+    dt_int[0] = 0.0  # the first sample initialises (as online)
     gap = dt_int > max_gap
     gap[0] = False
     regular = np.where(gap | (dt_int <= 0.0), np.nan, dt_int)
