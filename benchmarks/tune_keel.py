@@ -21,6 +21,7 @@ from __future__ import annotations
 import itertools
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -81,55 +82,55 @@ def nested_stage(trials, grid6, chosen6, grid, score):
     return np.array(held_out), tables
 
 
-def show(name, values):
-    return ", ".join(f"{k} {v / DEG:g} deg" if "sigma" in k or "drift" in k else f"{k} {v:g}"
-                     for k, v in values.items()) or name
+def show(values: dict) -> str:
+    return ", ".join(f"{k} {v / DEG:g} deg/s" if "sigma" in k or "drift" in k else f"{k} {v:g}"
+                     for k, v in values.items())
+
+
+@dataclass
+class StageResult:
+    """One stage: held-out errors per trial (CV), and the per-trial errors of the
+    configuration best on all trials (in-sample), with that configuration."""
+
+    held_out: np.ndarray
+    in_sample: np.ndarray
+    chosen: dict
+
+
+def cross_validate(trials, log=print) -> dict[str, StageResult]:
+    """Run the three nested stages; returns ``online6``, ``offline6`` and ``online9``."""
+    t0 = time.perf_counter()
+    grid6 = configs(GRID_6)
+    t6 = table(trials, KeelParams(), grid6, lambda tr, p: online_error(tr, p, 6))
+    cv6 = leave_one_out(t6)
+    out = {"online6": StageResult(cv6.held_out, t6[cv6.best], grid6[cv6.best])}
+    log(f"6-axis online: {len(grid6)} configurations x {len(trials)} trials, folds chose "
+        f"{len(set(cv6.chosen))} distinct ({time.perf_counter() - t0:.0f} s)")
+    stages = (("offline6", configs(GRID_OFFLINE), offline_error),
+              ("online9", configs(GRID_9), lambda tr, p: online_error(tr, p, 9)))
+    for name, grid, score in stages:
+        held, tabs = nested_stage(trials, grid6, cv6.chosen, grid, score)
+        if cv6.best not in tabs:
+            tabs[cv6.best] = table(trials, KeelParams(**grid6[cv6.best]), grid, score)
+        best = int(np.argmin(tabs[cv6.best].mean(axis=1)))
+        out[name] = StageResult(held, tabs[cv6.best][best], {**grid6[cv6.best], **grid[best]})
+        log(f"{name}: done ({time.perf_counter() - t0:.0f} s)")
+    return out
 
 
 def main() -> None:
     t0 = time.perf_counter()
     trials = [read_broad(p) for p in sorted(DATA.glob("*.mat"))]
     names = [tr.name[:2] for tr in trials]
-
-    grid6 = configs(GRID_6)
-    t6 = table(trials, KeelParams(), grid6, lambda tr, p: online_error(tr, p, 6))
-    cv6 = leave_one_out(t6)
-    print(f"6-axis online, {len(grid6)} configurations x {len(trials)} trials "
-          f"({time.perf_counter() - t0:.0f} s)")
-    print("  held-out inclination RMSE per trial (deg): "
-          + " ".join(f"{n}:{e:.3f}" for n, e in zip(names, cv6.held_out)))
-    print(f"  CV mean {cv6.cv_mean:.3f} deg;  in-sample mean of the best on all trials "
-          f"{cv6.in_sample:.3f} deg (in-sample)")
-    print(f"  chosen on all trials: {show('', grid6[cv6.best])}")
-    folds = sorted(set(cv6.chosen))
-    print(f"  folds chose {len(folds)} distinct configuration(s)")
-
-    grid_off = configs(GRID_OFFLINE)
-    held, tabs = nested_stage(trials, grid6, cv6.chosen, grid_off, offline_error)
-    best_off = int(np.argmin(tabs[cv6.best].mean(axis=1))) if cv6.best in tabs else None
-    if best_off is None:
-        tabs[cv6.best] = table(trials, KeelParams(**grid6[cv6.best]), grid_off, offline_error)
-        best_off = int(np.argmin(tabs[cv6.best].mean(axis=1)))
-    print(f"\n6-axis offline ({time.perf_counter() - t0:.0f} s)")
-    print("  held-out inclination RMSE per trial (deg): "
-          + " ".join(f"{n}:{e:.3f}" for n, e in zip(names, held)))
-    print(f"  CV mean {held.mean():.3f} deg;  in-sample "
-          f"{tabs[cv6.best][best_off].mean():.3f} deg (in-sample)")
-    print(f"  chosen on all trials: {show('', grid_off[best_off])}")
-
-    grid9 = configs(GRID_9)
-    held, tabs = nested_stage(trials, grid6, cv6.chosen, grid9,
-                              lambda tr, p: online_error(tr, p, 9))
-    if cv6.best not in tabs:
-        tabs[cv6.best] = table(trials, KeelParams(**grid6[cv6.best]), grid9,
-                               lambda tr, p: online_error(tr, p, 9))
-    best9 = int(np.argmin(tabs[cv6.best].mean(axis=1)))
-    print(f"\n9-axis online ({time.perf_counter() - t0:.0f} s)")
-    print("  held-out total RMSE per trial (deg): "
-          + " ".join(f"{n}:{e:.3f}" for n, e in zip(names, held)))
-    print(f"  CV mean {held.mean():.3f} deg;  in-sample "
-          f"{tabs[cv6.best][best9].mean():.3f} deg (in-sample)")
-    print(f"  chosen on all trials: {show('', grid9[best9])}")
+    results = cross_validate(trials)
+    titles = {"online6": "6-axis online, inclination", "offline6": "6-axis offline, inclination",
+              "online9": "9-axis online, total (no heading alignment)"}
+    for name, r in results.items():
+        print(f"\n{titles[name]} RMSE, deg")
+        print("  held out: " + " ".join(f"{n}:{e:.3f}" for n, e in zip(names, r.held_out)))
+        print(f"  CV mean {r.held_out.mean():.3f};  best on all trials {r.in_sample.mean():.3f} "
+              f"(in-sample)")
+        print(f"  chosen on all trials: {show(r.chosen)}")
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
 
 
