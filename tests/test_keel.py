@@ -295,6 +295,13 @@ def test_hot_path_equals_batch():
     f.reset()
     got = np.array([f.update(list(g), tuple(a)) for g, a in zip(gyro, accel)])
     assert np.array_equal(got, want)
+    # Timestamps (Python floats and numpy scalars) take the fast path after the first sample.
+    t = 0.01 * np.arange(600) + 100.0
+    want = Keel().update_batch(gyro, accel, timestamps=t)
+    for stamps in (t.tolist(), list(t)):
+        f = Keel()
+        got = np.array([f.update(g, a, timestamp=s) for g, a, s in zip(gyro, accel, stamps)])
+        assert np.array_equal(got, want)
 
 
 def test_split_run_equals_single_run_and_state_restores():

@@ -274,6 +274,8 @@ def covariance_matrices(upper: NDArray[np.float64]) -> NDArray[np.float64]:
 _F64 = np.dtype(np.float64)
 _NDARRAY = np.ndarray
 _SHAPE3 = (3,)
+_INF = math.inf
+_FLOATS = (float, np.float64)
 _NO_MAG = np.zeros(3)
 _fast6 = None
 _fast_full = None
@@ -345,6 +347,7 @@ class Keel:
         if not isinstance(params, KeelParams):
             raise ValueError(f"params must be a KeelParams, got {type(params).__name__}")
         self._params = params
+        self._default_dt = params.sample_period
         if hasattr(self, "_B"):
             self._P[:] = params.packed()
             self._S[core.DT_CACHED] = -1.0  # coefficients depend on the time constants
@@ -472,24 +475,37 @@ class Keel:
             known_accel: known kinematic acceleration (3,), m/s^2, body frame, removed from
                 ``accel`` (e.g. the centripetal v*w of a turning robot).
         """
+        # Hot path of live use (float64 (3,) arrays, 6-axis, a default period or a float
+        # timestamp after the first): the fewest Python operations around one compiled call.
+        if (mag is None and still is None and known_accel is None and dt is None
+                and type(gyro) is type(accel) is _NDARRAY and gyro.dtype is accel.dtype is _F64
+                and gyro.shape == accel.shape == _SHAPE3 and _fast6 is not None):
+            if timestamp is None:
+                d = self._default_dt
+                if d is not None:
+                    _fast6(self._B, gyro, accel, d)
+                    return self._q.copy()
+            elif type(timestamp) in _FLOATS and self._last_t is not None:
+                d = timestamp - self._last_t
+                if 0.0 < d < _INF:
+                    self._last_t = timestamp
+                    _fast6(self._B, gyro, accel, d)
+                    return self._q.copy()
+        return self._update_general(gyro, accel, mag, dt, timestamp, still, known_accel)
+
+    def _update_general(self, gyro, accel, mag, dt, timestamp, still, known_accel):
         d = self._period(dt, timestamp)
         fast6, fast_full = _entry_points()
-        if (mag is None and still is None and known_accel is None
-                and type(gyro) is _NDARRAY and type(accel) is _NDARRAY
-                and gyro.dtype is _F64 and accel.dtype is _F64
-                and gyro.shape == _SHAPE3 and accel.shape == _SHAPE3):
-            fast6(self._B, gyro, accel, d)
-            return self._q.copy()
         g, a = vec3("gyro", gyro), vec3("accel", accel)
         use_mag = self.axes == 9 and mag is not None
         m = vec3("mag", mag) if use_mag else _NO_MAG
-        x = np.array([1.0 if use_mag else 0.0, -1.0 if still is None else float(bool(still)),
-                      0.0, 0.0, 0.0])
-        if known_accel is not None:
-            k = vec3("known_accel", known_accel)
-            if np.all(np.isfinite(k)):
-                x[2:] = k
         if use_mag or still is not None or known_accel is not None:
+            x = np.array([1.0 if use_mag else 0.0,
+                          -1.0 if still is None else float(bool(still)), 0.0, 0.0, 0.0])
+            if known_accel is not None:
+                k = vec3("known_accel", known_accel)
+                if np.all(np.isfinite(k)):
+                    x[2:] = k
             fast_full(self._B, g, a, m, x, d)
         else:
             fast6(self._B, g, a, d)
