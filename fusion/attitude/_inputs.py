@@ -7,7 +7,17 @@ import math
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["as_rows", "check_dt", "check_dts", "vec3"]
+from fusion.geometry import quaternion as quat
+
+__all__ = [
+    "as_rows",
+    "check_dt",
+    "check_dts",
+    "explicit_periods",
+    "timestamps_array",
+    "unit_quaternion",
+    "vec3",
+]
 
 _F64 = np.dtype(np.float64)
 
@@ -46,3 +56,33 @@ def vec3(name: str, v: ArrayLike) -> NDArray[np.float64]:
     if arr.shape != (3,):
         raise ValueError(f"{name} must have 3 components, got shape {arr.shape}")
     return arr
+
+
+def unit_quaternion(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """A finite non-zero (4,) quaternion, normalised; ``ValueError`` naming ``name`` else."""
+    q = np.asarray(value, dtype=np.float64)
+    if q.shape != (4,):
+        raise ValueError(f"{name} must have shape (4,), got {q.shape}")
+    if not (np.all(np.isfinite(q)) and np.any(q != 0.0)):
+        raise ValueError(f"{name} must be finite and non-zero, got {value!r}")
+    return quat.normalize(q)
+
+
+def timestamps_array(timestamps: ArrayLike, n: int) -> NDArray[np.float64]:
+    """``timestamps`` as a finite float64 (n,) array (s), or ``ValueError`` naming the index."""
+    t = np.asarray(timestamps, dtype=np.float64)
+    if t.shape != (n,):
+        raise ValueError(f"timestamps must have shape ({n},), got {t.shape}")
+    if not np.all(np.isfinite(t)):
+        bad = int(np.flatnonzero(~np.isfinite(t))[0])
+        raise ValueError(f"timestamps[{bad}] is not finite ({t[bad]!r})")
+    return t
+
+
+def explicit_periods(dt: float | ArrayLike, n: int) -> NDArray[np.float64]:
+    """A constant period or n per-sample periods (s) as a checked contiguous array."""
+    dts = np.atleast_1d(np.asarray(dt, dtype=np.float64))
+    if dts.shape not in ((1,), (n,)):
+        raise ValueError(f"dt must be a scalar or have shape ({n},), got {dts.shape}")
+    check_dts(dts, "dt must be finite and > 0 s: at index")
+    return np.ascontiguousarray(dts)

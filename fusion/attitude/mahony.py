@@ -50,7 +50,15 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion._jit import compiled_entry_point, njit
-from fusion.attitude._inputs import as_rows, check_dt, check_dts, vec3
+from fusion.attitude._inputs import (
+    as_rows,
+    check_dt,
+    check_dts,
+    explicit_periods,
+    timestamps_array,
+    unit_quaternion,
+    vec3,
+)
 from fusion.geometry import quaternion as quat
 from fusion.types.constants import STANDARD_GRAVITY
 
@@ -426,10 +434,7 @@ class Mahony:
         self.axes = axes
         self._initial = None
         if initial_quaternion is not None:
-            q0 = np.asarray(initial_quaternion, dtype=float)
-            if q0.shape != (4,):
-                raise ValueError(f"initial_quaternion must have shape (4,), got {q0.shape}")
-            self._initial = quat.normalize(q0)
+            self._initial = unit_quaternion("initial_quaternion", initial_quaternion)
         self.params = params
         self.reset()
 
@@ -682,14 +687,9 @@ class Mahony:
 
     def _batch_dt(self, n: int, dt, timestamps) -> NDArray[np.float64]:
         if timestamps is not None:
-            t = np.asarray(timestamps, dtype=np.float64)
-            if t.shape != (n,):
-                raise ValueError(f"timestamps must have shape ({n},), got {t.shape}")
+            t = timestamps_array(timestamps, n)
             if n == 0:
                 return np.zeros(1)
-            if not np.all(np.isfinite(t)):
-                bad = int(np.flatnonzero(~np.isfinite(t))[0])
-                raise ValueError(f"timestamps[{bad}] is not finite ({t[bad]!r})")
             if dt is None:
                 if self._last_t is not None:
                     first = t[0] - self._last_t
@@ -710,8 +710,4 @@ class Mahony:
             if self._params.sample_period is None:
                 raise ValueError("no dt: pass dt=, timestamps=, or set sample_period")
             return np.array([self._params.sample_period])
-        dts = np.atleast_1d(np.asarray(dt, dtype=np.float64))
-        if dts.shape not in ((1,), (n,)):
-            raise ValueError(f"dt must be a scalar or have shape ({n},), got {dts.shape}")
-        check_dts(dts, "dt must be finite and > 0 s: at index")
-        return np.ascontiguousarray(dts)
+        return explicit_periods(dt, n)
