@@ -3,8 +3,9 @@
 Steps (frames and units as in :mod:`fusion.attitude.keel`):
 
 1. Run :class:`~fusion.attitude.keel.Keel` forward, and again over the time-reversed data with
-   the gyro negated (its bias is then the negated bias); fuse the two bias estimates of each
-   sample by inverse covariance.
+   the gyro negated (its bias is then the negated bias), both with the motion bias sigma
+   ``offline_motion_bias_sigma``; fuse the two bias estimates of each sample by inverse
+   covariance.
 2. Integrate the gyro minus the fused bias into the gyro frame (the same gap policy as online:
    an interval longer than ``max_gap`` is integrated over the last regular period and
    restarts the accelerometer filter).
@@ -52,8 +53,8 @@ def keel_offline(
     ``sample_period=``). With ``diagnostics=True`` also returns a :class:`KeelDiagnostics`
     whose bias is the fused one and whose flags are set where either pass set them.
     """
-    forward = Keel(axes=6, params=params, **options)
-    p = forward.params
+    p = Keel(axes=6, params=params, **options).params
+    forward = Keel(axes=6, params=replace(p, motion_bias_sigma=p.offline_motion_bias_sigma))
     g = as_rows("gyro", gyro)
     n = g.shape[0]
     a = as_rows("accel", accel, n)
@@ -75,7 +76,7 @@ def keel_offline(
         raise ValueError(f"still must have shape ({n},), got {s.shape}")
     kk = none if k is None else k
     _, fwd = forward._run(g, a, none, False, dts, s, kk, True)
-    backward = Keel(axes=6, params=p)
+    backward = Keel(axes=6, params=forward.params)
     _, bwd = backward._run(np.ascontiguousarray(-g[::-1]), np.ascontiguousarray(a[::-1]), none,
                            False, _reversed_periods(dts), np.ascontiguousarray(s[::-1]),
                            np.ascontiguousarray(kk[::-1]), True)
