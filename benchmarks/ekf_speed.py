@@ -1,16 +1,16 @@
-"""EKF speed: input events per second of the fused-odometry EKF, beside a plain filterpy EKF of
-the same model.
+"""EKF speed: input events per second of the fused-odometry EKF, beside a plain filterpy EKF
+driven by the same model.
 
 Run: python benchmarks/ekf_speed.py [--seconds S]   (numba from the `fast` extra for the core)
 
 Rows (same events: a 60 s degraded mission, gyro 100 Hz + wheel frames 25 Hz, ZUPTs, slips):
 - ``PlanarEKF.process_batch``: the compiled loop over the compiled step (numba).
 - ``PlanarEKF.update_*`` streaming: one Python call per event into the same compiled step.
-- the same compiled step run interpreted (numba absent or ``FUSION_DISABLE_JIT=1``), in a
-  child process;
-- ``filterpy backend``: the same model on filterpy's own ``ExtendedKalmanFilter.predict`` /
-  ``update`` (numpy 8x8 matrices, ``inv(S)``), i.e. a plain filterpy EKF.
-All three give the same state (tests/test_ekf.py checks core == filterpy to 1e-9).
+- the same step run interpreted (what runs when numba is absent, or with
+  ``FUSION_DISABLE_JIT=1``), in a child process;
+- filterpy's own ``ExtendedKalmanFilter`` (numpy 8x8 matrices, ``inv(S)``) driven by
+  fusion.planar.model's functions and the same filter logic: tests/filterpy_reference.py,
+  the reference of tests/test_ekf.py (equal to the core to 1e-11).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ import argparse
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 from _timing import cpu_rate  # benchmarks/_timing.py (scripts run from benchmarks/)
 
@@ -26,6 +27,9 @@ from fusion._jit import HAVE_NUMBA
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
 from fusion.planar import _ekf_core as core
 from fusion.planar.ekf import PlanarEKF, merge_events
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
+from filterpy_reference import FilterpyReference  # tests/filterpy_reference.py
 
 
 def main() -> None:
@@ -41,11 +45,11 @@ def main() -> None:
     events = list(zip(kinds.tolist(), stamp.tolist(), a.tolist(), b.tolist(), strict=True))
 
     def batch() -> int:
-        PlanarEKF(EXAMPLE_ROBOT, backend="core").process_batch(kinds, t_eff, a, b)
+        PlanarEKF(EXAMPLE_ROBOT).process_batch(kinds, t_eff, a, b)
         return n
 
     def streaming() -> int:
-        f = PlanarEKF(EXAMPLE_ROBOT, backend="core")
+        f = PlanarEKF(EXAMPLE_ROBOT)
         gyro, wheels = f.update_gyro, f.update_wheels
         for k, t, x, y in events:
             if k == core.EV_GYRO:
@@ -57,8 +61,10 @@ def main() -> None:
     m = 1500  # filterpy is slow: a prefix of the same events
 
     def filterpy() -> int:
-        f = PlanarEKF(EXAMPLE_ROBOT, backend="filterpy")
-        f.process_batch(kinds[:m], t_eff[:m], a[:m], b[:m])
+        start = PlanarEKF(EXAMPLE_ROBOT)
+        f = FilterpyReference(EXAMPLE_ROBOT, start.noise, start.x, start.P)
+        for k in range(m):
+            f.step(int(kinds[k]), t_eff[k], a[k], b[k])
         return m
 
     if args.interpreted_child:
@@ -71,9 +77,9 @@ def main() -> None:
     rows = [
         ("PlanarEKF.process_batch (compiled loop)", cpu_rate(batch, args.seconds)),
         ("PlanarEKF.update_gyro/update_wheels (streaming)", cpu_rate(streaming, args.seconds)),
-        ("same core interpreted (no numba; backend='auto' then uses filterpy)",
+        ("same core interpreted (no numba)",
          float(child.stdout.strip().splitlines()[-1])),
-        ("plain filterpy ExtendedKalmanFilter, same model", cpu_rate(filterpy, args.seconds)),
+        ("filterpy ExtendedKalmanFilter, same model", cpu_rate(filterpy, args.seconds)),
     ]
     ref = rows[-1][1]
     print(f"EKF events per CPU second ({n} events: 100 Hz gyro + 25 Hz wheels; numba "

@@ -10,8 +10,16 @@ g = 9.80665 m/s^2 unless ``gravity`` is given), temperature in deg C, time in s 
 clock passed as ``clock`` (``time.monotonic`` by default). Raw LSB, g and deg/s appear only in
 the explicitly named raw/scaled accessors.
 
-Bus cost: ``read()`` is one I2C transaction (a 14-byte burst at ACCEL_XOUT_H, so the three axes
-and the temperature come from one sample, never torn between two). ``read_fifo()`` is three
+Bus cost: ``read()`` is one I2C transaction (a 15-byte burst at INT_STATUS: the data-ready flag,
+then the three axes and the temperature of one sample, never torn between two).
+
+Fresh samples: the chip takes a sample every 1 / ``sample_rate_hz`` s and its data registers hold
+the newest one until the next. ``configure()`` (and ``set_dlpf()``) waits for the first sample
+taken at the new configuration, so the first ``read()`` is never a sample of the old full-scale
+range. A ``read()`` sooner than one period after the previous one returns the same sample
+again: DATA_RDY_INT (INT_STATUS bit 0, cleared by reading it) tells, and the driver says so in
+``RawSample.fresh`` and the ``fresh`` attribute (False: a repeat; ``stats.repeated_reads``
+counts them). ``read(wait=True)`` waits for a new sample instead. ``read_fifo()`` is three
 transactions whatever the number of samples: INT_STATUS, FIFO_COUNT, then one read of every
 whole 12-byte frame. That last read uses ``i2c_rdwr`` (a plain I2C read of any length) when the
 bus has it; smbus2's ``read_i2c_block_data`` stops at 32 bytes, so on an SMBus-only adapter the
@@ -88,6 +96,7 @@ ACCEL_LSB_PER_G = {2: 16384.0, 4: 8192.0, 8: 4096.0, 16: 2048.0}
 _RETRY_ERRNOS = {_errno.EIO, _errno.EREMOTEIO, _errno.ENXIO}
 _FIFO_SIZE = 1024
 _FRAME = 12  # accel x, y, z then gyro x, y, z, big-endian int16
+_FRAME_TEMP = 14  # accel x, y, z, temperature, gyro x, y, z (TEMP_FIFO_EN on)
 _I2C_FUNC_I2C = 0x00000001  # smbus2.I2cFunc.I2C: the adapter does plain I2C (i2c_rdwr)
 _SELF_TEST_LIMIT = 0.14  # product specification: change from factory trim within +-14 %
 
@@ -118,12 +127,16 @@ class RawSample:
         gyro: gyroscope x, y, z (3,) int16 counts.
         temperature: TEMP_OUT int16 counts, or None (FIFO frames carry no temperature).
         t: host timestamp, s.
+        fresh: True if the chip took this sample after the previous read (DATA_RDY_INT was
+            set), False if it is the same sample again, None if unknown (DATA_RDY_EN off in
+            INT_ENABLE: a chip the driver did not configure, ``reset=False``).
     """
 
     accel: tuple[int, int, int]
     gyro: tuple[int, int, int]
     temperature: int | None
     t: float
+    fresh: bool | None = None
 
 
 @dataclass(frozen=True)
@@ -136,7 +149,8 @@ class FifoRead:
         lost: number of samples estimated lost to an overflow or a failed read (from the
             time since the last delivered sample and the sample rate; +-1).
         transactions: I2C transactions this call issued.
-        raw: the frames as read, (len(samples), 6) int16 counts: accel x, y, z, gyro x, y, z.
+        raw: the frames as read, (len(samples), 6) int16 counts: accel x, y, z, gyro x, y, z
+            (the temperature of a ``enable_fifo(temperature=True)`` frame is in the samples).
     """
 
     samples: list[ImuSample]
@@ -208,6 +222,7 @@ class _Stats:
     transactions: int = 0
     retries: int = 0
     failures: int = 0
+    repeated_reads: int = 0  # read()/read_raw() that returned the previous sample again
     by_register: dict[int, int] = field(default_factory=dict)
 
 
@@ -291,8 +306,10 @@ class MPU6050:
         reset: reset and configure the chip now (False: only check WHO_AM_I).
 
     Attributes:
-        stats: transactions issued, retries and failures seen.
+        stats: transactions issued, retries and failures seen, repeated reads.
         stuck: True while the stuck condition holds (``on_stuck="flag"``).
+        fresh: whether the last ``read()``/``read_raw()`` returned a new sample (see
+            ``RawSample.fresh``; None before the first read).
 
     One driver is not safe to share between threads: give it its own thread (or a lock).
     """
@@ -392,7 +409,11 @@ class MPU6050:
         self._same_count = 0
         self._same_since = 0.0
         self._int_latch = 0
+        self._unread = False  # a DATA_RDY seen by data_ready() whose sample was not read yet
+        self._data_rdy_on = True
+        self.fresh: bool | None = None
         self._fifo_on = False
+        self._frame = _FRAME
         self._fifo_index = 0
         self._fifo_clock = _FifoClock(0.0, 0.01)
         self._fifo_last_t = -math.inf
@@ -409,6 +430,8 @@ class MPU6050:
                 )
             if reset:
                 self.configure()
+            else:
+                self._data_rdy_on = bool(self._read_byte(INT_ENABLE) & 0x01)
         except BaseException:
             self.close()
             raise
@@ -440,7 +463,8 @@ class MPU6050:
         DEVICE_RESET (PWR_MGMT_1 = 0x80), wait 100 ms for it to clear, PWR_MGMT_1 = 0x01
         (awake, CLKSEL = PLL with X gyro reference), SMPLRT_DIV, CONFIG (DLPF_CFG, keeping
         the EXT_SYNC_SET bits), GYRO_CONFIG, ACCEL_CONFIG, INT_ENABLE (DATA_RDY and
-        FIFO_OFLOW), then reads the four configuration registers back to verify them.
+        FIFO_OFLOW), then reads the four configuration registers back to verify them, and
+        waits for the first sample taken at the new configuration (at most two sample periods).
         """
         self._write_byte(PWR_MGMT_1, 0x80)
         for _ in range(10):
@@ -469,18 +493,32 @@ class MPU6050:
             )
         self._fifo_on = False
         self._same_raw = None
+        self._data_rdy_on = True
+        self._await_new_configuration()
+
+    def _await_new_configuration(self) -> None:
+        """Wait until the data registers hold a sample taken after the configuration was
+        written: clear DATA_RDY_INT (the sample it flags may predate the writes), then wait for
+        the next one. Without this, a read right after ``configure()`` returns the sample the
+        chip took at its reset ranges (+-2 g), scaled for the new range."""
+        self._int_status()
+        self._unread = False
+        self.wait_data_ready(max(1.0, 3.0 / self.sample_rate_hz))
 
     def set_dlpf(self, dlpf: int) -> None:
         """Change DLPF_CFG (0..6) read-modify-write, keeping CONFIG's EXT_SYNC_SET bits.
 
         SMPLRT_DIV is kept, so moving between DLPF 0 (8 kHz gyro rate) and 1..6 (1 kHz)
-        changes ``sample_rate_hz`` eightfold.
+        changes ``sample_rate_hz`` eightfold. Returns once a sample taken with the new setting
+        is in the data registers (unless the data-ready interrupt is off, ``reset=False``).
         """
         if not 0 <= int(dlpf) <= 6:
             raise ValueError(f"dlpf must be DLPF_CFG 0..6 (7 is reserved); got {dlpf}")
         config = self._read_byte(CONFIG)
         self._write_byte(CONFIG, (config & 0xF8) | int(dlpf))
         self.dlpf = int(dlpf)
+        if self._data_rdy_on and not self._fifo_on:
+            self._await_new_configuration()
 
     # ------------------------------------------------------------------ bus I/O
     def _where(self, register: int) -> str:
@@ -560,12 +598,20 @@ class MPU6050:
 
     # ------------------------------------------------------------------ sample reads
     def read_raw(self) -> RawSample:
-        """One 14-byte burst at ACCEL_XOUT_H (one transaction): raw counts and host time, s."""
+        """One 15-byte burst at INT_STATUS (one transaction): raw counts, host time (s) and
+        whether the sample is new since the last read (``RawSample.fresh``)."""
         t = self.clock.monotonic()
-        data = self._read_block(ACCEL_XOUT_H, 14)
+        block = self._read_block(INT_STATUS, 15)
+        status, data = block[0], block[1:]
+        self._int_latch |= status & 0x10  # FIFO_OFLOW, cleared by this read: keep it
+        fresh = bool(status & 0x01) or self._unread if self._data_rdy_on else None
+        self._unread = False
+        self.fresh = fresh
+        if fresh is False:
+            self.stats.repeated_reads += 1
         v = [_int16(data[i], data[i + 1]) for i in range(0, 14, 2)]
         self._check_stuck(data[0:6] + data[8:14], t, per_sample=False)
-        return RawSample((v[0], v[1], v[2]), (v[4], v[5], v[6]), v[3], t)
+        return RawSample((v[0], v[1], v[2]), (v[4], v[5], v[6]), v[3], t, fresh)
 
     def _to_si(self, accel: Sequence[int] | NDArray[Any], gyro: Sequence[int] | NDArray[Any],
                calibrated: bool) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -578,9 +624,13 @@ class MPU6050:
 
     def read(self, *, calibrated: bool = True, wait: bool = False,
              timeout_s: float = 1.0) -> ImuSample:
-        """One sample as ``ImuSample``: gyro rad/s, accel m/s^2, temperature deg C
+        """The newest sample as ``ImuSample``: gyro rad/s, accel m/s^2, temperature deg C
         (raw / 340 + 36.53), host time s. One I2C transaction (plus data-ready polling when
-        ``wait``). The calibration, if any, is applied unless ``calibrated=False``."""
+        ``wait``). The calibration, if any, is applied unless ``calibrated=False``.
+
+        Read sooner than one sample period after the previous read, it is the same sample
+        again: then ``self.fresh`` is False (see the module docstring). ``wait=True`` polls
+        DATA_RDY first (up to ``timeout_s`` s), so the sample is always a new one."""
         if wait:
             self.wait_data_ready(timeout_s)
         raw = self.read_raw()
@@ -625,8 +675,10 @@ class MPU6050:
         return status
 
     def data_ready(self) -> bool:
-        """True when a new sample arrived since INT_STATUS was last read (DATA_RDY_INT)."""
-        return bool(self._int_status() & 0x01)
+        """True when a new sample arrived since the last read (DATA_RDY_INT)."""
+        if self._int_status() & 0x01:
+            self._unread = True  # reading INT_STATUS cleared the flag: remember it
+        return self._unread
 
     def wait_data_ready(self, timeout_s: float = 1.0, poll_s: float | None = None) -> None:
         """Poll DATA_RDY_INT until set; ``MPU6050Error`` after ``timeout_s`` (s)."""
@@ -671,14 +723,19 @@ class MPU6050:
         )
 
     # ------------------------------------------------------------------ FIFO
-    def enable_fifo(self) -> None:
+    def enable_fifo(self, *, temperature: bool = False) -> None:
         """Put accel + gyro x, y, z (12-byte frames) into the FIFO, reset it and start.
 
         Samples are then collected with ``read_fifo()``. At 1 kHz the 1024-byte FIFO holds
         85 frames (85 ms), and at 400 kHz each frame takes 0.27 ms to read, during which new
         ones arrive: read at least every 60 ms (benchmarks/mpu6050_transactions.py).
+
+        ``temperature=True`` adds the die temperature to each frame (TEMP_FIFO_EN: 14-byte
+        frames, so the FIFO holds 73 of them), and the samples carry it (deg C).
         """
-        self._write_byte(FIFO_EN, 0x78)  # XG, YG, ZG, ACCEL
+        self._frame = _FRAME_TEMP if temperature else _FRAME
+        # XG, YG, ZG, ACCEL (+ TEMP)
+        self._write_byte(FIFO_EN, 0xF8 if temperature else 0x78)
         self._fifo_reset()
         self._fifo_on = True
 
@@ -725,13 +782,14 @@ class MPU6050:
         t_count = self.clock.monotonic()
         d = self._read_block(FIFO_COUNTH, 2)
         count = (d[0] << 8) | d[1]
-        if overflow or count % _FRAME or count >= _FIFO_SIZE - _FRAME + 1:
+        frame = self._frame
+        if overflow or count % frame or count >= _FIFO_SIZE - frame + 1:
             return self._recover(overflow=True, before=before)
-        n = count // _FRAME
+        n = count // frame
         if n == 0:
             return FifoRead([], transactions=self.stats.transactions - before)
         try:
-            data = self._read_block(FIFO_R_W, n * _FRAME)
+            data = self._read_block(FIFO_R_W, n * frame)
         except MPU6050Error:
             return self._recover(overflow=False, before=before)
         # n frames more since the reset were there when FIFO_COUNT was read, the next not.
@@ -745,14 +803,20 @@ class MPU6050:
             shift = min(max(times[0] - follow, -0.05 * step), 0.05 * step)
             times = times - times[0] + follow + shift
         self._fifo_last_t = float(times[-1])
-        counts = np.frombuffer(data, dtype=">i2").reshape(n, 6).astype(np.int16)
+        words = np.frombuffer(data, dtype=">i2").reshape(n, frame // 2).astype(np.int16)
+        temps: list[float | None] = [None] * n
+        if frame == _FRAME_TEMP:  # accel, temperature, gyro
+            temps = [float(v) / 340.0 + 36.53 for v in words[:, 3]]
+            counts = np.ascontiguousarray(np.delete(words, 3, axis=1))
+        else:
+            counts = words
         raw = counts.astype(float)
         accel, gyro = self._to_si(raw[:, :3], raw[:, 3:], calibrated)
         samples = []
         for i in range(n):
             t = float(times[i])
-            self._check_stuck(data[i * _FRAME : (i + 1) * _FRAME], t, per_sample=True)
-            samples.append(ImuSample(t, gyro[i], accel[i]))
+            self._check_stuck(counts[i].astype(">i2").tobytes(), t, per_sample=True)
+            samples.append(ImuSample(t, gyro[i], accel[i], None, temps[i]))
         self._fifo_index += n
         return FifoRead(samples, transactions=self.stats.transactions - before, raw=counts)
 

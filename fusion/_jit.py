@@ -4,6 +4,13 @@ With numba installed (the ``fast`` extra) the filter cores are compiled to machi
 it the very same Python functions run interpreted, giving identical results more slowly. Set the
 environment variable ``FUSION_DISABLE_JIT=1`` to force the interpreted path (tests use it to
 check that both paths agree).
+
+numba's on-disk cache (``cache=True``, files in ``__pycache__``) is keyed by the source file of
+each compiled function only: a compiled function that calls one from another module (the EKF
+core calls :mod:`fusion.planar.model`) keeps its cached machine code when only that other
+module changes. After editing such a module, delete the ``*.nbi``/``*.nbc`` files or touch the
+caller's file (tests/test_ekf.py's filterpy reference, which calls the model directly, fails
+on such a stale core).
 """
 
 from __future__ import annotations

@@ -22,3 +22,24 @@ def umask(request):
         yield request.param
     finally:
         os.umask(old)
+
+
+#: Cyclone DDS on loopback only: no multicast (CI runners have none), the peers found by unicast
+#: on 127.0.0.1 (participant indices probed from 0).
+LOOPBACK_DDS = ('<CycloneDDS><Domain Id="any"><General><Interfaces>'
+                '<NetworkInterface address="127.0.0.1"/></Interfaces>'
+                '<AllowMulticast>false</AllowMulticast></General>'
+                '<Discovery><Peers><Peer address="127.0.0.1"/></Peers>'
+                '<ParticipantIndex>auto</ParticipantIndex></Discovery></Domain></CycloneDDS>')
+
+
+@pytest.fixture
+def ros2_env(monkeypatch) -> dict[str, str]:
+    """A fresh ROS_DOMAIN_ID (1..101, so concurrent runs rarely meet) and CYCLONEDDS_URI pinned
+    to loopback, set in this process (for sinks opened here) and returned as the environment
+    for child processes."""
+    import random
+
+    monkeypatch.setenv("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 101)))
+    monkeypatch.setenv("CYCLONEDDS_URI", LOOPBACK_DDS)
+    return {**os.environ, "PYTHONUNBUFFERED": "1"}

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from fusion.cli import main
-from fusion.cli.replay import FUSED_CSV_COLUMNS
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
 from fusion.geometry.quaternion import from_euler, rotate_inverse
+from fusion.io.fused_csv import FUSED_CSV_COLUMNS, read_fused_csv
 from fusion.io.logdir import write_logdir, write_synthetic_run
 from fusion.planar.ekf import fuse
 from fusion.planar.robot import RobotConfig
@@ -31,7 +31,8 @@ def logdir(run, tmp_path_factory):
 def _read(path):
     with open(path) as fh:
         header = fh.readline().strip().split(",")
-    return header, np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
+    cols = read_fused_csv(path)
+    return header, np.column_stack([cols[name] for name in FUSED_CSV_COLUMNS])
 
 
 def test_replay_writes_the_fused_track(run, logdir, tmp_path, capsys):
@@ -104,7 +105,7 @@ def test_errors_exit_2_with_a_message(tmp_path, capsys):
     d.mkdir()
     (d / "robot.toml").write_text("[chassis]\nwheel_distance = 0.3\n")
     assert main(["replay", str(d), "-o", str(tmp_path / "o.csv")]) == 2
-    assert "robot.toml: [chassis] needs speed_ratio" in capsys.readouterr().err
+    assert "robot.toml:1: [chassis] needs speed_ratio" in capsys.readouterr().err  # with its line
     assert not (tmp_path / "o.csv").exists()
 
 
@@ -128,7 +129,8 @@ def test_replay_of_the_sample_ros_bag(datasets_dir, tmp_path, capsys):
     assert tuple(header) == FUSED_CSV_COLUMNS
     assert data.shape[0] == 3061  # one row per IMU message
     assert data[0, 0] == pytest.approx(47.58)
-    assert np.all(np.isfinite(data))
+    assert np.all(np.isfinite(data[:, :17]))
+    assert np.all(np.isnan(data[:, 17:]))  # a bag's twists carry no wheel speeds
     assert np.all(np.diff(data[:, 0]) > 0)
     text = capsys.readouterr().out
     assert "3061 IMU messages (base_link), 3060 odometry messages (odom -> base_link)" in text
@@ -145,22 +147,22 @@ def test_tilt_compensation_of_an_unknown_imu_tilt(tmp_path):
     # The Mahony attitude (gravity) finds the tilt and the vertical rate restores the heading.
     # Measured when written (seed 2, 300 s): level 2.10 % / 4.25 deg, compensated 0.36 % /
     # 0.71 deg.
-    from fusion.cli.replay import fuse_logdir
     from fusion.evaluation.trajectory import final_position_error_percent, yaw_rmse
-    from fusion.io.logdir import read_logdir
+    from fusion.jobs.replay import replay_logdir
 
     run = degraded_mission(seed=2, duration=300.0)
     q = from_euler(math.radians(4.0), math.radians(-6.0), 0.3)
     d = write_logdir(tmp_path / "tilted", EXAMPLE_ROBOT, run.imu_t, rotate_inverse(q, run.gyro),
                      rotate_inverse(q, run.accel), run.wheel_t, run.ticks)
-    log = read_logdir(d)
     result = {}
     for tilt in (True, False):
-        track, _, rows = fuse_logdir(log, tilt=tilt)
-        truth = run.truth_at(track.t[rows])
+        replay_logdir(d, tmp_path / "f.csv", tilt=tilt)
+        f = read_fused_csv(tmp_path / "f.csv")
+        truth = run.truth_at(f["t"])
+        xy = np.column_stack([f["x"], f["y"]])
         result[tilt] = (
-            final_position_error_percent(track.states[rows, :2], truth, run.distance),
-            math.degrees(yaw_rmse(track.states[rows, 2], truth[:, 2])),
+            final_position_error_percent(xy, truth, run.distance),
+            math.degrees(yaw_rmse(f["yaw"], truth[:, 2])),
         )
     assert result[True][0] <= 0.5 and result[True][1] <= 1.5
     assert result[False][0] > 1.0 and result[False][1] > 3.0

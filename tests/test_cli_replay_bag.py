@@ -22,8 +22,9 @@ import pytest
 
 from fusion.attitude.mahony import Mahony
 from fusion.cli import main
-from fusion.cli.replay import write_fused_csv
 from fusion.geometry.kinematics import DiffDriveParams
+from fusion.io.fused_csv import write_fused_csv
+from fusion.jobs.replay import fused_table
 from fusion.pipeline.core import FusionPipeline
 from fusion.planar.ekf import fuse, vertical_rate
 from fusion.planar.robot import RobotConfig
@@ -116,7 +117,9 @@ def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
                         twist_v=odom.v, twist_w=odom.w)
         rows = track.output_rows()
         assert rows.sum() == N_IMU
-        write_fused_csv(tmp_path / "ref.csv", track.t[rows], track.states[rows])
+        no_wheels = np.full((int(rows.sum()), 2), np.nan)
+        write_fused_csv(tmp_path / "ref.csv", fused_table(
+            np.column_stack([track.t[rows], track.states[rows], no_wheels]), 1.0))
         assert out.read_bytes() == (tmp_path / "ref.csv").read_bytes()
 
 

@@ -25,6 +25,7 @@ import pytest
 from drivers.chassis import encode_wheel_frame
 from fusion.cli import main
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.io.fused_csv import read_fused_csv
 from fusion.io.logdir import write_logdir, write_synthetic_run
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.sources import logdir_events, replay
@@ -72,10 +73,13 @@ def test_csv_and_records_come_from_one_filter(logs, tmp_path):
     log = logs / "run2"
     assert main(["replay", str(log), "-o", str(tmp_path / "f.csv")]) == 0
     assert main(["replay", str(log), "-o", str(tmp_path / "f.jsonl")]) == 0
-    csv = np.loadtxt(tmp_path / "f.csv", delimiter=",", skiprows=1)
+    csv = read_fused_csv(tmp_path / "f.csv")
     last = json.loads((tmp_path / "f.jsonl").read_text().splitlines()[-1])
-    assert abs(last["v"]) < 1e-3 and abs(csv[-1, 4]) < 1e-3
-    np.testing.assert_allclose(csv[-1, 1:4], [last["x"], last["y"], last["yaw"]], atol=1e-6)
+    assert abs(last["v"]) < 1e-3 and abs(csv["v"][-1]) < 1e-3
+    np.testing.assert_allclose([csv["x"][-1], csv["y"][-1], csv["yaw"][-1]],
+                               [last["x"], last["y"], last["yaw"]], atol=1e-6)
+    # the wheel speeds of the rows are those of the last frame, as in the records
+    assert csv["wheel_left_speed"][-1] == last["wheel_left_speed"]
 
 
 def test_mcap_output_reads_back(logs, tmp_path):

@@ -45,6 +45,10 @@ def test_demo_command_runs_the_live_pipeline_and_fused_beats_wheel_only(tmp_path
     # the mission drives ~15 m; state the figures the report must show
     distance = float(re.search(r"mission: ([\d.]+) m", text).group(1))
     assert 12.0 < distance < 18.0
+    # one mission length, announced and reported alike (it said "56 s" then "57 s")
+    announced = re.search(r"running a ([\d.]+) s mission", text + proc.stderr).group(1)
+    reported = re.search(r"mission: [\d.]+ m in ([\d.]+) s of robot time", text).group(1)
+    assert announced == reported == f"{demo.mission_duration():.1f}"
     assert fused_pct < 1.5 and wheel_pct > 5.0 and wheel_pct > 5 * fused_pct
     assert fused_yaw < 1.0 and wheel_yaw > 5.0
     frames = int(re.search(r"handled: (\d+) wheel frames", text).group(1))

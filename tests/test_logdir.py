@@ -141,7 +141,7 @@ def test_missing_pieces(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"robot\.toml"):
         read_logdir(tmp_path / "empty")
     d = _logdir(tmp_path, wheels=None)
-    with pytest.raises(LogFormatError, match=r"neither imu\.csv nor wheels\.csv"):
+    with pytest.raises(LogFormatError, match=r"no imu\.csv, wheels\.csv or wheels\.uart2"):
         read_logdir(d)
 
 

@@ -69,6 +69,17 @@ def test_imu_csv_with_and_without_magnetometer(tmp_path):
     assert log.mag.tolist() == [[20.0, 0.0, -40.0]]
 
 
+def test_imu_csv_columns_are_read_by_name_and_others_ignored(tmp_path):
+    # what fusion imu writes (temp empty when unknown, attitude columns), in another order
+    text = ("ax,ay,az,temp,t,gz,gy,gx,note,roll_deg\n"
+            "0.5,0,9.8,,0,0.3,0.2,0.1,still,12\n"
+            "0.6,0,9.7,25.1,0.01,0.3,0.2,0.1,x,abc\n")
+    log = read_imu_csv(write(tmp_path, text))
+    assert log.t.tolist() == [0.0, 0.01] and log.mag is None
+    assert log.gyro.tolist() == [[0.1, 0.2, 0.3]] * 2
+    assert log.accel.tolist() == [[0.5, 0.0, 9.8], [0.6, 0.0, 9.7]]
+
+
 @pytest.mark.parametrize(
     "text, where",
     [
@@ -76,6 +87,13 @@ def test_imu_csv_with_and_without_magnetometer(tmp_path):
         ("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,1\n0.1,0,0,0,0,0\n", ":3: expected 7 fields"),
         ("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,1\n0.1,0,0,x,0,0,1\n", ":3: column 'gz'"),
         ("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,1\n0.1,0,0,0,0,0,1\n0.1,0,0,0,0,0,1\n", ":4: timestamp"),
+        # blank lines count as lines: the editor's line number, a plain number in the message
+        ("t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,1\n\n4.99,0,0,0,0,0,1\n4.99,0,0,0,0,0,1\n",
+         ":5: timestamp 4.99 does not increase (previous 4.99)"),
+        ("t,gx,gy,gz,ax,ay,az,temp\n0,0,0,0,0,0,1,\n0.1,0,0,0,0,0,1\n", ":3: expected 8 fields"),
+        ("t,gx,gy,ax,ay,az\n0,0,0,0,0,1\n", ":1: header has no column 'gz'"),
+        ("t,gx,gy,gz,ax,ay,az,mx\n0,0,0,0,0,0,1,3\n", ":1: magnetometer columns"),
+        ("t,gx,gy,gz,ax,ay,az,t\n0,0,0,0,0,0,1,3\n", ":1: column 't' appears twice"),
     ],
 )
 def test_imu_csv_errors_name_file_and_line(tmp_path, text, where):

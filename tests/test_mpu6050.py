@@ -257,7 +257,8 @@ def test_retry_exhaustion_raises_driver_error(code):
     with pytest.raises(MPU6050Error) as exc:
         imu.read()
     assert exc.value.errno == code
-    assert "0x3b (ACCEL_XOUT_H)" in str(exc.value) and "after 3 attempts" in str(exc.value)
+    # the sample burst starts at INT_STATUS (data-ready flag + the 14 data bytes)
+    assert "0x3a (INT_STATUS)" in str(exc.value) and "after 3 attempts" in str(exc.value)
     assert isinstance(exc.value, OSError)
 
 
@@ -374,3 +375,59 @@ def test_decoding_of_any_register_contents(values):
     assert np.allclose(s.accel, np.array(values[0:3]) / 8192.0 * G)
     assert np.allclose(s.gyro, np.radians(np.array(values[4:7]) / 65.5))
     assert s.temperature == pytest.approx(values[3] / 340.0 + 36.53)
+
+
+# --------------------------------------------------------------------------- fresh samples
+@pytest.mark.parametrize("accel_range", [4, 8, 16])
+def test_first_read_after_configuration_is_at_the_configured_range(accel_range):
+    # at rest, z up: +1 g. The chip's reset range is +-2 g (16384 LSB/g); a sample taken
+    # before ACCEL_CONFIG was written, read with the new sensitivity, would show
+    # 16384 / ACCEL_LSB[range] g (2, 4 or 8 g)
+    sim = SimulatedMPU6050(static_trace())
+    imu = MPU6050(sim, 0x68, accel_range_g=accel_range, clock=sim.clock)
+    s = imu.read()
+    assert s.accel[2] == pytest.approx(G, abs=0.5 / ACCEL_LSB[accel_range] * G)
+    assert imu.fresh is True  # the sample configure() waited for, not read yet
+    # a reconfiguration at another range: the same holds
+    imu.accel_range_g = 2
+    imu.configure()
+    assert imu.read().accel[2] == pytest.approx(G, abs=0.5 / ACCEL_LSB[2] * G)
+
+
+def test_set_dlpf_returns_with_a_sample_taken_at_the_new_rate():
+    sim = SimulatedMPU6050(static_trace())
+    imu, _ = make(sim, dlpf=3, sample_rate_hz=100)
+    produced = sim.samples_produced
+    imu.set_dlpf(0)  # 8 kHz gyro rate with the same divider: 800 Hz
+    assert sim.samples_produced > produced
+    assert imu.read().accel[2] == pytest.approx(G, abs=1e-3)
+
+
+def test_reads_faster_than_the_sample_rate_say_they_repeat_a_sample():
+    # a ramp of 100 deg/s per s on x: consecutive 100 Hz samples differ by 1 deg/s
+    t = np.array([0.0, 10.0])
+    rate = np.radians(np.array([[0.0, 0, 0], [1000.0, 0, 0]]))
+    sim = SimulatedMPU6050(ArrayTrace(t, rate, np.array([[0, 0, G], [0, 0, G]])))
+    imu, _ = make(sim, gyro_range_dps=2000, sample_rate_hz=100)
+    first = imu.read()
+    assert imu.fresh is True
+    again = imu.read()  # within the same 10 ms sample period
+    assert imu.fresh is False and imu.stats.repeated_reads == 1
+    np.testing.assert_array_equal(again.gyro, first.gyro)  # the very same sample
+    sim.clock.sleep(0.0101)  # one sample period later: a new sample
+    raw = imu.read_raw()
+    assert raw.fresh is True and imu.stats.repeated_reads == 1
+    assert np.degrees(imu.read(wait=True).gyro[0]) > np.degrees(first.gyro[0]) + 1.5
+    assert imu.fresh is True  # wait=True always returns a new one
+    # data_ready() reads (and so clears) DATA_RDY_INT: the next read still counts as new
+    sim.clock.sleep(0.0101)
+    assert imu.data_ready() and imu.data_ready()
+    assert imu.read_raw().fresh is True and not imu.data_ready()
+
+
+def test_freshness_is_unknown_on_a_chip_left_without_the_data_ready_interrupt():
+    sim = SimulatedMPU6050(static_trace())
+    make(sim)  # configured: awake, sampling
+    sim.regs[0x38] = 0x00  # INT_ENABLE: DATA_RDY_EN off, as another program may leave it
+    imu = MPU6050(sim, clock=sim.clock, reset=False)
+    assert imu.read_raw().fresh is None and imu.fresh is None

@@ -28,10 +28,28 @@ def test_stream_with_calibration_and_attitude(tmp_path, capsys):
     t, yaw = d[:, 0], d[:, 14]
     assert np.allclose(np.diff(t), 0.01, atol=0.001)  # FIFO timestamps at 100 Hz
     assert np.allclose(d[:, 6].mean(), 9.80665, atol=0.01)  # az: 1 g at rest, m/s^2
-    # turning at 10 deg/s from t = 5 s: the yaw follows (bias removed, no drift before)
-    assert abs(yaw[t < 5.0][-1]) < 0.2
+    # the FIFO carries the die temperature: the simulator's default 25 deg C, +-1 LSB/340
+    assert np.all(np.abs(d[:, 7] - 25.0) <= 1 / 340 + 0.005)
+    # turning at 10 deg/s from t = 5 s: the yaw (rad) follows (bias removed, no drift before)
+    assert abs(yaw[t < 5.0][-1]) < np.radians(0.2)
     end = t[-1]
-    assert abs(yaw[-1] - 10.0 * (end - 5.0)) < 1.0
+    assert abs(yaw[-1] - np.radians(10.0 * (end - 5.0))) < np.radians(1.0)
+    # one IMU CSV format: fusion attitude reads what fusion imu wrote (the extra columns
+    # ignored by name) and its yaw is in the same unit, rad
+    att = tmp_path / "att.csv"
+    assert main(["attitude", str(out), "-o", str(att)]) == 0
+    a = np.loadtxt(att, delimiter=",", skiprows=1)
+    np.testing.assert_array_equal(a[:, 0], t)
+    assert abs(a[-1, 7] - np.radians(10.0 * (end - 5.0))) < np.radians(1.0)
+
+
+def test_no_fifo_stream_has_the_same_columns(tmp_path):
+    out = tmp_path / "imu.csv"
+    assert main(["imu", "--sim", "--no-fifo", "--count", "20", "-o", str(out)]) == 0
+    d = read_csv(out)
+    assert d.shape == (20, 15)
+    assert np.allclose(np.diff(d[:, 0]), 0.01, atol=0.002)  # a new sample each time
+    assert np.all(np.abs(d[:, 7] - 25.0) <= 1 / 340 + 0.005)
 
 
 def test_calibrate_refuses_when_moving(capsys):

@@ -115,9 +115,12 @@ def test_fast_record_equals_the_validating_constructor(run):
     with pipe:
         for ev in events(run)[:3000]:
             pipe.push(ev)
-        g = pipe._gyro
-        f = _record_fields(pipe.ekf.t, pipe.ekf.x, pipe.ekf.P, pipe._q, (g[0], g[1]),
-                           pipe._accel, pipe._wheel_speeds, "odom", "base_footprint")
+        last = pipe.current_record()
+        g = last.angular_velocity
+        f = _record_fields(pipe.ekf.t, pipe.ekf.x, pipe.ekf.P[:5, :5].ravel().tolist(),
+                           last.orientation, (g[0], g[1]), last.linear_acceleration,
+                           (last.wheel_left_speed, last.wheel_right_speed), "odom",
+                           "base_footprint")
     slow = FusedOdometry(**{k: v for k, v in f.items() if k != "_sum"})
     fast = _fast_record(f)
     assert fast == slow and fast.to_dict() == slow.to_dict()

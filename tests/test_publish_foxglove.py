@@ -227,3 +227,16 @@ def test_without_cmd_vel_the_server_refuses_client_publishing() -> None:
     with FoxgloveSink(port=0, cmd_vel_topic=None) as sink:
         info = asyncio.run(client(sink.port))
     assert "clientPublish" not in info["capabilities"]
+
+
+def test_a_subscribing_client_causes_no_callback_errors(caplog) -> None:
+    # regression: the server's listener lacked on_subscribe/on_unsubscribe, and the SDK
+    # logged "Callback failed: AttributeError ..." for every channel a client subscribed to
+    import logging
+
+    caplog.set_level(logging.WARNING)
+    _channels, got, _sent = run_session()
+    assert len(got) == 5  # the client subscribed to every channel and got messages
+    problems = [r.getMessage() for r in caplog.records
+                if r.levelno >= logging.WARNING and r.name.startswith("foxglove")]
+    assert problems == []

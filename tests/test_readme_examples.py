@@ -8,13 +8,16 @@ the bundled ``datasets/``. A block whose first line is ``# needs: WHAT ...`` get
 - ``chassis``: a simulated STM32 (:class:`drivers.sim.stm32.PtyStm32`) on a pseudo-terminal
   replaces ``/dev/ttyUSB0``;
 - ``rospy``: not run (the test interpreter has no ROS 1); it must compile and every import
-  but rospy's must resolve.
+  but rospy's must resolve;
+- ``ros2``: runs with DDS pinned to loopback on a fresh ``ROS_DOMAIN_ID`` (conftest's
+  ``ros2_env``); skipped without cyclonedds, except under CI.
 """
 
 from __future__ import annotations
 
 import ast
 import importlib
+import os
 import re
 from pathlib import Path
 
@@ -70,7 +73,7 @@ def workdir(tmp_path, monkeypatch):
 
 
 @pytest.mark.parametrize(("line", "code"), BLOCKS, ids=[f"README.md:{n}" for n, _ in BLOCKS])
-def test_readme_python_block_runs(workdir, monkeypatch, line, code):
+def test_readme_python_block_runs(workdir, monkeypatch, request, line, code):
     need = needs(code)
     if need is None:
         run_block(code, line)
@@ -97,6 +100,11 @@ def test_readme_python_block_runs(workdir, monkeypatch, line, code):
             run_block(code.replace("/dev/ttyUSB0", sim.data_port), line)
     elif need == "rospy":
         check_imports_resolve(code, line, skip={"rospy"})
+    elif need == "ros2":
+        if importlib.util.find_spec("cyclonedds") is None and not os.environ.get("CI"):
+            pytest.skip("the ros2 extra (cyclonedds) is not installed")
+        request.getfixturevalue("ros2_env")
+        run_block(code, line)
     else:
         pytest.fail(f"README.md:{line}: unknown '# needs: {need}'")
 
@@ -116,11 +124,6 @@ def check_imports_resolve(code: str, line: int, skip: set[str]) -> None:
                     f"{node.module}.{alias.name}"), f"README.md:{line}: {alias.name}"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "drivers.mpu6050: a read() right after MPU6050(...) returns the sample the chip took "
-    "before ACCEL_CONFIG was written (reset range +-2 g) scaled for the configured range: "
-    "2 g at rest with accel_range_g=4; configure() does not wait for the first sample at the "
-    "new range (read(wait=True) is right)"))
 def test_first_read_after_configuration_is_in_the_configured_range():
     from drivers.mpu6050 import MPU6050
     from drivers.sim.mpu6050 import SimulatedMPU6050, static_trace

@@ -37,6 +37,7 @@ import contextlib
 import math
 import os
 import select
+import signal
 import sys
 import threading
 import time
@@ -416,7 +417,8 @@ class PtyStm32:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m drivers.sim.stm32``: run the simulated chassis until Ctrl-C."""
+    """``python -m drivers.sim.stm32``: run the simulated chassis until Ctrl-C or SIGTERM
+    (either closes the ptys and removes the ``--link-dir`` symlinks)."""
     ap = argparse.ArgumentParser(prog="python -m drivers.sim.stm32",
                                  description="Simulated miiboo STM32 chassis on two ptys.")
     ap.add_argument("--link-dir", help="create stable symlinks data and debug in this folder")
@@ -431,6 +433,10 @@ def main(argv: list[str] | None = None) -> int:
         os.makedirs(args.link_dir, exist_ok=True)
         data_link = os.path.join(args.link_dir, "data")
         debug_link = os.path.join(args.link_dir, "debug")
+    def on_term(signum, frame):  # SIGTERM (kill, systemd) stops like Ctrl-C: links removed
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, on_term)
     sim = PtyStm32(Stm32Sim(params), data_link=data_link, debug_link=debug_link).start()
     print(f"data (DATA-uart2):   {sim.data_port}", flush=True)
     print(f"debug (DEBUG-uart1): {sim.debug_port}", flush=True)

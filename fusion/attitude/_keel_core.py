@@ -512,10 +512,11 @@ def step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, still, kx, ky, kz
     # -- output: heading offset (9-axis) on top of the 6-axis attitude -----------------------
     a0, a1, a2, a3 = S[QA], S[QA + 1], S[QA + 2], S[QA + 3]
     r0, r1, r2, r3 = qmul(a0, a1, a2, a3, q0, q1, q2, q3)
-    if use_mag and acc_ok and S[ACC_SEEN] != 0.0:
-        mag_step(S, P, C, r0, r1, r2, r3, mx, my, mz, rate, dt_int)
-    elif use_mag:
-        C[C_MAG_SKIP] += 1
+    if use_mag:
+        if S[ACC_SEEN] != 0.0:
+            mag_step(S, P, C, r0, r1, r2, r3, mx, my, mz, rate, dt_int)
+        elif not (math.isfinite(mx * mx + my * my + mz * mz) and mx * mx + my * my + mz * mz > 0):
+            C[C_MAG_SKIP] += 1  # counted as mag_step counts (no attitude yet to use it with)
     d = S[DELTA]
     if d != 0.0:
         r0, r1, r2, r3 = qmul(math.cos(0.5 * d), 0.0, 0.0, math.sin(0.5 * d), r0, r1, r2, r3)

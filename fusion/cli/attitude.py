@@ -18,10 +18,11 @@ def register(subparsers) -> None:
         description=(
             "Run an attitude estimator over INPUT and write t,qw,qx,qy,qz,roll,pitch,yaw "
             "(quaternion body -> world ENU, angles in radians), one row per input sample. "
-            "INPUT is a BROAD trial (.mat, .hdf5) or a CSV with the header "
-            "t,gx,gy,gz,ax,ay,az[,mx,my,mz] (s, rad/s, m/s^2, uT). With ground truth (BROAD), "
-            "the benchmark's errors are printed. The default filter is Keel (fusion.attitude."
-            "keel); --filter mahony runs the Mahony port with --kp, --ki."
+            "INPUT is a BROAD trial (.mat, .hdf5) or an IMU CSV whose header has "
+            "t,gx,gy,gz,ax,ay,az[,mx,my,mz] (s, rad/s, m/s^2, uT; other columns, such as "
+            "those fusion imu adds, are ignored). With ground truth (BROAD), the benchmark's "
+            "errors are printed. The default filter is Keel (fusion.attitude.keel); "
+            "--filter mahony runs the Mahony port with --kp, --ki."
         ),
     )
     p.add_argument("input", type=Path, help="BROAD trial or IMU CSV")
@@ -55,12 +56,14 @@ def _check_options(args: argparse.Namespace) -> None:
                            "estimate takes its start from the whole recording)")
 
 
-def _load(path: Path):
+def _load(path: Path, output: Path):
+    from fusion.io.atomic import check_target
     from fusion.io.broad import read_broad
     from fusion.io.imu_csv import read_imu_csv
 
     if not path.exists():
         raise CommandError(f"{path}: no such file")
+    check_target(output)  # before the work, naming the user's path
     if path.suffix.lower() in (".mat", ".hdf5", ".h5"):
         return read_broad(path)
     if path.suffix.lower() == ".csv":
@@ -74,7 +77,7 @@ def run(args: argparse.Namespace) -> int:
 
     _check_options(args)
     path: Path = args.input
-    log = _load(path)
+    log = _load(path, args.output)
     if len(log) == 0:
         raise CommandError(f"{path}: no samples")
     if args.axes == 9 and log.mag is None:
@@ -118,9 +121,8 @@ def _run_mahony(args, log, mag, timing, path):
         lines.append(f"rest detection on: {filt.counters.rest_samples} samples refined the "
                      "gyro bias")
     c = filt.counters
-    lines += _warnings({"gyro rows skipped": c.gyro_skipped,
-                        "accelerometer rows unusable": c.accel_skipped,
-                        "magnetometer rows unusable": c.mag_skipped}, "fusion.attitude.mahony")
+    lines += _warnings(log, mag, (c.gyro_skipped, c.accel_skipped, c.mag_skipped),
+                       "fusion.attitude.mahony")
     bias = filt.gyro_bias
     lines.append(f"gyro bias estimate (rad/s): {bias[0]:+.5f} {bias[1]:+.5f} {bias[2]:+.5f}")
     return q, lines
@@ -144,17 +146,46 @@ def _run_keel(args, log, mag, timing):
                  + (f", magnetic field disturbed {int(diag.mag_disturbed.sum())} samples"
                     if args.axes == 9 else ""))
     if counters is not None:
-        lines += _warnings({"gyro rows skipped": counters.gyro_skipped,
-                            "accelerometer rows unusable": counters.accel_skipped,
-                            "magnetometer rows unusable": counters.mag_skipped,
-                            "gaps in the timestamps (see the gap policy)": counters.gaps},
+        c = counters
+        lines += _warnings(log, mag, (c.gyro_skipped, c.accel_skipped, c.mag_skipped),
                            "fusion.attitude.keel")
+        if c.gaps:
+            lines.append(f"warning: {c.gaps} gaps in the timestamps longer than "
+                         f"{filt.params.max_gap:g} s (see the gap policy in fusion.attitude.keel)")
     bias, sigma = diag.gyro_bias[-1], diag.gyro_bias_sigma[-1]
     lines.append(f"gyro bias estimate (rad/s): {bias[0]:+.5f} {bias[1]:+.5f} {bias[2]:+.5f} "
                  f"(sigma {sigma.max():.5f})")
     return q, lines
 
 
-def _warnings(counts: dict[str, int], module: str) -> list[str]:
-    return [f"warning: {n} {what} (see {module} for the policy)"
-            for what, n in counts.items() if n]
+def _warnings(log, mag, counts, module: str) -> list[str]:
+    """One warning per kind of unusable row the filter counted, naming the rows."""
+    whats = ("gyro rows skipped", "accelerometer rows unusable", "magnetometer rows unusable")
+    return [f"warning: {n} {what} (see {module} for the policy): {_name_rows(log, rows)}"
+            for what, n, rows in zip(whats, counts, _unusable_rows(log, mag)) if n]
+
+
+def _unusable_rows(log, mag) -> list:
+    """Indexes of the rows the filter skips (non-finite gyro) or cannot correct with (a zero
+    or non-finite accelerometer or magnetometer vector), as both filters count them."""
+    import numpy as np
+
+    def bad(v):
+        return ~np.isfinite(v).all(axis=1) | (np.linalg.norm(v, axis=1) == 0)
+
+    gyro = ~np.isfinite(log.gyro).all(axis=1)
+    accel = bad(log.accel) & ~gyro
+    mags = bad(mag) & ~gyro if mag is not None else np.zeros(len(gyro), bool)
+    return [np.flatnonzero(m) for m in (gyro, accel, mags)]
+
+
+def _name_rows(log, rows, most: int = 10) -> str:
+    """``FILE lines 5, 9`` for an IMU CSV, ``samples 3, 7 (from 0)`` for other logs."""
+    from fusion.io.imu_csv import imu_csv_line
+
+    shown = [int(i) for i in rows[:most]]
+    more = f" and {len(rows) - most} more" if len(rows) > most else ""
+    if str(log.source).lower().endswith(".csv"):
+        lines = ", ".join(str(imu_csv_line(log, i)) for i in shown)
+        return f"{log.source} line{'s' if len(rows) > 1 else ''} {lines}{more}"
+    return f"sample{'s' if len(rows) > 1 else ''} {', '.join(map(str, shown))}{more} (from 0)"

@@ -81,6 +81,13 @@ def run_odometry(args: argparse.Namespace) -> int:
 
     if not args.input.is_dir():
         raise CommandError(f"{args.input}: not a log directory")
+    if args.write is not None:
+        from fusion.io.atomic import check_target
+
+        check_target(args.write)  # before the fit, not after
+        if args.write.resolve() == (args.input / "robot.toml").resolve():
+            raise CommandError(f"{args.write}: refusing to overwrite the log's own robot.toml "
+                               "(it describes how the log was recorded)")
     log = read_logdir(args.input)
     if log.imu_t is None or log.wheel_t is None:
         raise CommandError(f"{args.input}: odometry calibration needs both imu.csv and "
@@ -112,9 +119,6 @@ def run_odometry(args: argparse.Namespace) -> int:
         from fusion.io.robot_toml import write_robot_toml
 
         target = args.write
-        if target.resolve() == (args.input / "robot.toml").resolve():
-            raise CommandError(f"{target}: refusing to overwrite the log's own robot.toml "
-                               "(it describes how the log was recorded)")
         write_robot_toml(target, replace(log.robot, chassis=cal.params()))
         print(f"wrote {target}")
     return 0

@@ -1,16 +1,5 @@
-"""``fusion chassis``: the miiboo STM32 chassis from the command line.
-
-Sub-commands::
-
-    fusion chassis decode CAPTURE [-o OUT.csv]     raw DATA-uart2 bytes -> CSV (left,right,offset)
-    fusion chassis encode LEFT RIGHT               one DATA-uart2 frame in hex
-    fusion chassis monitor --port URL --wheel-distance M --speed-ratio M_PER_TICK
-                                                   live wheel speeds and odometry
-    fusion chassis pid get|reset|set [KP KI KD] --port URL    DEBUG-uart1 PID commands
-    fusion chassis step --port URL --ticks N       wheel step response: rise time, overshoot,
-                                                   steady-state error (seed 000 section 5)
-
-Units: ticks per sampling period on the wire, m/s and m, rad for odometry, s for time.
+"""``fusion chassis``: the miiboo STM32 chassis from the command line: decode, encode,
+monitor, pid, step (the usage is in ``_DESCRIPTION``, what ``fusion chassis --help`` prints).
 """
 
 from __future__ import annotations
@@ -112,7 +101,10 @@ def _write_csv(path: str, header: list[str], rows: Iterable[Sequence[Any]]) -> N
 
 def _cmd_decode(args) -> int:
     from drivers.chassis import WheelFrameParser
+    from fusion.io.atomic import check_target
 
+    if args.output not in (None, "-"):
+        check_target(args.output)
     try:
         with open(args.capture, "rb") as fh:
             data = fh.read()
@@ -155,21 +147,40 @@ def _geometry(args):
     )
 
 
-def _cmd_monitor(args) -> int:
+def _start_link(args, *, report_events: bool) -> Any:
+    """Open the chassis port (up to ``--open-timeout`` s): one clear error if it does not
+    open; link events (reconnects, silences) go to stderr once it is open."""
+    import threading
+
     from drivers.serial_link import ChassisLink
+
+    opened = threading.Event()
+
+    def on_event(e) -> None:
+        if report_events and opened.is_set():  # the retries while opening are not news
+            print(f"# {e.kind}: {e.message}", file=sys.stderr, flush=True)
+
+    link = ChassisLink(args.port, period=args.period, command_timeout=None, on_event=on_event)
+    try:
+        link.start(wait=args.open_timeout)
+    except OSError as exc:
+        link.close(stop=False)
+        last = next((e for e in reversed(link.events) if e.kind == "open_failed"), None)
+        why = f" ({last.message.split(': ', 1)[-1]})" if last else ""
+        raise CommandError(f"chassis port {args.port} did not open within "
+                           f"{args.open_timeout:g} s{why}") from exc
+    opened.set()
+    return link
+
+
+def _cmd_monitor(args) -> int:
     from fusion.planar.odometry import WheelOdometry
 
     geo = _geometry(args)
     odo = WheelOdometry(geo, method=args.method)
     out = sys.stdout
+    link = _start_link(args, report_events=True)
     print("t,left,right,v_left,v_right,x,y,yaw", file=out, flush=True)
-    link = ChassisLink(args.port, period=args.period, command_timeout=None,
-                       on_event=lambda e: print(f"# {e.kind}: {e.message}", file=sys.stderr))
-    try:
-        link.start(wait=args.open_timeout)
-    except OSError as exc:
-        link.close(stop=False)
-        raise CommandError(str(exc)) from exc
     t_end = None if args.duration is None else time.monotonic() + args.duration
     count = 0
     last_print = -math.inf
@@ -240,16 +251,13 @@ def _cmd_pid(args) -> int:
 
 
 def _cmd_step(args) -> int:
-    from drivers.serial_link import ChassisLink
+    from fusion.io.atomic import check_target
 
     if args.ticks == 0:
         raise CommandError("--ticks must be non-zero")
-    link = ChassisLink(args.port, period=args.period, command_timeout=None)
-    try:
-        link.start(wait=args.open_timeout)
-    except OSError as exc:
-        link.close(stop=False)
-        raise CommandError(str(exc)) from exc
+    if args.csv:
+        check_target(args.csv)  # before the wheels turn, not after
+    link = _start_link(args, report_events=False)
     left = args.ticks if args.wheel in ("left", "both") else 0
     right = args.ticks if args.wheel in ("right", "both") else 0
     try:
@@ -270,20 +278,35 @@ def _cmd_step(args) -> int:
     wheel = "right" if args.wheel == "right" else "left"
     y = np.array([getattr(f, wheel) for f in samples], dtype=float)
     m = step_metrics(t, y, args.ticks)
-    if args.csv:
-        _write_csv(args.csv, ["t", "left", "right"],
-                   [(f"{f.t - t0:.4f}", f.left, f.right) for f in samples])
     print(f"target {m.target:g} ticks/period ({wheel} wheel), {len(samples)} frames")
     print(f"rise time (10-90 %): {m.rise_time:.3f} s")
     print(f"overshoot: {m.overshoot:.1f} %")
     print(f"steady-state value: {m.steady_state_value:.2f} ticks/period, "
-          f"error {m.steady_state_error:+.2f}")
+          f"error {m.steady_state_error:+.2f}", flush=True)
+    if args.csv:  # after the results: a failure here loses nothing already printed
+        _write_csv(args.csv, ["t", "left", "right"],
+                   [(f"{f.t - t0:.4f}", f.left, f.right) for f in samples])
     return 0
+
+
+_DESCRIPTION = """\
+The miiboo STM32 chassis from the command line:
+
+  fusion chassis decode CAPTURE [-o OUT.csv]     raw DATA-uart2 bytes -> CSV (left,right,offset)
+  fusion chassis encode LEFT RIGHT               one DATA-uart2 frame in hex
+  fusion chassis monitor --port URL --wheel-distance M --speed-ratio M_PER_TICK
+                                                 live wheel speeds and odometry
+  fusion chassis pid get|reset|set [KP KI KD] --port URL    DEBUG-uart1 PID commands
+  fusion chassis step --port URL --ticks N       wheel step response: rise time, overshoot,
+                                                 steady-state error (seed 000 section 5)
+
+Units: ticks per sampling period on the wire, m/s and m, rad for odometry, s for time.
+"""
 
 
 def register(subparsers) -> None:
     p = subparsers.add_parser("chassis", help="miiboo STM32 chassis: decode, encode, monitor, "
-                              "PID, step response", description=__doc__,
+                              "PID, step response", description=_DESCRIPTION,
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = p.add_subparsers(dest="chassis_command", metavar="ACTION", required=True)
 
@@ -303,17 +326,23 @@ def register(subparsers) -> None:
 
     def link_args(q, geometry: bool) -> None:
         q.add_argument("--port", required=True, help="serial port or pyserial URL")
-        q.add_argument("--period", type=float, default=0.04, help="sampling period, s")
-        q.add_argument("--open-timeout", type=float, default=3.0, help="s to wait for the port")
+        q.add_argument("--period", type=float, default=0.04, metavar="S",
+                       help="the board's encoder sampling period, s (default 0.04)")
+        q.add_argument("--open-timeout", type=float, default=3.0, metavar="S",
+                       help="s to wait for the port to open (default 3)")
         if geometry:
             q.add_argument("--wheel-distance", type=float, required=True, help="m")
             q.add_argument("--speed-ratio", type=float, required=True, help="m per tick")
 
     m = sub.add_parser("monitor", help="live wheel speeds and odometry (CSV lines)")
     link_args(m, geometry=True)
-    m.add_argument("--duration", type=float, default=None, help="stop after this many s")
-    m.add_argument("--interval", type=float, default=0.0, help="s between printed lines")
-    m.add_argument("--method", choices=("midpoint", "arc"), default="midpoint")
+    m.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop after this many s (default: until Ctrl-C)")
+    m.add_argument("--interval", type=float, default=0.0, metavar="S",
+                   help="s between printed lines (default 0: every frame)")
+    m.add_argument("--method", choices=("midpoint", "arc"), default="midpoint",
+                   help="odometry integration: midpoint (second order, default) or arc "
+                        "(exact for constant speeds)")
     m.set_defaults(func=_cmd_monitor)
 
     q = sub.add_parser("pid", help="DEBUG-uart1: get, reset or set the PID gains")
@@ -327,7 +356,10 @@ def register(subparsers) -> None:
     s = sub.add_parser("step", help="wheel step response: rise time, overshoot, error")
     link_args(s, geometry=False)
     s.add_argument("--ticks", type=int, required=True, help="target ticks per period")
-    s.add_argument("--wheel", choices=("left", "right", "both"), default="both")
-    s.add_argument("--duration", type=float, default=2.0, help="s to record")
-    s.add_argument("--csv", help="also write the response to this CSV")
+    s.add_argument("--wheel", choices=("left", "right", "both"), default="both",
+                   help="wheel(s) to command; the metrics are of the left one unless 'right' "
+                        "(default both)")
+    s.add_argument("--duration", type=float, default=2.0, metavar="S",
+                   help="s to record (default 2)")
+    s.add_argument("--csv", help="also write the response to this CSV (t,left,right)")
     s.set_defaults(func=_cmd_step)

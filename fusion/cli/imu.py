@@ -8,9 +8,11 @@ Examples::
     fusion imu-calibrate rest.csv --poses poses.csv -o imu_cal.json
     fusion imu --bus 1 --calibration imu_cal.json             # apply it
 
-Columns: ``t`` (s, host clock; simulated seconds with ``--sim``), ``gx gy gz`` (rad/s),
-``ax ay az`` (m/s^2), ``temp`` (deg C, empty for FIFO samples), ``qw qx qy qz`` (body ->
-world ENU), ``roll pitch yaw`` (deg, ZYX). With ``--raw``: the raw recording format of
+Columns (:data:`fusion.io.imu_csv.IMU_RECORD_COLUMNS`, the IMU CSV that ``fusion attitude``
+and ``fusion replay`` read): ``t`` (s, host clock; simulated seconds with ``--sim``),
+``gx gy gz`` (rad/s), ``ax ay az`` (m/s^2), ``temp`` (deg C; the FIFO carries it too),
+``qw qx qy qz`` (body -> world ENU), ``roll pitch yaw`` (rad, ZYX). With ``--raw``: the raw
+recording format of
 ``fusion.io.mpu6050_csv`` (``Fs`` and sensitivity lines, then ``ax,ay,az,gx,gy,gz`` int16
 counts). Status lines go to standard error.
 
@@ -33,7 +35,6 @@ from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = ["register", "run", "run_calibrate"]
 
-_COLUMNS = "t,gx,gy,gz,ax,ay,az,temp,qw,qx,qy,qz,roll,pitch,yaw"
 _SIM_STILL_S = 5.0  # the simulated robot stays still this long, then turns
 
 
@@ -43,7 +44,8 @@ def register(subparsers: Any) -> None:
         help="stream MPU6050 samples and the Mahony attitude",
         description="Stream MPU6050 samples and the Mahony attitude to the terminal or a CSV: "
                     "t (s), gx gy gz (rad/s), ax ay az (m/s^2), temp (deg C), qw qx qy qz "
-                    "(body -> ENU), roll pitch yaw (deg). Status lines go to stderr.",
+                    "(body -> ENU), roll pitch yaw (rad): the IMU CSV that fusion attitude "
+                    "and fusion replay read. Status lines go to stderr.",
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--bus", type=int, metavar="N", help="I2C bus number (/dev/i2c-N)")
@@ -133,7 +135,8 @@ def _open(args: argparse.Namespace) -> Any:
         from drivers.sim.mpu6050 import SimClock, SimulatedMPU6050, SystemClock
 
         clock = SystemClock() if args.realtime else SimClock()
-        sim = SimulatedMPU6050(_sim_motion(clock.monotonic()), address=args.address, clock=clock,
+        # the simulated chip is wired like a breakout with AD0 low: it answers at 0x68 only
+        sim = SimulatedMPU6050(_sim_motion(clock.monotonic()), address=0x68, clock=clock,
                                gyro_bias_dps=(0.8, -0.5, 0.3), gyro_noise_dps=0.05,
                                accel_noise_g=0.003, seed=1, model_dlpf=True)
         return MPU6050(sim, args.address, clock=clock, **kw)
@@ -162,6 +165,9 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--count must be >= 1; got {args.count}")
     if args.realtime and not args.sim:
         raise ValueError("--realtime only applies to --sim")
+    if args.raw and args.calibration:
+        raise ValueError("--calibration does not apply to --raw (raw counts are written "
+                         "uncalibrated; --save-calibration keeps a --calibrate result)")
     from fusion.io.atomic import AtomicFile, check_target
     from fusion.io.imu_calibration import save_imu_calibration
 
@@ -201,11 +207,13 @@ def _stream(imu: Any, args: argparse.Namespace, mahony: Any, sink: TextIO,
 
         sink.write(format_header(imu.sample_rate_hz, imu.accel_lsb_per_g, imu.gyro_lsb_per_dps))
     else:
-        print(_COLUMNS, file=sink)
+        from fusion.io.imu_csv import IMU_RECORD_COLUMNS
+
+        print(",".join(IMU_RECORD_COLUMNS), file=sink)
     written = 0
     use_fifo = not args.no_fifo
     if use_fifo:
-        imu.enable_fifo()
+        imu.enable_fifo(temperature=not args.raw)  # the CSV's temp column
     poll = min(0.05, 40.0 / imu.sample_rate_hz)  # well inside the 85-frame FIFO
     while args.count is None or written < args.count:
         if use_fifo:
@@ -234,12 +242,12 @@ def _stream(imu: Any, args: argparse.Namespace, mahony: Any, sink: TextIO,
                     break
                 continue
             q = mahony.update(s.gyro, s.accel, timestamp=s.t)
-            rpy = np.degrees(mahony.euler)
+            rpy = mahony.euler  # rad
             temp = "" if s.temperature is None else f"{s.temperature:.2f}"
             print(f"{s.t:.6f},{s.gyro[0]:.6f},{s.gyro[1]:.6f},{s.gyro[2]:.6f},"
                   f"{s.accel[0]:.5f},{s.accel[1]:.5f},{s.accel[2]:.5f},{temp},"
                   f"{q[0]:.6f},{q[1]:.6f},{q[2]:.6f},{q[3]:.6f},"
-                  f"{rpy[0]:.3f},{rpy[1]:.3f},{rpy[2]:.3f}", file=sink)
+                  f"{rpy[0]:.6f},{rpy[1]:.6f},{rpy[2]:.6f}", file=sink)
             written += 1
             if args.count is not None and written >= args.count:
                 break

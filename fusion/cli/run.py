@@ -10,14 +10,20 @@ Sources: ``--imu i2c:N`` (an MPU6050 on /dev/i2c-N, read through its FIFO), ``si
 simulated chip, moving with the simulated chassis) or ``none``; ``--chassis`` a serial port
 (device path, ``socket://host:port``, anything pyserial's ``serial_for_url`` opens), ``sim``
 (the simulated STM32 firmware on a pseudo-terminal) or ``none``. Sinks (``--publish``, comma
-separated): ``jsonl[:PATH]``, ``mcap:PATH``, ``rosbag2:PATH``, ``foxglove[:HOST:PORT]``,
-``ros1`` (seed 000's node: /odom, /tf, /imu/data, wheel speeds; /cmd_vel drives the wheels).
+separated): ``jsonl[:PATH]``, ``csv:PATH``, ``mcap:PATH``, ``rosbag2:PATH``,
+``foxglove[:HOST:PORT]``, ``ros1`` (seed 000's node: /odom, /tf, /imu/data, wheel speeds;
+/cmd_vel drives the wheels), ``ros2`` (the same topics for ROS 2 over DDS, domain
+``ROS_DOMAIN_ID``; /cmd_vel drives the wheels). The ``jsonl``, ``csv`` and ``mcap`` files are
+recorded live: they grow in place and are synced to the disk every second, so a crash or a power
+cut loses at most the last second (an MCAP file then lacks its summary section; ``fusion replay``
+and :func:`fusion.io.bags.read_bag` read it up to its last complete chunk). A ``rosbag2`` folder
+appears only when the run stops cleanly.
 A Foxglove client's geometry_msgs/Twist on /cmd_vel (the Teleop panel) drives the wheels too.
 
 Every option can come from the ``--config`` file (:mod:`fusion.io.run_config`, see
 :data:`fusion.io.run_config.RUN_OPTIONS`); an option on the command line wins. With ``sim`` for the
 chassis the robot drives ``fusion demo``'s mission in a loop (or follows /cmd_vel with
-``ros1``; with ``foxglove`` until the first /cmd_vel from a client). Runs until Ctrl-C
+``ros1`` or ``ros2``; with ``foxglove`` until the first /cmd_vel from a client). Runs until Ctrl-C
 (or SIGTERM, or ``--duration``): the sources stop, the sinks are closed, and the files are
 complete. Status lines go to standard error.
 """
@@ -43,13 +49,14 @@ def register(subparsers: Any) -> None:
     p = subparsers.add_parser(
         "run",
         help="live fused odometry from the IMU and the chassis, published to ROS 1, "
-             "Foxglove, MCAP or JSON lines",
+             "ROS 2, Foxglove, MCAP or JSON lines",
         description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Mahony + EKF -> "
                     "sinks. Every option can come from --config (TOML, see fusion.io.run_config); "
                     "the command line wins. Ctrl-C stops cleanly (files complete).",
     )
     p.add_argument("--config", type=Path, help="robot configuration file (TOML)")
-    p.add_argument("--imu", help="i2c:N (bus number), sim or none (default sim)")
+    p.add_argument("--imu", help="i2c:N (bus number), sim or none (default: sim with "
+                                 "--chassis sim, else none)")
     p.add_argument("--address", type=lambda s: int(s, 0), help="MPU6050 address (0x68)")
     p.add_argument("--rate", type=float, metavar="HZ", help="IMU sample rate (default 100)")
     p.add_argument("--calibration", help="IMU calibration JSON (fusion imu-calibrate)")
@@ -58,8 +65,10 @@ def register(subparsers: Any) -> None:
                         "(default sim)")
     p.add_argument("--baudrate", type=int, help="chassis baud rate (115200)")
     p.add_argument("--publish", metavar="SINKS",
-                   help="comma-separated sinks: ros1, foxglove[:HOST:PORT], mcap:PATH, "
-                        "rosbag2:PATH, jsonl[:PATH] (default jsonl on stdout)")
+                   help="comma-separated sinks: ros1, ros2, foxglove[:HOST:PORT], mcap:PATH, "
+                        "rosbag2:PATH, jsonl[:PATH], csv:PATH (default jsonl on stdout); "
+                        "jsonl, csv and mcap files are synced every second (a crash loses "
+                        "at most the last second)")
     p.add_argument("--publish-rate", type=float, metavar="HZ",
                    help="records per second (0: one per wheel frame, the default)")
     p.add_argument("--duration", type=float, metavar="S",
@@ -100,8 +109,17 @@ def _config(args: argparse.Namespace):
         _imu_source(cfg.imu)
     except ValueError as exc:
         raise CommandError(f"--imu {exc}") from None
+    if cfg.imu == "sim" and cfg.chassis != "sim" and args.imu is None:
+        # the default IMU is the simulated one, which moves with the simulated chassis only
+        from dataclasses import replace
+
+        cfg = replace(cfg, imu="none")
+        if cfg.chassis != "none":
+            print(f"fusion run: no --imu given: fusing the wheel odometry of {cfg.chassis} "
+                  "alone (give --imu i2c:N for an MPU6050 on /dev/i2c-N)", file=sys.stderr)
     if cfg.imu == "none" and cfg.chassis == "none":
-        raise CommandError("nothing to fuse: --imu and --chassis are both none")
+        raise CommandError("nothing to fuse: --imu and --chassis are both none (the "
+                           "simulated IMU needs --chassis sim)")
     if cfg.chassis not in ("sim", "none") and args.config is None:
         raise CommandError(f"--chassis {cfg.chassis} is a real robot: give --config "
                            "robot.toml with its [chassis] table (wheel_distance, speed_ratio, "
@@ -129,8 +147,8 @@ def _sinks_for(cfg, cmd_vel) -> list:
                                   frame_id=cfg.robot.odom_frame,
                                   child_frame_id=cfg.robot.base_frame))
         else:
-            sink = open_sink(spec, topics=topics)
-            if kind == "foxglove":  # the Teleop panel's /cmd_vel drives the robot like ROS's
+            sink = open_sink(spec, topics=topics, live=True)  # files survive a crash
+            if kind in ("foxglove", "ros2"):  # their /cmd_vel drives the robot like ROS 1's
                 sink.cmd_vel_topic = cfg.cmd_vel_topic
                 sink.on_cmd_vel = cmd_vel
             sinks.append(sink)
@@ -150,6 +168,7 @@ def run(args: argparse.Namespace) -> int:
     from fusion.pipeline.live import LiveRunner
 
     cfg = _config(args)
+    _refuse_options_without_effect(args, cfg)
     if args.duration is not None and not args.duration > 0:
         raise CommandError(f"--duration must be > 0 s, got {args.duration}")
     if not 0.1 <= cfg.speed <= 20:
@@ -169,7 +188,7 @@ def run(args: argparse.Namespace) -> int:
     clock = ScaledClock(cfg.speed) if sim else time.monotonic
     link_holder: dict[str, Any] = {}
 
-    def on_cmd_vel(v: float, w: float) -> None:  # a rospy / Foxglove server thread
+    def on_cmd_vel(v: float, w: float) -> None:  # a rospy / DDS / Foxglove server thread
         link = link_holder.get("link")
         if link is not None:
             link_holder["external"] = True  # a client drives now: the mission stops
@@ -203,6 +222,8 @@ def run(args: argparse.Namespace) -> int:
         for sink in sinks:
             if hasattr(sink, "host") and hasattr(sink, "port"):
                 err(f"Foxglove server: connect to ws://{sink.host}:{sink.port}")
+            elif hasattr(sink, "domain_id"):
+                err(f"ROS 2 topics on DDS domain {sink.domain_id} (ROS_DOMAIN_ID)")
         if sim:
             robot = SimRobot(clock, SimRobotParams(), keep_truth=False)
         port = robot.port if sim else cfg.chassis
@@ -228,7 +249,7 @@ def run(args: argparse.Namespace) -> int:
             robot.start()
         runner = LiveRunner(pipe, link=link, imu=imu, fifo_interval=cfg.fifo_interval).start()
         t0 = clock()
-        drive = sim and not any(s.strip().lower() == "ros1" for s in cfg.publish)
+        drive = sim and not any(s.strip().lower() in ("ros1", "ros2") for s in cfg.publish)
         state = {"status": time.monotonic()}
         mission = LoopingMission(link, chassis, clock, t0)
 
@@ -269,6 +290,22 @@ def run(args: argparse.Namespace) -> int:
         gc.unfreeze()
     err(_status(pipe, runner) + f"; done after {time.monotonic() - wall0:.1f} s")
     return 0
+
+
+def _refuse_options_without_effect(args: argparse.Namespace, cfg) -> None:
+    """An option given for a source that does not use it is an error, not silently ignored."""
+    real_imu = cfg.imu.startswith("i2c:")
+    for given, applies, what in (
+            (args.address, real_imu, "--address applies to --imu i2c:N only (the simulated "
+                                     "chip answers at 0x68)"),
+            (args.baudrate, cfg.chassis not in ("sim", "none"),
+             "--baudrate applies to a real --chassis port only"),
+            (args.rate, cfg.imu != "none", "--rate sets the IMU sample rate: not with --imu "
+                                           "none"),
+            (args.calibration, cfg.imu != "none", "--calibration is an IMU calibration: not "
+                                                  "with --imu none")):
+        if given is not None and not applies:
+            raise CommandError(what)
 
 
 def _open_imu(cfg, robot, clock):

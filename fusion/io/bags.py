@@ -9,6 +9,10 @@ sensor_msgs/Imu, nav_msgs/Odometry, geometry_msgs/Twist and TwistStamped. Times 
 default each message's ``header.stamp`` (``stamps="header"``), or the time the bag recorded it
 (``stamps="bag"``, the only choice for Twist). Errors name the file and topic; a missing
 topic lists the topics present.
+
+An ``.mcap`` file without its summary section (a live recording whose writer was killed or lost
+power: :class:`fusion.sinks.bag.McapSink` ``live=True``) is read front to back up to its last
+complete record; :attr:`BagLog.note` says so.
 """
 
 from __future__ import annotations
@@ -36,6 +40,10 @@ __all__ = [
     "read_bag_odometry",
     "read_bag_twist",
 ]
+
+
+#: The first 8 bytes of every MCAP file.
+MCAP_MAGIC = b"\x89MCAP0\r\n"
 
 
 IMU_TYPES = ("sensor_msgs/Imu",)
@@ -135,14 +143,17 @@ class TwistLog:
 
 @dataclass
 class BagLog:
-    """What :func:`read_bag` read: one log per requested topic (None if not requested), and
-    ``topics``, every topic of the file as ``{topic: (type, message count)}``."""
+    """What :func:`read_bag` read: one log per requested topic (None if not requested),
+    ``topics``, every topic of the file as ``{topic: (type, message count)}``, and ``note``:
+    "" or, for an unfinished MCAP recording (a writer killed before it wrote the summary
+    section), what was read of it."""
 
     imu: BagImuLog | None
     odometry: OdometryLog | None
     twist: TwistLog | None
     topics: dict[str, tuple[str, int]]
     source: str
+    note: str = ""
 
 
 def _ros1_name(msgtype: str) -> str:
@@ -176,6 +187,8 @@ class _BagFile:
             raise FileNotFoundError(f"{path}: no such bag file or folder")
         self.is_mcap_file = path.is_file() and path.suffix.lower() == ".mcap"
         self.topics: dict[str, tuple[str, int]] = {}
+        self.note = ""  # what was recovered from an unfinished MCAP recording
+        self.truncated = False
 
     def __enter__(self) -> _BagFile:
         rosbags = _need_rosbags(self.path)
@@ -204,29 +217,37 @@ class _BagFile:
 
     def _open_mcap(self, rosbags: Any) -> None:
         try:
-            from mcap.exceptions import McapError
             from mcap.reader import make_reader
         except ImportError as exc:
             raise ImportError(
                 f"{self.path}: reading .mcap files needs mcap: pip install 'diffbot-fusion[ros]'"
             ) from exc
         typesys = rosbags.typesys
+        size = self.path.stat().st_size
         self._fh = self.path.open("rb")
+        magic = self._fh.read(len(MCAP_MAGIC))
+        if magic != MCAP_MAGIC:
+            self._fh.close()
+            why = ("the file is empty" if size == 0 else
+                   f"it does not start with the MCAP magic bytes {MCAP_MAGIC!r} (found "
+                   f"{magic!r}): not an MCAP file")
+            raise LogFormatError(f"{self.path}: not a readable MCAP file ({why})")
+        self._fh.seek(0)
         try:
             self._mcap = make_reader(self._fh)
             summary = self._mcap.get_summary()
-        except (McapError, ValueError, EOFError) as exc:
-            self._fh.close()
-            raise LogFormatError(f"{self.path}: not a readable MCAP file ({exc})") from exc
-        if summary is None:
-            self._fh.close()
-            raise LogFormatError(f"{self.path}: MCAP file without a summary section "
-                                 "(unfinished recording?); run `mcap recover` on it")
-        counts = summary.statistics.channel_message_counts if summary.statistics else {}
+        except Exception:  # mcap's errors, struct errors: no usable summary at the end
+            summary = None
+        self._streamed = summary is None
+        if summary is None:  # an unfinished recording (killed writer): read what is complete
+            schemas, channels, counts = self._scan_mcap(size)
+        else:
+            schemas, channels = summary.schemas, summary.channels
+            counts = summary.statistics.channel_message_counts if summary.statistics else {}
         self._ts = typesys.get_typestore(typesys.Stores.EMPTY)
         self._encoding: dict[str, tuple[str, str]] = {}
-        for ch in summary.channels.values():
-            schema = summary.schemas.get(ch.schema_id)
+        for ch in channels.values():
+            schema = schemas.get(ch.schema_id)
             if schema is None or schema.encoding not in ("ros2msg", "ros1msg"):
                 continue  # not a ROS message (protobuf, JSON...): not ours to read
             rostype = _ros2_name(schema.name)
@@ -241,10 +262,56 @@ class _BagFile:
             old = self.topics.get(ch.topic, (name, 0))
             self.topics[ch.topic] = (name, old[1] + counts.get(ch.id, 0))
 
+    def _stream_mcap(self) -> Iterator[tuple[Any, Any, Any]]:
+        """``(schema, channel, message)`` read front to back, up to the last complete record
+        (no summary needed); sets ``self.truncated`` when the file ends inside a record."""
+        from mcap.reader import NonSeekingReader
+
+        self._fh.seek(0)
+        try:
+            yield from NonSeekingReader(self._fh).iter_messages(log_time_order=False)
+        except Exception:  # EndOfFile, struct.error, a cut chunk: which one depends on the cut
+            if self._fh.tell() < self.path.stat().st_size:
+                raise  # it failed before the end: a corrupt record, not a cut one
+            self.truncated = True
+
+    def _scan_mcap(self, size: int) -> tuple[dict, dict, dict[int, int]]:
+        """Schemas, channels and message counts of an MCAP file without a summary section."""
+        schemas: dict[int, Any] = {}
+        channels: dict[int, Any] = {}
+        counts: dict[int, int] = {}
+        try:
+            for schema, channel, _msg in self._stream_mcap():
+                if schema is not None:
+                    schemas[schema.id] = schema
+                channels[channel.id] = channel
+                counts[channel.id] = counts.get(channel.id, 0) + 1
+        except Exception as exc:  # a corrupt record (not merely a missing end)
+            self._fh.close()
+            raise LogFormatError(f"{self.path}: not a readable MCAP file (no summary section, "
+                                 f"and reading it from the start failed: {exc!r})") from exc
+        n = sum(counts.values())
+        if self.truncated:
+            self.note = (f"{self.path}: unfinished MCAP recording ({size} bytes, no summary "
+                         f"section: its writer was stopped abruptly); read the {n} complete "
+                         "messages, up to the last complete chunk (`mcap recover` rewrites it "
+                         "as a complete file)")
+        if not n:
+            self._fh.close()
+            raise LogFormatError(f"{self.path}: not a readable MCAP file (no summary section "
+                                 "and no complete message: an unfinished recording stopped "
+                                 "before its first sync?)")
+        return schemas, channels, counts
+
     def messages(self, topics: Sequence[str]) -> Iterator[tuple[str, int, Any]]:
         """``(topic, bag time ns, message)`` of the given topics, in the bag's record order."""
         if self.is_mcap_file:
-            for _schema, ch, msg in self._mcap.iter_messages(topics=list(topics)):
+            wanted = set(topics)
+            if self._streamed:
+                source = (m for m in self._stream_mcap() if m[1].topic in wanted)
+            else:
+                source = self._mcap.iter_messages(topics=list(topics))
+            for _schema, ch, msg in source:
                 encoding, rostype = self._encoding[ch.topic]
                 if encoding == "cdr":
                     obj = self._ts.deserialize_cdr(msg.data, rostype)
@@ -407,12 +474,12 @@ def read_bag(
         except Exception as exc:  # a truncated chunk, a message that does not decode
             raise LogFormatError(
                 f"{path}: reading {', '.join(collectors)} failed: {exc!r}") from exc
-        topics = dict(bag.topics)
+        topics, note = dict(bag.topics), bag.note
     return BagLog(
         imu=_imu_log(collectors.get(imu_topic)) if imu_topic else None,
         odometry=_odometry_log(collectors.get(odom_topic)) if odom_topic else None,
         twist=_twist_log(collectors.get(twist_topic)) if twist_topic else None,
-        topics=topics, source=str(path),
+        topics=topics, source=str(path), note=note,
     )
 
 

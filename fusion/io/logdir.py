@@ -6,7 +6,9 @@ A directory holding (format documented in ``datasets/LOGDIR.md``):
   the body frame x forward, y left, z up unless ``robot.toml`` gives a mount rotation). Read by
   :func:`fusion.io.imu_csv.read_imu_csv`.
 - ``wheels.csv``: ``t,left,right``: host time stamp (s) of the end of each firmware period and
-  the signed encoder ticks counted in that period (integers, as on the DATA-uart2 wire).
+  the signed encoder ticks counted in that period (integers, as on the DATA-uart2 wire); or,
+  instead, ``wheels.uart2``: a DATA-uart2 capture (:func:`fusion.io.uart2.read_uart2_capture`,
+  timed or raw), stamped as the live link stamps.
 - ``truth.csv`` (optional): ``t,x,y,yaw`` ground truth of base_footprint in odom (s, m, m,
   rad).
 - ``robot.toml``: ``[chassis]`` with seed 000's names (``wheel_distance`` m, ``speed_ratio``
@@ -36,6 +38,7 @@ from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import read_imu_csv
 from fusion.io.robot_toml import read_robot_toml, write_robot_toml
+from fusion.io.uart2 import read_uart2_capture
 from fusion.planar.robot import RobotConfig
 from fusion.types.constants import TICKS_MAX
 
@@ -64,6 +67,10 @@ class LogDir:
             magnetometer columns).
         wheel_t, ticks: wheel frame stamps (s) and (M, 2) int64 ticks, or None.
         truth_t, truth: ground truth stamps (s) and (K, 3) ``x, y, yaw``, or None.
+        imu_frame: ``"base"`` (vectors rotated by ``imu_mount_rpy``) or ``"imu"`` (as
+            recorded).
+        capture_stats: the DATA-uart2 parser's counters when the wheel frames came from
+            ``wheels.uart2``, else None.
     """
 
     path: Path
@@ -76,6 +83,8 @@ class LogDir:
     ticks: NDArray[np.int64] | None = None
     truth_t: NDArray[np.float64] | None = None
     truth: NDArray[np.float64] | None = None
+    imu_frame: str = "base"
+    capture_stats: dict[str, int] | None = None
 
     @property
     def time_span(self) -> tuple[float, float]:
@@ -154,14 +163,22 @@ def read_truth_csv(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.fl
     return data[:, 0].copy(), np.ascontiguousarray(data[:, 1:])
 
 
-def read_logdir(path: str | Path) -> LogDir:
-    """Read a log directory (see the module docstring).
+def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True) -> LogDir:
+    """Read a log directory (see the module docstring): the one loader of the project.
+
+    Args:
+        path: the directory.
+        imu_frame: ``"base"``: IMU vectors rotated into the base frame by ``imu_mount_rpy``;
+            ``"imu"``: as recorded (the pipeline applies the mount itself).
+        truth: read ``truth.csv`` when present.
 
     Raises:
         FileNotFoundError: the directory or ``robot.toml`` is missing.
-        LogFormatError: a file does not match its format, or neither ``imu.csv`` nor
-            ``wheels.csv`` exists.
+        LogFormatError: a file does not match its format, or there is no ``imu.csv``,
+            ``wheels.csv`` or ``wheels.uart2``.
     """
+    if imu_frame not in ("base", "imu"):
+        raise ValueError(f"imu_frame must be 'base' or 'imu', got {imu_frame!r}")
     path = Path(path)
     if not path.is_dir():
         raise FileNotFoundError(f"{path}: not a directory (expected a log directory with "
@@ -171,19 +188,27 @@ def read_logdir(path: str | Path) -> LogDir:
         raise FileNotFoundError(f"{toml_path}: missing; a log directory needs robot.toml "
                                 "with a [chassis] table")
     robot = read_robot_toml(toml_path)
-    log = LogDir(path=path, robot=robot)
+    log = LogDir(path=path, robot=robot, imu_frame=imu_frame)
     if (path / "imu.csv").is_file():
         imu = read_imu_csv(path / "imu.csv")
-        R = mount_matrix(robot.imu_mount_rpy)
-        log.imu_t = imu.t
-        log.gyro = imu_to_base(R, imu.gyro) if imu.gyro.size else imu.gyro
-        log.accel = imu_to_base(R, imu.accel) if imu.accel.size else imu.accel
-        log.mag = imu_to_base(R, imu.mag) if imu.mag is not None and imu.mag.size else imu.mag
+        log.imu_t, log.gyro, log.accel, log.mag = imu.t, imu.gyro, imu.accel, imu.mag
+        if imu_frame == "base":
+            R = mount_matrix(robot.imu_mount_rpy)
+            log.gyro = imu_to_base(R, imu.gyro) if imu.gyro.size else imu.gyro
+            log.accel = imu_to_base(R, imu.accel) if imu.accel.size else imu.accel
+            if imu.mag is not None and imu.mag.size:
+                log.mag = imu_to_base(R, imu.mag)
     if (path / "wheels.csv").is_file():
         log.wheel_t, log.ticks = read_wheels_csv(path / "wheels.csv")
+    elif (path / "wheels.uart2").is_file():
+        period = robot.chassis.encode_sampling_time
+        cap = read_uart2_capture(path / "wheels.uart2", period=period)
+        log.wheel_t = np.asarray(cap.frame_times(period), dtype=np.float64)
+        log.ticks = np.column_stack([cap.left, cap.right]).astype(np.int64).reshape(-1, 2)
+        log.capture_stats = cap.stats
     if log.imu_t is None and log.wheel_t is None:
-        raise LogFormatError(f"{path}: neither imu.csv nor wheels.csv found")
-    if (path / "truth.csv").is_file():
+        raise LogFormatError(f"{path}: no imu.csv, wheels.csv or wheels.uart2 found")
+    if truth and (path / "truth.csv").is_file():
         log.truth_t, log.truth = read_truth_csv(path / "truth.csv")
     return log
 

@@ -5,10 +5,13 @@
 from __future__ import annotations
 
 import math
+import re
 import sys
 from dataclasses import fields
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.atomic import atomic_write
@@ -21,7 +24,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
-__all__ = ["read_robot_toml", "robot_config_from_tables", "write_robot_toml"]
+__all__ = ["key_line", "read_robot_toml", "robot_config_from_tables", "where", "write_robot_toml"]
 
 
 _CHASSIS_KEYS = {f.name for f in fields(DiffDriveParams)}
@@ -33,9 +36,35 @@ _FRAME_KEYS = {"odom", "base", "imu_mount_rpy"}
 _EKF_KEYS = {f.name for f in fields(EkfNoise)}
 
 
-def _number(path: Path, table: str, key: str, value: Any) -> float:
+def key_line(text: str, table: str, key: str | None) -> int | None:
+    """1-based line of ``key`` in ``[table]`` of the TOML ``text`` (or of the table header
+    when ``key`` is None or not found), or None."""
+    current = None
+    header = None
+    for n, raw in enumerate(text.splitlines(), start=1):
+        line = raw.split("#", 1)[0].strip()
+        m = re.fullmatch(r"\[\s*([A-Za-z0-9_.-]+)\s*\]", line)
+        if m:
+            current = m.group(1)
+            if current == table and header is None:
+                header = n
+            continue
+        if current == table and key is not None:
+            m = re.match(r"([A-Za-z0-9_-]+|\"[^\"]*\")\s*=", line)
+            if m and m.group(1).strip('"') == key:
+                return n
+    return header
+
+
+def where(path: Path, text: str, table: str, key: str | None = None) -> str:
+    """``path:line`` of ``key`` in ``[table]`` (just ``path`` when the line is unknown)."""
+    line = key_line(text, table, key)
+    return f"{path}:{line}" if line is not None else str(path)
+
+
+def _number(at: str, table: str, key: str, value: Any) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise LogFormatError(f"{path}: [{table}] {key} must be a number, got {value!r}")
+        raise LogFormatError(f"{at}: [{table}] {key} must be a number, got {value!r}")
     return float(value)
 
 
@@ -48,66 +77,82 @@ def read_robot_toml(path: str | Path) -> RobotConfig:
     """
     path = Path(path)
     try:
-        with path.open("rb") as fh:
-            doc = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
+        text = path.read_text(encoding="utf-8")
+        doc = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:  # its message has the line and column
         raise LogFormatError(f"{path}: invalid TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise LogFormatError(f"{path}: not UTF-8 text ({exc})") from None
     unknown = set(doc) - {"chassis", "frames", "ekf"}
     if unknown:
-        raise LogFormatError(f"{path}: unknown table(s) {sorted(unknown)}; "
-                             "allowed: chassis, frames, ekf")
-    return robot_config_from_tables(path, doc)
+        first = sorted(unknown)[0]
+        raise LogFormatError(f"{where(path, text, first)}: unknown table(s) "
+                             f"{sorted(unknown)}; allowed: chassis, frames, ekf")
+    return robot_config_from_tables(path, doc, text)
 
 
-def robot_config_from_tables(path: str | Path, doc: dict[str, Any]) -> RobotConfig:
+def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
+                             text: str = "") -> RobotConfig:
     """:class:`RobotConfig` from the ``[chassis]``, ``[frames]`` and ``[ekf]`` tables of an
     already loaded TOML document (other tables are the caller's: :func:`read_robot_toml`
-    refuses them, :mod:`fusion.io.run_config` has its own). ``path`` names the file in errors.
+    refuses them, :mod:`fusion.io.run_config` has its own). ``path`` names the file in errors,
+    with the line of the key when the document's ``text`` is given.
 
     Raises:
         LogFormatError: as :func:`read_robot_toml`.
     """
     path = Path(path)
+
+    def at(table: str, key: str | None = None) -> str:
+        return where(path, text, table, key)
+
     chassis = doc.get("chassis")
     if not isinstance(chassis, dict):
         raise LogFormatError(f"{path}: missing [chassis] table (wheel_distance, speed_ratio, "
                              "encode_sampling_time)")
     bad = set(chassis) - _CHASSIS_KEYS
     if bad:
-        raise LogFormatError(f"{path}: [chassis] unknown key(s) {sorted(bad)}; "
-                             f"allowed: {sorted(_CHASSIS_KEYS)}")
+        raise LogFormatError(f"{at('chassis', sorted(bad)[0])}: [chassis] unknown key(s) "
+                             f"{sorted(bad)}; allowed: {sorted(_CHASSIS_KEYS)}")
     for key in ("wheel_distance", "speed_ratio", "encode_sampling_time"):
         if key not in chassis:
-            raise LogFormatError(f"{path}: [chassis] needs {key}")
-    values = {k: _number(path, "chassis", k, v) for k, v in chassis.items()}
+            raise LogFormatError(f"{at('chassis')}: [chassis] needs {key}")
+    values = {k: _number(at("chassis", k), "chassis", k, v) for k, v in chassis.items()}
     try:
         params = DiffDriveParams(**values)
     except ValueError as exc:
-        raise LogFormatError(f"{path}: [chassis] {exc}") from exc
+        named = next((k for k in chassis if k in str(exc)), None)
+        raise LogFormatError(f"{at('chassis', named)}: [chassis] {exc}") from exc
 
     frames = doc.get("frames", {})
     if not isinstance(frames, dict) or set(frames) - _FRAME_KEYS:
-        raise LogFormatError(f"{path}: [frames] allows only {sorted(_FRAME_KEYS)}")
+        bad_keys = sorted(set(frames) - _FRAME_KEYS) if isinstance(frames, dict) else [None]
+        raise LogFormatError(f"{at('frames', bad_keys[0])}: [frames] allows only "
+                             f"{sorted(_FRAME_KEYS)}")
     rpy = frames.get("imu_mount_rpy", [0.0, 0.0, 0.0])
     if not (isinstance(rpy, list) and len(rpy) == 3):
-        raise LogFormatError(f"{path}: [frames] imu_mount_rpy must be [roll, pitch, yaw] "
-                             f"in rad, got {rpy!r}")
-    rpy_t = tuple(_number(path, "frames", "imu_mount_rpy", v) for v in rpy)
+        raise LogFormatError(f"{at('frames', 'imu_mount_rpy')}: [frames] imu_mount_rpy must "
+                             f"be [roll, pitch, yaw] in rad, got {rpy!r}")
+    rpy_t = tuple(_number(at("frames", "imu_mount_rpy"), "frames", "imu_mount_rpy", v)
+                  for v in rpy)
     for key in ("odom", "base"):
         if key in frames and not isinstance(frames[key], str):
-            raise LogFormatError(f"{path}: [frames] {key} must be a string")
+            raise LogFormatError(f"{at('frames', key)}: [frames] {key} must be a string")
 
     ekf_tab = doc.get("ekf", {})
     if not isinstance(ekf_tab, dict) or set(ekf_tab) - _EKF_KEYS:
         bad = sorted(set(ekf_tab) - _EKF_KEYS) if isinstance(ekf_tab, dict) else ekf_tab
-        raise LogFormatError(f"{path}: [ekf] unknown key(s) {bad}; allowed: {sorted(_EKF_KEYS)}")
-    ekf_values = {k: _number(path, "ekf", k, v) for k, v in ekf_tab.items()}
+        first = bad[0] if isinstance(bad, list) and bad else None
+        raise LogFormatError(f"{at('ekf', first)}: [ekf] unknown key(s) {bad}; allowed: "
+                             f"{sorted(_EKF_KEYS)}")
+    ekf_values = {k: _number(at("ekf", k), "ekf", k, v) for k, v in ekf_tab.items()}
     if "zupt_frames" in ekf_values:
         ekf_values["zupt_frames"] = int(ekf_values["zupt_frames"])
     try:
         ekf = EkfNoise(**ekf_values)
     except ValueError as exc:
-        raise LogFormatError(f"{path}: [ekf] {exc}") from exc
+        named = next((k for k in ekf_tab if k in str(exc)), None)
+        raise LogFormatError(f"{at('ekf', named)}: [ekf] {exc}") from exc
     return RobotConfig(
         chassis=params,
         odom_frame=frames.get("odom", "odom"),
@@ -122,8 +167,13 @@ def _toml_value(v: Any) -> str:
         return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, float) and math.isinf(v):
-        return "inf" if v > 0 else "-inf"
+    if isinstance(v, (bool, np.bool_)):
+        return "true" if v else "false"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):  # numpy scalars as plain TOML numbers
+        v = float(v)
+        return ("inf" if v > 0 else "-inf") if math.isinf(v) else repr(v)
     return repr(v)
 
 
@@ -142,7 +192,7 @@ def write_robot_toml(path: str | Path, robot: RobotConfig | DiffDriveParams) -> 
         v = getattr(c, f.name)
         if isinstance(v, float) and math.isinf(v):
             continue
-        lines.append(f"{f.name} = {v!r}  # {units.get(f.name, '')}")
+        lines.append(f"{f.name} = {_toml_value(v)}  # {units.get(f.name, '')}")
     lines += ["", "[frames]", f"odom = {_toml_value(robot.odom_frame)}",
               f"base = {_toml_value(robot.base_frame)}",
               f"imu_mount_rpy = {_toml_value(list(robot.imu_mount_rpy))}  # rad, URDF rpy"]

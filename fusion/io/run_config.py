@@ -36,7 +36,8 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
     silence_periods = 5.0         # periods without a frame before the link reports silence
 
     [publish]
-    sinks = ["ros1"]              # jsonl[:PATH] mcap:PATH rosbag2:PATH foxglove[:HOST:PORT] ros1
+    sinks = ["ros1"]              # jsonl[:PATH] mcap:PATH rosbag2:PATH foxglove[:HOST:PORT]
+                                  # ros1 ros2
     rate_hz = 10.0                # records per second (seed 000: 10 Hz); 0 = every wheel frame
     reorder_window = 0.06         # s events are held to be put in time order (default: enough
                                   # for the IMU FIFO interval plus half a wheel period)
@@ -70,7 +71,7 @@ from typing import Any
 
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.errors import ConfigError, LogFormatError
-from fusion.io.robot_toml import robot_config_from_tables
+from fusion.io.robot_toml import robot_config_from_tables, where
 from fusion.io.sink_spec import parse_sink_spec
 from fusion.planar.robot import RobotConfig
 
@@ -115,7 +116,7 @@ class RunConfig:
         publish_rate_hz: records per second, None for one per wheel frame.
         reorder_window: s (None: the pipeline's default for the IMU FIFO interval).
         topics: topic names (odom, tf, imu, wheel_left, wheel_right; None leaves one out).
-        cmd_vel_topic: velocity command topic of the ROS 1 sink, or None.
+        cmd_vel_topic: velocity command topic of the ROS 1, ROS 2 and Foxglove sinks, or None.
         duration: s to run, None until stopped; speed: robot time per wall second
             (simulated chassis); status: s between status lines, 0 none.
         source: the file this came from, or None.
@@ -281,30 +282,6 @@ RUN_OPTIONS: dict[str, tuple[str, str]] = {
 }
 
 
-def _key_line(text: str, table: str, key: str | None) -> int | None:
-    """1-based line of ``key`` in ``[table]`` (or of the table header), or None."""
-    current = None
-    header = None
-    for n, raw in enumerate(text.splitlines(), start=1):
-        line = raw.split("#", 1)[0].strip()
-        m = re.fullmatch(r"\[\s*([A-Za-z0-9_.-]+)\s*\]", line)
-        if m:
-            current = m.group(1)
-            if current == table and header is None:
-                header = n
-            continue
-        if current == table and key is not None:
-            m = re.match(r"([A-Za-z0-9_-]+|\"[^\"]*\")\s*=", line)
-            if m and m.group(1).strip('"') == key:
-                return n
-    return header
-
-
-def _where(path: Path, text: str, table: str, key: str | None = None) -> str:
-    line = _key_line(text, table, key)
-    return f"{path}:{line}" if line is not None else str(path)
-
-
 def parse_config(doc: dict[str, Any], path: str | Path = "<config>", text: str = "") -> RunConfig:
     """A :class:`RunConfig` from a loaded TOML document (``text`` locates lines in errors).
 
@@ -315,30 +292,20 @@ def parse_config(doc: dict[str, Any], path: str | Path = "<config>", text: str =
     known = set(SCHEMA) | set(_ROBOT_TABLES)
     for table in doc:
         if table not in known:
-            raise ConfigError(f"{_where(path, text, table)}: unknown table [{table}]; "
+            raise ConfigError(f"{where(path, text, table)}: unknown table [{table}]; "
                               f"allowed: {', '.join(sorted(known))}")
         if not isinstance(doc[table], dict):
             raise ConfigError(f"{path}: {table} must be a table [{table}], got {doc[table]!r}")
     robot_doc = {t: doc[t] for t in _ROBOT_TABLES if t in doc}
     if robot_doc:
         if "chassis" not in robot_doc:
-            raise ConfigError(f"{_where(path, text, next(iter(robot_doc)))}: [frames]/[ekf] "
+            raise ConfigError(f"{where(path, text, next(iter(robot_doc)))}: [frames]/[ekf] "
                               "need a [chassis] table (wheel_distance, speed_ratio, "
                               "encode_sampling_time)")
         try:
-            robot = robot_config_from_tables(path, robot_doc)
+            robot = robot_config_from_tables(path, robot_doc, text)  # errors name the line
         except LogFormatError as exc:
-            msg = str(exc)
-            m = re.search(r"\[(\w+)\]", msg)
-            if m and msg.startswith(f"{path}: "):
-                table = m.group(1)
-                words = re.findall(r"\w+", msg[m.end():])
-                keys = set(robot_doc.get(table, {}))
-                key = next((w for w in words if w in keys), None)  # the first one named
-                line = _key_line(text, table, key)
-                if line is not None:
-                    msg = f"{path}:{line}:" + msg[len(str(path)) + 1:]
-            raise ConfigError(msg) from None
+            raise ConfigError(str(exc)) from None
     else:
         robot = RunConfig().robot
     values: dict[str, Any] = {"robot": robot, "source": path}
@@ -346,13 +313,13 @@ def parse_config(doc: dict[str, Any], path: str | Path = "<config>", text: str =
     for table, spec in SCHEMA.items():
         for key, value in doc.get(table, {}).items():
             if key not in spec:
-                raise ConfigError(f"{_where(path, text, table, key)}: [{table}] unknown key "
+                raise ConfigError(f"{where(path, text, table, key)}: [{table}] unknown key "
                                   f"{key!r}; allowed: {', '.join(sorted(spec))}")
             name, check = spec[key]
             try:
                 checked = check(value)
             except ValueError as exc:
-                raise ConfigError(f"{_where(path, text, table, key)}: [{table}] {key} "
+                raise ConfigError(f"{where(path, text, table, key)}: [{table}] {key} "
                                   f"{exc}") from None
             if name.startswith("topics."):
                 topics[name[7:]] = checked
@@ -363,7 +330,7 @@ def parse_config(doc: dict[str, Any], path: str | Path = "<config>", text: str =
         values["imu_calibration"] = str(cal if cal.is_absolute() else path.parent / cal)
     names = [t for t in topics.values() if t is not None]
     if len(set(names)) != len(names):
-        raise ConfigError(f"{_where(path, text, 'topics')}: [topics] names must be distinct, "
+        raise ConfigError(f"{where(path, text, 'topics')}: [topics] names must be distinct, "
                           f"got {names}")
     values["topics"] = topics
     return RunConfig(**values)

@@ -1,5 +1,5 @@
 """The text form of a sink: ``jsonl[:PATH]``, ``csv:PATH``, ``mcap:PATH``, ``rosbag2:PATH``,
-``foxglove[:HOST:PORT]``, ``ros1``.
+``foxglove[:HOST:PORT]``, ``ros1``, ``ros2``.
 
 Parsed and checked here, without importing any sink, so the run configuration
 (:mod:`fusion.io.run_config`) can reject a bad spec with its file and line;
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 __all__ = ["SINK_KINDS", "SinkSpec", "parse_sink_spec"]
 
 #: The sink kinds a spec can name.
-SINK_KINDS = ("jsonl", "csv", "mcap", "rosbag2", "foxglove", "ros1")
+SINK_KINDS = ("jsonl", "csv", "mcap", "rosbag2", "foxglove", "ros1", "ros2")
 
 
 @dataclass(frozen=True)
@@ -23,7 +23,7 @@ class SinkSpec:
     Attributes:
         kind: one of :data:`SINK_KINDS`.
         path: the output file or bag folder (``jsonl``: None for stdout; ``csv``, ``mcap``,
-            ``rosbag2``: always set; ``foxglove``, ``ros1``: None).
+            ``rosbag2``: always set; ``foxglove``, ``ros1``, ``ros2``: None).
         host: ``foxglove``: the interface the server listens on.
         port: ``foxglove``: TCP port 0..65535 (0: any free port).
     """
@@ -39,7 +39,7 @@ def parse_sink_spec(spec: str) -> SinkSpec:
 
     Raises:
         ValueError: an unknown kind, a missing path, a bad Foxglove port, or an argument to
-            ``ros1``; the message quotes the spec.
+            ``ros1`` or ``ros2``; the message quotes the spec.
     """
     kind, _, arg = spec.partition(":")
     kind = kind.strip().lower()
@@ -61,11 +61,12 @@ def parse_sink_spec(spec: str) -> SinkSpec:
         except ValueError as exc:
             raise ValueError(f"sink {spec!r}: want foxglove[:HOST]:PORT ({exc})") from None
         return SinkSpec(kind, host=host or "127.0.0.1", port=number)
-    if kind == "ros1":
+    if kind in ("ros1", "ros2"):
         if arg:
-            raise ValueError(f"sink {spec!r}: ros1 takes no argument (use the config file)")
+            where = "the config file" if kind == "ros1" else "ROS_DOMAIN_ID and CYCLONEDDS_URI"
+            raise ValueError(f"sink {spec!r}: {kind} takes no argument (use {where})")
         return SinkSpec(kind)
     raise ValueError(
         f"unknown sink {spec!r}: want jsonl[:PATH], csv:PATH, mcap:PATH, rosbag2:PATH, "
-        "foxglove[:HOST:PORT] or ros1"
+        "foxglove[:HOST:PORT], ros1 or ros2"
     )

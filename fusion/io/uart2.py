@@ -49,6 +49,14 @@ class Uart2Capture:
     def __len__(self) -> int:
         return len(self.left)
 
+    def frame_times(self, period: float, t0: float = 0.0) -> NDArray[np.float64]:
+        """Each frame's stamp, s: the recorded host time of a timed capture; for a raw capture
+        (no clock) frame k (0-based, stream order) gets ``t0 + (k + 1) * period`` (``period``
+        s, the firmware's ``encode_sampling_time``; dropped frames cannot be seen)."""
+        if self.t is not None:
+            return self.t
+        return t0 + (np.arange(len(self)) + 1) * period
+
     def wheel_ticks(self) -> list[Any]:
         """The frames as :class:`fusion.types.samples.WheelTicks` (timed captures only)."""
         from fusion.types.samples import WheelTicks

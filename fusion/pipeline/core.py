@@ -50,7 +50,6 @@ stamped as the live link stamps), :func:`imu_csv_events`. Live sources are
 from __future__ import annotations
 
 import collections
-import heapq
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -61,9 +60,11 @@ from numpy.typing import NDArray
 
 from fusion.attitude.mahony import Mahony
 from fusion.geometry import quaternion as quat
+from fusion.geometry.mount import imu_to_base, vertical_rate
+from fusion.pipeline import _event_core as ev_core
 from fusion.pipeline.records import _fast_record, _record_fields
 from fusion.planar import _ekf_core as core
-from fusion.planar.ekf import PlanarEKF, ReorderBuffer
+from fusion.planar.ekf import PlanarEKF
 from fusion.planar.robot import RobotConfig
 from fusion.types.fused import FusedOdometry
 from fusion.types.samples import ImuSample, WheelTicks
@@ -72,15 +73,15 @@ __all__ = ["FusionPipeline", "PipelineStats", "WheelGap"]
 
 
 _EV_GYRO = core.EV_GYRO
-
-
 _EV_WHEELS = core.EV_WHEELS
-
-
 _EV_TWIST = core.EV_TWIST
-
-
+#: Watermark sources, in the order of :func:`fusion.pipeline._event_core.source_of`.
 _SOURCES = ("imu", "wheels", "twist")
+#: Kinds whose state rows :attr:`FusionPipeline.state_rows` can keep.
+TRACE_KINDS = {"imu": _EV_GYRO, "wheels": _EV_WHEELS, "twist": _EV_TWIST}
+#: Events per call of the compiled core in :meth:`FusionPipeline.push_arrays` (bounds the
+#: memory of its outputs and sets how often ``on_progress`` is called).
+BATCH_CHUNK = 1 << 16
 
 
 @dataclass(frozen=True)
@@ -169,9 +170,20 @@ class FusionPipeline:
         gap_periods: a wheel-frame interval longer than this many periods is a gap.
         on_record: ``callback(record)`` after each record is written to the sinks.
         latency_window: latencies kept (the newest) for :meth:`latency_percentiles`.
+        state_rows: event kinds (``"imu"``, ``"wheels"``, ``"twist"``) after which the EKF
+            state is kept for :attr:`state_rows` (the replay CSV: after every IMU sample).
+        on_progress: ``callback(t)`` with the filter's effective time (s) after each chunk of
+            :data:`BATCH_CHUNK` events of :meth:`push_arrays` (progress bars).
+
+    One path for every input: :meth:`push` (and :meth:`push_imu`, :meth:`push_wheels`,
+    :meth:`push_twist`) hand one event, :meth:`push_arrays` whole streams, to the same
+    array code (order checks, mount rotation, the attitude filter's batch step, the vertical
+    rate, gap detection), and then to one compiled function,
+    :func:`fusion.pipeline._event_core.run_events`, that orders, fuses and decides the
+    records event by event. Both entry points therefore give the same records bit for bit.
 
     The pipeline is not thread safe: feed it from one thread (live sources put their events
-    on a queue, see ``fusion/cli/run.py``).
+    on a queue, see :mod:`fusion.pipeline.live`).
     """
 
     def __init__(
@@ -189,6 +201,8 @@ class FusionPipeline:
         gap_periods: float = 2.5,
         on_record: Callable[[FusedOdometry], None] | None = None,
         latency_window: int = 100_000,
+        state_rows: Sequence[str] = (),
+        on_progress: Callable[[float], None] | None = None,
     ) -> None:
         if publish_rate_hz is not None and not (
             math.isfinite(publish_rate_hz) and publish_rate_hz > 0
@@ -206,6 +220,13 @@ class FusionPipeline:
         if not (math.isfinite(reorder_window) and reorder_window >= 0):
             raise ValueError(f"reorder_window must be >= 0 s, got {reorder_window!r}")
         self.reorder_window = float(reorder_window)
+        bad = set(sources) - set(_SOURCES)
+        if bad or not sources:
+            raise ValueError(f"sources must be some of {list(_SOURCES)}, got {list(sources)}")
+        bad = set(state_rows) - set(TRACE_KINDS)
+        if bad:
+            raise ValueError(f"state_rows must be some of {list(TRACE_KINDS)}, got "
+                             f"{list(state_rows)}")
         self.sinks = list(sinks)
         self.publish_rate_hz = publish_rate_hz
         self.tilt = bool(tilt)
@@ -213,27 +234,31 @@ class FusionPipeline:
         self.mahony = mahony if mahony is not None else Mahony(axes=6,
                                                                sample_period=1.0 / imu_rate_hz)
         self._mount = _matrix_or_none(robot.imu_to_base())
-        self._buffer = _WatermarkBuffer(self.reorder_window)
-        bad = set(sources) - set(_SOURCES)
-        if bad or not sources:
-            raise ValueError(f"sources must be some of {list(_SOURCES)}, got {list(sources)}")
-        self._marks = {name: -math.inf for name in sources}
-        self._watermark = -math.inf
+        self._sched = ev_core.new_sched(*(name in sources for name in _SOURCES))
+        self._heap_f = np.empty((256, 4))
+        self._heap_i = np.empty((256, 3), dtype=np.int64)
+        self._pub = np.empty((256, ev_core.PUB_WIDTH))  # output rows of one core call
+        self._trace = np.empty((256 if state_rows else 0, ev_core.TRACE_WIDTH))
+        self._rate = 0.0 if publish_rate_hz is None else float(publish_rate_hz)
+        self._trace_mask = sum(1 << TRACE_KINDS[name] for name in set(state_rows))
+        self._trace_chunks: list[NDArray[np.float64]] = []
         self._clock = clock
         self._gap_periods = float(gap_periods)
         self._on_record = on_record
+        self._on_progress = on_progress
         self.stats = PipelineStats()
         self.latencies: collections.deque[float] = collections.deque(maxlen=latency_window)
         self._last_imu_t = -math.inf
-        self._last_wheel_t: float | None = None
+        self._last_wheel_t = -math.inf
         self._last_twist_t = -math.inf
-        self._q: NDArray[np.float64] | None = None  # attitude of the last fused IMU sample
-        self._gyro = None
-        self._accel = None
-        self._wheel_speeds: tuple[float, float] | None = None
-        self._next_tick: float | None = None
+        # payloads of accepted events by ref (per source): the IMU's (attitude, base-frame
+        # gyro, accel) rows and the wheel frames' ticks, kept until superseded
+        self._imu_rows = _RowStore()
+        self._wheel_rows = _RowStore()
+        self._n_twists = 0
         self._state = "new"
         self._m_per_s = chassis.speed_ratio / self.period
+        self._wheel_shift = 0.5 * self.period  # a frame's effective time: stamp - this - latency
 
     # -- lifecycle --------------------------------------------------------------------------
     def open(self) -> FusionPipeline:
@@ -293,11 +318,13 @@ class FusionPipeline:
         else:
             self.abort()
 
+    def _check_open(self) -> None:
+        if self._state != "open":
+            raise RuntimeError("the pipeline is not open: call open() or use 'with'")
+
     # -- inputs -----------------------------------------------------------------------------
     def push(self, event: ImuSample | WheelTicks) -> None:
         """Feed one event (in arrival order); records are published as they become due."""
-        if self._state != "open":
-            raise RuntimeError("the pipeline is not open: call open() or use 'with'")
         if type(event) is WheelTicks:
             self.push_wheels(event)
         elif type(event) is ImuSample:
@@ -306,64 +333,24 @@ class FusionPipeline:
             raise TypeError(f"events are ImuSample or WheelTicks, got {type(event).__name__}")
 
     def push_imu(self, sample: ImuSample) -> None:
-        """One IMU sample: gyro rad/s and specific force m/s^2 in the IMU frame, stamp s."""
-        t = float(sample.t)
-        if not t > self._last_imu_t:
-            self.stats.imu_out_of_order += 1
-            return
-        R = self._mount
-        if R is None:
-            g = np.asarray(sample.gyro, dtype=np.float64).reshape(3)
-            a = np.asarray(sample.accel, dtype=np.float64).reshape(3)
-        else:  # written out so that push_arrays computes the very same floats
-            gx, gy, gz = np.asarray(sample.gyro, dtype=np.float64).reshape(3).tolist()
-            ax, ay, az = np.asarray(sample.accel, dtype=np.float64).reshape(3).tolist()
-            g = np.array([R[0][0] * gx + R[0][1] * gy + R[0][2] * gz,
-                          R[1][0] * gx + R[1][1] * gy + R[1][2] * gz,
-                          R[2][0] * gx + R[2][1] * gy + R[2][2] * gz])
-            a = np.array([R[0][0] * ax + R[0][1] * ay + R[0][2] * az,
-                          R[1][0] * ax + R[1][1] * ay + R[1][2] * az,
-                          R[2][0] * ax + R[2][1] * ay + R[2][2] * az])
-        self._last_imu_t = t
-        self.stats.imu_samples += 1
-        q = self.mahony.update(g, a, timestamp=t)
-        if self.tilt:
-            w, x, y, z = q.tolist()
-            gx, gy, gz = g.tolist()
-            n2 = w * w + x * x + y * y + z * z
-            r20 = 2.0 * (x * z - w * y) / n2
-            r21 = 2.0 * (y * z + w * x) / n2
-            r22 = 1.0 - 2.0 * (x * x + y * y) / n2
-            rate = r20 * gx + r21 * gy + r22 * gz
-        else:
-            rate = float(g[2])
-        self._buffer.push(t, (_EV_GYRO, t, rate, q, g, a))
-        if "imu" in self._marks:
-            self._marks["imu"] = t
-            self._watermark = min(self._marks.values())
-        self._release()
+        """One IMU sample: gyro rad/s and specific force m/s^2 in the IMU frame, stamp s.
+
+        Samples must increase in time: one that does not (or has a non-finite stamp) is
+        dropped and counted in :attr:`PipelineStats.imu_out_of_order`."""
+        self._check_open()
+        self._ingest(imu_t=np.array([sample.t], dtype=np.float64),
+                     gyro=np.asarray(sample.gyro, dtype=np.float64).reshape(1, 3),
+                     accel=np.asarray(sample.accel, dtype=np.float64).reshape(1, 3))
 
     def push_wheels(self, frame: WheelTicks) -> None:
-        """One DATA-uart2 frame: ticks counted in the period ending at ``frame.t`` (s)."""
-        t = float(frame.t)
-        last = self._last_wheel_t
-        if last is not None:
-            if not t > last:
-                self.stats.wheel_out_of_order += 1
-                return
-            if t - last > self._gap_periods * self.period:
-                missing = max(1, round((t - last) / self.period) - 1)
-                self.stats.gaps.append(WheelGap(last, t, missing))
-                self.stats.gap_count += 1
-                self.stats.frames_missing += missing
-        self._last_wheel_t = t
-        self.stats.wheel_frames += 1
-        t_eff = t - 0.5 * self.period - self.ekf.noise.wheel_latency
-        self._buffer.push(t_eff, (_EV_WHEELS, t, int(frame.left), int(frame.right)))
-        if "wheels" in self._marks:
-            self._marks["wheels"] = t_eff
-            self._watermark = min(self._marks.values())
-        self._release()
+        """One DATA-uart2 frame: ticks counted in the period ending at ``frame.t`` (s).
+
+        Frames must increase in time (else dropped and counted in
+        :attr:`PipelineStats.wheel_out_of_order`); a longer interval than ``gap_periods``
+        periods is recorded as a :class:`WheelGap`."""
+        self._check_open()
+        self._ingest(wheel_t=np.array([frame.t], dtype=np.float64),
+                     ticks=np.array([[int(frame.left), int(frame.right)]], dtype=np.int64))
 
     def push_twist(self, t: float, v: float, w: float) -> None:
         """One external wheel-odometry twist, e.g. a nav_msgs/Odometry message of a ROS bag:
@@ -379,94 +366,11 @@ class FusionPipeline:
         (like a wheel frame); the record's wheel speeds stay those of the last wheel frame
         (None without one): a twist carries no wheel speeds.
         """
-        if self._state != "open":
-            raise RuntimeError("the pipeline is not open: call open() or use 'with'")
-        t = float(t)
-        if not t > self._last_twist_t:
-            self.stats.twist_out_of_order += 1
-            return
-        self._last_twist_t = t
-        self.stats.twist_messages += 1
-        self._buffer.push(t, (_EV_TWIST, t, float(v), float(w)))
-        if "twist" in self._marks:
-            self._marks["twist"] = t
-            self._watermark = min(self._marks.values())
-        self._release()
+        self._check_open()
+        self._ingest(twist_t=np.array([t], dtype=np.float64),
+                     twist_v=np.array([v], dtype=np.float64),
+                     twist_w=np.array([w], dtype=np.float64))
 
-    def flush(self) -> None:
-        """Fuse every held event now (end of a replay, or before a pause)."""
-        for _t, ev in self._buffer.flush():
-            self._apply(ev)
-
-    # -- core -------------------------------------------------------------------------------
-    def _release(self) -> None:
-        buf = self._buffer
-        for _t, ev in buf.pop_through(self._watermark):
-            self._apply(ev)
-        for _t, ev in buf.pop_ready():
-            self._apply(ev)
-
-    def _apply(self, ev: tuple) -> None:
-        ekf = self.ekf
-        if ev[0] == _EV_GYRO:
-            _, t, rate, q, g, a = ev
-            ekf.update_gyro(t, rate)
-            self._q, self._gyro, self._accel = q, g, a
-            if self.publish_rate_hz is not None:
-                self._tick()
-            return
-        if ev[0] == _EV_TWIST:
-            _, t, v, w = ev
-            ekf.update_twist(t, v, w)
-        else:
-            _, t, left, right = ev
-            ekf.update_wheels(t, left, right)
-            self._wheel_speeds = (left * self._m_per_s, right * self._m_per_s)
-        if self.publish_rate_hz is None:
-            self._publish(t)
-        else:
-            self._tick()
-
-    def _tick(self) -> None:
-        t = self.ekf.t
-        if t is None:
-            return
-        if self._next_tick is None:
-            self._next_tick = t
-        if t >= self._next_tick:
-            self._publish(None)
-            rate = self.publish_rate_hz
-            self._next_tick = (math.floor(t * rate + 1e-9) + 1) / rate
-
-    def _publish(self, wheel_stamp: float | None) -> None:
-        if self._state != "open":
-            raise RuntimeError("the pipeline is not open: call open() or use 'with'")
-        rec = self.current_record()
-        for sink in self.sinks:
-            sink.write(rec)
-        self.stats.records += 1
-        if self._clock is not None and wheel_stamp is not None:
-            self.latencies.append(self._clock() - wheel_stamp)
-        if self._on_record is not None:
-            self._on_record(rec)
-
-    def current_record(self) -> FusedOdometry:
-        """The fused state now as a :class:`FusedOdometry` (frames from the config).
-
-        ``angular_velocity`` is the last base-frame gyro sample's x and y with the EKF's
-        yaw rate as z (so /odom's twist carries the fused rate); ``orientation`` the Mahony
-        attitude of that sample; wheel speeds are the last frame's rim speeds (m/s).
-        """
-        ekf = self.ekf
-        g = self._gyro
-        ws = self._wheel_speeds
-        return _fast_record(_record_fields(
-            ekf.t if ekf.t is not None else 0.0, ekf.x, ekf.P, self._q,
-            None if g is None else (float(g[0]), float(g[1])), self._accel,
-            ws, self.robot.odom_frame, self.robot.base_frame,
-        ))
-
-    # -- batch entry point --------------------------------------------------------------------
     def push_arrays(
         self,
         imu_t: NDArray[np.float64] | None = None,
@@ -477,157 +381,238 @@ class FusionPipeline:
         twist_t: NDArray[np.float64] | None = None,
         twist_v: NDArray[np.float64] | None = None,
         twist_w: NDArray[np.float64] | None = None,
+        *,
+        flush: bool = True,
     ) -> None:
-        """Whole recorded streams at once, then :meth:`flush` (for replay of long logs).
+        """Whole recorded streams at once (replay of long logs), then :meth:`flush` unless
+        ``flush=False``.
 
-        Exactly equivalent to pushing ``merge_by_time(imu_samples, wheel_frames, twists)``
-        one event at a time (:meth:`push_imu`, :meth:`push_wheels`, :meth:`push_twist`) into
-        this (fresh) pipeline and flushing: the same records, bit for bit
-        (tests/test_pipeline.py), computed with the Mahony filter's and the EKF's batch
-        entry points. The pipeline must not have received events before.
+        The events arrive in host time order (at equal stamps IMU, then wheels, then twists):
+        exactly equivalent to pushing ``merge_by_time(imu_samples, wheel_frames, twists)`` one
+        event at a time with :meth:`push_imu`, :meth:`push_wheels` and :meth:`push_twist`, the
+        same records bit for bit (the same code runs; tests/test_pipeline.py).
 
         Args:
             imu_t, gyro, accel: (N,) stamps s, (N, 3) rad/s and m/s^2 in the IMU frame.
             wheel_t, ticks: (M,) frame stamps s (end of period) and (M, 2) ticks per period.
             twist_t, twist_v, twist_w: (K,) external odometry twists (a nav_msgs/Odometry
                 twist): stamps s, forward speed m/s, yaw rate rad/s (see :meth:`push_twist`).
+            flush: fuse what the reorder buffer holds at the end (the end of a replay).
         """
-        if self._state != "open":
-            raise RuntimeError("the pipeline is not open: call open() or use 'with'")
-        if (self.stats.imu_samples or self.stats.wheel_frames or self.stats.twist_messages
-                or len(self._buffer)):
-            raise ValueError("push_arrays needs a pipeline that has received no events")
-        it = np.zeros(0) if imu_t is None else np.asarray(imu_t, dtype=np.float64).reshape(-1)
-        n_imu = it.size
-        G = np.asarray(gyro, dtype=np.float64).reshape(n_imu, 3) if n_imu else np.zeros((0, 3))
-        A = np.asarray(accel, dtype=np.float64).reshape(n_imu, 3) if n_imu else np.zeros((0, 3))
-        wt = np.zeros(0) if wheel_t is None else np.asarray(wheel_t, dtype=np.float64).reshape(-1)
-        TK = (np.zeros((0, 2), np.int64) if wt.size == 0
-              else np.asarray(ticks).reshape(wt.size, 2).astype(np.int64))
-        tt = np.zeros(0) if twist_t is None else np.asarray(twist_t, dtype=np.float64).reshape(-1)
-        TV = np.zeros(0) if twist_v is None else np.asarray(twist_v, dtype=np.float64).reshape(-1)
-        TW = np.zeros(0) if twist_w is None else np.asarray(twist_w, dtype=np.float64).reshape(-1)
-        if not TV.size == TW.size == tt.size:
-            raise ValueError(f"{tt.size} twist stamps but {TV.size} v and {TW.size} w values")
+        self._check_open()
+        it = _floats(imu_t)
+        n = it.size
+        wt = _floats(wheel_t)
+        tt = _floats(twist_t)
+        tv, tw = _floats(twist_v), _floats(twist_w)
+        if not tv.size == tw.size == tt.size:
+            raise ValueError(f"{tt.size} twist stamps but {tv.size} v and {tw.size} w values")
+        self._ingest(
+            imu_t=it,
+            gyro=np.asarray(gyro, dtype=np.float64).reshape(n, 3) if n else None,
+            accel=np.asarray(accel, dtype=np.float64).reshape(n, 3) if n else None,
+            wheel_t=wt,
+            ticks=np.asarray(ticks).reshape(wt.size, 2).astype(np.int64) if wt.size else None,
+            twist_t=tt,
+            twist_v=tv,
+            twist_w=tw,
+            flush=flush,
+        )
 
-        keep = _increasing(it)
-        self.stats.imu_out_of_order += int(n_imu - keep.sum())
-        it, G, A = it[keep], G[keep], A[keep]
-        R = self._mount
-        if R is not None and it.size:
-            G = _rotate_rows(R, G)
-            A = _rotate_rows(R, A)
-        if it.size:
-            Q = self.mahony.update_batch(G, A, timestamps=it)
-            if self.tilt:
-                w, x, y, z = Q[:, 0], Q[:, 1], Q[:, 2], Q[:, 3]
-                n2 = w * w + x * x + y * y + z * z
-                r20 = 2.0 * (x * z - w * y) / n2
-                r21 = 2.0 * (y * z + w * x) / n2
-                r22 = 1.0 - 2.0 * (x * x + y * y) / n2
-                rate = r20 * G[:, 0] + r21 * G[:, 1] + r22 * G[:, 2]
-            else:
-                rate = G[:, 2].copy()
-            self._last_imu_t = float(it[-1])
-        else:
-            Q = np.zeros((0, 4))
-            rate = np.zeros(0)
-        self.stats.imu_samples += int(it.size)
+    def flush(self) -> None:
+        """Fuse every held event now (end of a replay, or before a pause)."""
+        self._ingest(flush=True)
 
-        keep = _increasing(wt)
-        self.stats.wheel_out_of_order += int(wt.size - keep.sum())
-        wt, TK = wt[keep], TK[keep]
-        if wt.size:
-            dts = np.diff(wt)
-            for i in np.flatnonzero(dts > self._gap_periods * self.period).tolist():
-                missing = max(1, round(float(dts[i]) / self.period) - 1)
-                self.stats.gaps.append(WheelGap(float(wt[i]), float(wt[i + 1]), missing))
-                self.stats.gap_count += 1
-                self.stats.frames_missing += missing
-            self._last_wheel_t = float(wt[-1])
-        self.stats.wheel_frames += int(wt.size)
+    # -- the one path -----------------------------------------------------------------------
+    def _ingest(self, imu_t=None, gyro=None, accel=None, wheel_t=None, ticks=None,
+                twist_t=None, twist_v=None, twist_w=None, flush: bool = False) -> None:
+        """Events of each source in their arrival order -> the compiled event core."""
+        stats = self.stats
+        parts = []  # (stamp, kind, t_eff, a, b, ref) per source with events
+        if imu_t is not None and imu_t.size:
+            dropped, imu_t, (gyro, accel) = _in_order(imu_t, self._last_imu_t, gyro, accel)
+            stats.imu_out_of_order += dropped
+            if imu_t.size:
+                R = self._mount
+                if R is not None:
+                    gyro, accel = imu_to_base(R, gyro), imu_to_base(R, accel)
+                q = self._attitude(imu_t, gyro, accel)
+                rate = vertical_rate(gyro, q) if self.tilt else gyro[:, 2].copy()
+                self._last_imu_t = float(imu_t[-1])
+                stats.imu_samples += imu_t.size
+                ref0 = self._imu_rows.append(q, gyro, accel)
+                parts.append((imu_t, _EV_GYRO, imu_t, rate, np.zeros(imu_t.size),
+                              np.arange(ref0, ref0 + imu_t.size)))
+        if wheel_t is not None and wheel_t.size:
+            dropped, wheel_t, (ticks,) = _in_order(wheel_t, self._last_wheel_t, ticks)
+            stats.wheel_out_of_order += dropped
+            if wheel_t.size:
+                self._note_gaps(wheel_t)
+                self._last_wheel_t = float(wheel_t[-1])
+                stats.wheel_frames += wheel_t.size
+                ref0 = self._wheel_rows.append(ticks)
+                t_eff = wheel_t - self._wheel_shift - self.ekf.noise.wheel_latency
+                parts.append((wheel_t, _EV_WHEELS, t_eff, ticks[:, 0].astype(np.float64),
+                              ticks[:, 1].astype(np.float64),
+                              np.arange(ref0, ref0 + wheel_t.size)))
+        if twist_t is not None and twist_t.size:
+            dropped, twist_t, (twist_v, twist_w) = _in_order(twist_t, self._last_twist_t,
+                                                             twist_v, twist_w)
+            stats.twist_out_of_order += dropped
+            if twist_t.size:
+                self._last_twist_t = float(twist_t[-1])
+                stats.twist_messages += twist_t.size
+                ref0 = self._n_twists
+                self._n_twists += twist_t.size
+                parts.append((twist_t, _EV_TWIST, twist_t, twist_v, twist_w,
+                              np.arange(ref0, ref0 + twist_t.size)))
+        if not parts:
+            if flush:
+                self._run(*_NO_EVENTS, flush=True)
+            return
+        if len(parts) == 1:
+            stamp, kind, t_eff, a, b, refs = parts[0]
+            self._run(np.full(stamp.size, kind, dtype=np.int64), t_eff, a, b, stamp, refs,
+                      flush=flush)
+            return
+        # arrival order: host time, ties in source order (IMU, wheels, twist) as merge_by_time
+        stamp = np.concatenate([p[0] for p in parts])
+        order = np.argsort(stamp, kind="stable")
+        kinds = np.concatenate([np.full(p[0].size, p[1], dtype=np.int64) for p in parts])
+        self._run(kinds[order], *(np.concatenate([p[i] for p in parts])[order]
+                                  for i in (2, 3, 4)),
+                  stamp[order], np.concatenate([p[5] for p in parts])[order], flush=flush)
 
-        keep = _increasing(tt)
-        self.stats.twist_out_of_order += int(tt.size - keep.sum())
-        tt, TV, TW = tt[keep], TV[keep], TW[keep]
-        if tt.size:
-            self._last_twist_t = float(tt[-1])
-        self.stats.twist_messages += int(tt.size)
+    def _attitude(self, t: NDArray[np.float64], gyro: NDArray[np.float64],
+                  accel: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(N, 4) attitudes after each sample. One sample goes through the filter's streaming
+        call, which costs a fraction of a batch call's set-up; both run the same compiled step
+        and give the same bits (the attitude filters' contract, tests/test_mahony.py)."""
+        if t.size == 1:
+            return self.mahony.update(gyro[0], accel[0], timestamp=float(t[0]))[None, :]
+        return self.mahony.update_batch(gyro, accel, timestamps=t)
 
-        # arrival order (host time; at equal stamps IMU, then wheels, then twists, as
-        # merge_by_time with the streams in that order), then the reorder buffer's release
-        # order: by effective time, ties in arrival order
-        n_w = wt.size
-        stamp = np.concatenate([it, wt, tt])
-        kind = np.concatenate([np.full(it.size, _EV_GYRO, np.int64),
-                               np.full(n_w, _EV_WHEELS, np.int64),
-                               np.full(tt.size, _EV_TWIST, np.int64)])
-        src = np.concatenate([np.arange(it.size), np.arange(n_w), np.arange(tt.size)])
-        t_eff = np.concatenate([it, wt - 0.5 * self.period - self.ekf.noise.wheel_latency, tt])
-        arrival = np.argsort(stamp, kind="stable")
-        order = arrival[np.argsort(t_eff[arrival], kind="stable")]
-        kind, src, t_eff = kind[order], src[order], t_eff[order]
-        a = np.where(kind == _EV_GYRO, rate[np.minimum(src, max(it.size - 1, 0))]
-                     if it.size else 0.0, 0.0)
-        b = np.zeros(kind.size)
-        is_w = kind == _EV_WHEELS
-        a[is_w] = TK[src[is_w], 0]
-        b[is_w] = TK[src[is_w], 1]
-        is_t = kind == _EV_TWIST
-        a[is_t] = TV[src[is_t]]
-        b[is_t] = TW[src[is_t]]
-        # the wheel frame's own stamp goes to the filter: update_wheels() subtracts the same
-        # half period and latency, process_batch() takes effective times (a twist's is its
-        # stamp)
-        if self.publish_rate_hz is None:
-            points = np.flatnonzero(is_w | is_t)
-        else:
-            points = self._tick_points(t_eff, a, b)
-        pos = np.arange(kind.size)
-        last_gyro = np.maximum.accumulate(np.where(kind == _EV_GYRO, pos, -1)) if kind.size \
-            else pos
-        last_wheel = np.maximum.accumulate(np.where(is_w, pos, -1)) if kind.size else pos
-        ekf = self.ekf
+    def _note_gaps(self, wheel_t: NDArray[np.float64]) -> None:
+        """Record the wheel-frame gaps before each accepted frame (the first frame has none)."""
+        prev = np.concatenate([[self._last_wheel_t], wheel_t[:-1]])
+        dt = wheel_t - prev
+        limit = self._gap_periods * self.period
+        # before the first frame prev is -inf: dt is inf, not a gap
+        for i in np.flatnonzero((dt > limit) & np.isfinite(dt)).tolist():
+            missing = max(1, round(float(dt[i]) / self.period) - 1)
+            self.stats.gaps.append(WheelGap(float(prev[i]), float(wheel_t[i]), missing))
+            self.stats.gap_count += 1
+            self.stats.frames_missing += missing
+
+    def _run(self, kinds, t_eff, a, b, stamps, refs, flush: bool) -> None:
+        """Feed arrival-ordered events to the compiled core in chunks and publish."""
+        self._check_open()
+        n = kinds.size
+        step = BATCH_CHUNK
         start = 0
-        for p in points.tolist():
-            ekf.process_batch(kind[start:p + 1], t_eff[start:p + 1], a[start:p + 1],
-                              b[start:p + 1])
-            start = p + 1
-            self._set_last(last_gyro[p], last_wheel[p], src, G, A, Q, TK)
-            kp = kind[p]
-            self._publish(float(wt[src[p]]) if kp == _EV_WHEELS
-                          else float(tt[src[p]]) if kp == _EV_TWIST else None)
-        if start < kind.size:
-            ekf.process_batch(kind[start:], t_eff[start:], a[start:], b[start:])
-            self._set_last(last_gyro[-1], last_wheel[-1], src, G, A, Q, TK)
-        self.flush()
+        while True:
+            stop = min(start + step, n)
+            last = stop >= n
+            held = int(self._sched[ev_core.S_HEAP_N])
+            room = held + (stop - start)
+            if room > self._heap_f.shape[0]:
+                size = max(room, 2 * self._heap_f.shape[0])
+                self._heap_f = np.resize(self._heap_f, (size, 4))
+                self._heap_i = np.resize(self._heap_i, (size, 3))
+            if room > self._pub.shape[0]:
+                self._pub = np.empty((room, ev_core.PUB_WIDTH))
+                if self._trace_mask:
+                    self._trace = np.empty((room, ev_core.TRACE_WIDTH))
+            pub, trace = self._pub, self._trace
+            ekf = self.ekf
+            if not (type(ekf.x) is np.ndarray and ekf.x.flags.c_contiguous
+                    and ekf.x.dtype == np.float64 and ekf.P.flags.c_contiguous):
+                # a user may have set x or P through filterpy's API
+                ekf.x = np.ascontiguousarray(ekf.x, dtype=np.float64).reshape(8)
+                ekf.P = np.ascontiguousarray(ekf.P, dtype=np.float64)
+            n_pub, n_trace = ev_core.run_events(
+                kinds[start:stop], t_eff[start:stop], a[start:stop], b[start:stop],
+                stamps[start:stop], refs[start:stop], flush and last, self._heap_f,
+                self._heap_i, self._sched, ekf.x, ekf.P, ekf._aux, ekf._par,
+                self.reorder_window, self._rate, self._trace_mask, pub, trace)
+            if n_trace:
+                self._trace_chunks.append(trace[:n_trace].copy())
+            if n_pub:
+                self._publish_rows(pub[:n_pub])
+            if self._on_progress is not None and stop > start:
+                self._on_progress(float(t_eff[stop - 1]))
+            start = stop
+            if last:
+                break
+        # payloads older than the last applied ones are no longer needed
+        self._imu_rows.prune(int(self._sched[ev_core.S_LAST_GYRO]))
+        self._wheel_rows.prune(int(self._sched[ev_core.S_LAST_WHEEL]))
 
-    def _set_last(self, gi: int, wi: int, src, G, A, Q, TK) -> None:
+    # -- output -----------------------------------------------------------------------------
+    def _publish_rows(self, pub: NDArray[np.float64]) -> None:
+        sinks = self.sinks
+        clock = self._clock
+        on_record = self._on_record
+        stats = self.stats
+        for row in pub.tolist():
+            rec = self._record(row)
+            for sink in sinks:
+                sink.write(rec)
+            stats.records += 1
+            stamp = row[ev_core.U_STAMP]
+            if clock is not None and stamp == stamp:
+                self.latencies.append(clock() - stamp)
+            if on_record is not None:
+                on_record(rec)
+
+    def _record(self, row: list[float]) -> FusedOdometry:
+        gi = int(row[ev_core.U_LAST_GYRO])
         if gi >= 0:
-            k = src[gi]
-            self._q, self._gyro, self._accel = Q[k], G[k], A[k]  # views; records copy
+            q, g, accel = self._imu_rows.get(gi)
+            gyro_xy = (float(g[0]), float(g[1]))
+        else:
+            q = gyro_xy = accel = None
+        wi = int(row[ev_core.U_LAST_WHEEL])
         if wi >= 0:
-            k = src[wi]
-            self._wheel_speeds = (int(TK[k, 0]) * self._m_per_s, int(TK[k, 1]) * self._m_per_s)
+            (left, right), = self._wheel_rows.get(wi)
+            speeds = (int(left) * self._m_per_s, int(right) * self._m_per_s)
+        else:
+            speeds = None
+        t = row[ev_core.U_T]
+        if t != t:  # no event has set the filter time yet
+            t = 0.0
+        x0 = ev_core.U_X
+        p0 = ev_core.U_P
+        return _fast_record(_record_fields(t, row[x0:x0 + 8], row[p0:p0 + 25], q, gyro_xy,
+                                           accel, speeds, self.robot.odom_frame,
+                                           self.robot.base_frame))
 
-    def _tick_points(self, t_eff, a, b) -> NDArray[np.int64]:
-        """Indices after which :meth:`_tick` publishes (the filter's time is the running
-        maximum of the valid events' effective times)."""
-        valid = np.isfinite(t_eff) & np.isfinite(a) & np.isfinite(b)
-        t_after = np.fmax.accumulate(np.where(valid, t_eff, np.nan)) if t_eff.size else t_eff
-        rate = self.publish_rate_hz
-        nxt = self._next_tick
-        out = []
-        for k, t in enumerate(t_after.tolist()):
-            if t != t:  # no valid event yet: the filter has no time
-                continue
-            if nxt is None:
-                nxt = t
-            if t >= nxt:
-                out.append(k)
-                nxt = (math.floor(t * rate + 1e-9) + 1) / rate
-        self._next_tick = nxt
-        return np.array(out, dtype=np.int64)
+    def current_record(self) -> FusedOdometry:
+        """The fused state now as a :class:`FusedOdometry` (frames from the config).
+
+        ``angular_velocity`` is the last base-frame gyro sample's x and y with the EKF's
+        yaw rate as z (so /odom's twist carries the fused rate); ``orientation`` the Mahony
+        attitude of that sample; wheel speeds are the last frame's rim speeds (m/s).
+        """
+        ekf = self.ekf
+        row = np.empty((1, ev_core.PUB_WIDTH))
+        ev_core.write_pub_row(row, 0, np.asarray(ekf.x, dtype=np.float64),
+                              np.asarray(ekf.P, dtype=np.float64), ekf._aux, self._sched,
+                              math.nan, -1)
+        return self._record(row[0].tolist())
+
+    @property
+    def state_rows(self) -> NDArray[np.float64]:
+        """(N, 22) EKF state after each event of the ``state_rows`` kinds so far: the event's
+        effective time (s), the 19 columns of
+        :meth:`fusion.planar.ekf.PlanarEKF.process_batch` (state with continuous yaw,
+        diag(P), pose cross terms), and the left and right ticks of the last wheel frame
+        fused (NaN before the first)."""
+        if not self._trace_chunks:
+            return np.zeros((0, ev_core.TRACE_WIDTH))
+        if len(self._trace_chunks) > 1:
+            self._trace_chunks = [np.concatenate(self._trace_chunks)]
+        return self._trace_chunks[0]
 
     def finish_stats(self) -> PipelineStats:
         """The counters, with the EKF's late/slip/ZUPT counters copied in."""
@@ -647,30 +632,57 @@ class FusionPipeline:
         return [float(v) for v in np.percentile(a, qs)]
 
 
-class _WatermarkBuffer(ReorderBuffer):
-    """The EKF's :class:`fusion.planar.ekf.ReorderBuffer` with one more way out: :meth:`pop_through`
-    releases, in order, everything not newer than a time every source has passed."""
-
-    def pop_through(self, t: float) -> list:
-        out = []
-        heap = self._heap
-        while heap and heap[0][0] <= t:
-            tt, _, ev = heapq.heappop(heap)
-            out.append((tt, ev))
-        return out
+_NO_EVENTS = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
+              np.zeros(0, dtype=np.int64))
 
 
-def _increasing(t: NDArray[np.float64]) -> NDArray[np.bool_]:
-    """Mask of the stamps that are greater than every earlier one (NaN never is)."""
-    if t.size == 0:
-        return np.zeros(0, dtype=bool)
-    prev = np.concatenate([[-np.inf], np.fmax.accumulate(t)[:-1]])
-    return t > prev
+class _RowStore:
+    """Rows of per-event payload arrays addressed by a running index (``ref``), appended in
+    chunks and dropped once superseded."""
+
+    def __init__(self) -> None:
+        self._chunks: collections.deque = collections.deque()  # (first ref, arrays)
+        self._next = 0
+
+    def append(self, *arrays: NDArray) -> int:
+        """Store rows (equal length); returns the ref of the first."""
+        first = self._next
+        self._chunks.append((first, arrays))
+        self._next += arrays[0].shape[0]
+        return first
+
+    def get(self, ref: int) -> tuple:
+        for first, arrays in reversed(self._chunks):
+            if ref >= first:
+                return tuple(a[ref - first] for a in arrays)
+        raise KeyError(ref)
+
+    def prune(self, keep_from: int) -> None:
+        """Drop the chunks whose rows are all older than ``keep_from``."""
+        chunks = self._chunks
+        while len(chunks) > 1 and chunks[1][0] <= keep_from:
+            chunks.popleft()
 
 
-def _rotate_rows(R: list[list[float]], v: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``R @ v[i]`` for every row, with the very operations of :meth:`FusionPipeline.push_imu`."""
-    x, y, z = v[:, 0], v[:, 1], v[:, 2]
-    return np.column_stack([R[0][0] * x + R[0][1] * y + R[0][2] * z,
-                            R[1][0] * x + R[1][1] * y + R[1][2] * z,
-                            R[2][0] * x + R[2][1] * y + R[2][2] * z])
+def _floats(values) -> NDArray[np.float64]:
+    """``values`` as a 1-D float64 array (None: empty)."""
+    return np.zeros(0) if values is None else np.asarray(values, dtype=np.float64).reshape(-1)
+
+
+def _in_order(t: NDArray[np.float64], last: float, *cols: NDArray) -> tuple[int, NDArray, tuple]:
+    """``(dropped, t, cols)``: the events of one source that pushing them one at a time
+    accepts (:func:`_increasing`), with their columns, and how many were dropped."""
+    keep = _increasing(t, last)
+    if keep.all():
+        return 0, t, cols
+    return int(t.size - keep.sum()), t[keep], tuple(c[keep] for c in cols)
+
+
+def _increasing(t: NDArray[np.float64], last: float) -> NDArray[np.bool_]:
+    """Mask of the stamps accepted in arrival order: finite and greater than ``last`` and
+    every earlier accepted one (what pushing them one at a time accepts)."""
+    finite = np.isfinite(t)
+    if t.size == 1:
+        return finite & (t > last)
+    prev = np.fmax.accumulate(np.concatenate([[last], np.where(finite, t, -np.inf)[:-1]]))
+    return finite & (t > prev)

@@ -10,13 +10,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.planar import _ekf_core as core
+from fusion.geometry.angles import wrap_angle_scalar
+from fusion.types.constants import UNOBSERVED_VARIANCE
 from fusion.types.fused import FusedOdometry, quaternion_norm
 
 __all__ = []
-
-
-_UNOBSERVED = 99999.0  # seed 000's variance of what a planar filter does not estimate
 
 
 def _frozen(a: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -24,15 +22,16 @@ def _frozen(a: NDArray[np.float64]) -> NDArray[np.float64]:
     return a
 
 
-def _record_fields(t, x, P, q, gyro_xy, accel, wheel_speeds, frame_id,
+def _record_fields(t, x, p5, q, gyro_xy, accel, wheel_speeds, frame_id,
                    child_frame_id) -> dict[str, Any]:
-    """The :class:`FusedOdometry` fields of a filter state: nav_msgs/Odometry covariances
-    from ``P`` (the layout of :func:`fusion.planar.ekf.odometry_covariances`, symmetrised)."""
-    (p00, p01, p02, _, _, _, _, _), (p10, p11, p12, _, _, _, _, _), \
-        (p20, p21, p22, _, _, _, _, _), (_, _, _, p33, p34, _, _, _), \
-        (_, _, _, p43, p44, _, _, _) = P[:5].tolist()
+    """The :class:`FusedOdometry` fields of a filter state: ``x`` (at least v and w, as
+    ``[x, y, yaw, v, w, ...]``), ``p5`` the 25 values of ``P[:5, :5]`` row major; the
+    nav_msgs/Odometry covariances in the layout of :func:`fusion.planar.ekf.odometry_covariances`,
+    symmetrised."""
+    (p00, p01, p02, _, _, p10, p11, p12, _, _, p20, p21, p22, _, _,
+     _, _, _, p33, p34, _, _, _, p43, p44) = p5
     c01, c02, c12 = 0.5 * (p01 + p10), 0.5 * (p02 + p20), 0.5 * (p12 + p21)
-    u = _UNOBSERVED
+    u = UNOBSERVED_VARIANCE
     pose = [p00, c01, 0.0, 0.0, 0.0, c02,
             c01, p11, 0.0, 0.0, 0.0, c12,
             0.0, 0.0, u, 0.0, 0.0, 0.0,
@@ -53,7 +52,7 @@ def _record_fields(t, x, P, q, gyro_xy, accel, wheel_speeds, frame_id,
         av = (gyro_xy[0], gyro_xy[1], w)
     return {
         "t": float(t), "x": float(x[0]), "y": float(x[1]),
-        "yaw": core.wrap_angle_scalar(float(x[2])), "v": float(x[3]), "w": w,
+        "yaw": wrap_angle_scalar(float(x[2])), "v": float(x[3]), "w": w,
         "pose_covariance": np.array(pose).reshape(6, 6),
         "twist_covariance": np.array(twist).reshape(6, 6),
         "orientation": None if q is None else np.asarray(q, dtype=np.float64).tolist(),

@@ -8,9 +8,6 @@ import heapq
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-import numpy as np
-
-from fusion.io.errors import LogFormatError
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.robot import RobotConfig
 from fusion.types.samples import ImuSample, WheelTicks
@@ -54,30 +51,21 @@ def imu_csv_events(path: str | Path) -> Iterator[ImuSample]:
 def logdir_events(path: str | Path) -> tuple[RobotConfig, Iterator[ImuSample | WheelTicks]]:
     """``(robot, events)`` of a log directory (``datasets/LOGDIR.md``).
 
-    IMU samples stay in the IMU frame (the pipeline applies ``imu_mount_rpy``). The wheel
-    frames come from ``wheels.csv`` or, without it, from a DATA-uart2 capture ``wheels.uart2``
-    (timed or raw, see :func:`capture_events`).
+    Read by :func:`fusion.io.logdir.read_logdir`; IMU samples stay in the IMU frame (the
+    pipeline applies ``imu_mount_rpy``). The wheel frames come from ``wheels.csv`` or, without
+    it, from a DATA-uart2 capture ``wheels.uart2`` (timed or raw, see :func:`capture_events`).
     """
-    from fusion.io.logdir import read_wheels_csv
-    from fusion.io.robot_toml import read_robot_toml
+    from fusion.io.logdir import read_logdir
 
-    path = Path(path)
-    if not path.is_dir():
-        raise FileNotFoundError(f"{path}: not a log directory")
-    robot = read_robot_toml(path / "robot.toml")
+    log = read_logdir(path, imu_frame="imu", truth=False)
     streams: list[Iterable[ImuSample | WheelTicks]] = []
-    if (path / "imu.csv").is_file():
-        streams.append(list(imu_csv_events(path / "imu.csv")))
-    if (path / "wheels.csv").is_file():
-        wt, ticks = read_wheels_csv(path / "wheels.csv")
-        streams.append([WheelTicks(float(t), int(l), int(r))
-                        for t, (l, r) in zip(wt.tolist(), ticks.tolist())])
-    elif (path / "wheels.uart2").is_file():
-        frames, _ = capture_events(path / "wheels.uart2", robot.chassis.encode_sampling_time)
-        streams.append(frames)
-    if not streams:
-        raise LogFormatError(f"{path}: no imu.csv, wheels.csv or wheels.uart2")
-    return robot, merge_by_time(*streams)
+    if log.imu_t is not None:
+        t = log.imu_t.tolist()
+        streams.append([ImuSample(t[i], log.gyro[i], log.accel[i]) for i in range(len(t))])
+    if log.wheel_t is not None:
+        streams.append([WheelTicks(t, int(lt), int(rt)) for t, (lt, rt)
+                        in zip(log.wheel_t.tolist(), log.ticks.tolist())])
+    return log.robot, merge_by_time(*streams)
 
 
 def capture_events(path: str | Path, period: float, *, t0: float = 0.0,
@@ -92,8 +80,6 @@ def capture_events(path: str | Path, period: float, *, t0: float = 0.0,
     from fusion.io.uart2 import read_uart2_capture
 
     cap = read_uart2_capture(path, period=period, max_ticks=max_ticks)
-    if cap.t is not None:
-        return cap.wheel_ticks(), cap.stats
-    stamps = (t0 + (np.arange(len(cap)) + 1) * period).tolist()
+    stamps = cap.frame_times(period, t0).tolist()
     return [WheelTicks(stamps[k], int(cap.left[k]), int(cap.right[k]))
             for k in range(len(cap))], cap.stats

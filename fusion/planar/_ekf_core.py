@@ -1,9 +1,12 @@
-"""Compiled core of the planar EKF (private; see :mod:`fusion.planar.ekf` for the model and units).
+"""Compiled core of the planar EKF (private; see :mod:`fusion.planar.ekf` for the filter and units).
 
-Plain loops over 6x6 matrices in the numba subset: numba compiles them (``fast`` extra), or
-they run interpreted with identical IEEE results. One function, :func:`step_core`, handles one
-input event (time bookkeeping, prediction, update); the streaming methods and the batch loop
-of :class:`fusion.planar.ekf.PlanarEKF` both call it, so they agree exactly.
+The algebra (motion, process noise, each measurement's h, Jacobian and R) is that of
+:mod:`fusion.planar.model`; this module adds the Kalman equations and the filter's logic (time
+bookkeeping, ZUPTs, slip gating, the late-input policy). Plain loops over 8x8 matrices in the
+numba subset: numba compiles them (``fast`` extra), or they run interpreted with identical IEEE
+results. One function, :func:`step_core`, handles one input event (time bookkeeping,
+prediction, update); the streaming methods and the batch loop of
+:class:`fusion.planar.ekf.PlanarEKF` both call it, so they agree exactly.
 
 State ``x = [x, y, yaw, v, w, b, k, c]``. Parameter vector ``par`` and bookkeeping vector ``aux``
 use the index constants below.
@@ -16,10 +19,29 @@ import math
 import numpy as np
 
 from fusion._jit import njit
+from fusion.geometry.angles import wrap_angle_scalar  # noqa: F401  (the old name, re-exported)
+from fusion.planar.model import (
+    NX,
+    gyro_h,
+    gyro_jacobian,
+    gyro_noise,
+    motion_terms,
+    process_noise_diagonal,
+    ticks_measurement,
+    twist_measurement,
+    wheel_h,
+    wheel_jacobian,
+    yaw_h,
+    yaw_jacobian,
+    yaw_noise,
+    yaw_residual,
+    zupt_h,
+    zupt_jacobian,
+    zupt_noise,
+)
 
 __all__ = ["AUX_SIZE", "PAR_SIZE", "batch_core", "predict_core", "step_core", "update_core"]
 
-NX = 8
 # par indices
 P_SPEED_RATIO = 0
 P_WHEEL_DISTANCE = 1
@@ -69,30 +91,17 @@ EV_TWIST = 3
 
 @njit
 def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c):
-    """Propagate ``x`` and ``P`` (in place) by ``dt`` s with the constant-twist model.
-
-    ``yaw += w*dt``; ``x += v*dt*cos(yaw + w*dt/2)``, ``y += v*dt*sin(...)``; v, w, b are
-    random walks with intensities ``q_v`` ((m/s)^2/s), ``q_w`` ((rad/s)^2/s), ``q_b``
-    ((rad/s)^2/s); the wheel calibration states k (1) and c (rad/m) walk with ``q_k``, ``q_c``
-    (per s). ``P <- F P F^T + Q`` with ``F`` the Jacobian at the prior state.
+    """Propagate ``x`` and ``P`` (in place) by ``dt`` s: ``x = f(x, dt)``,
+    ``P <- F P F^T + Q`` with ``F`` the Jacobian at the prior state
+    (:func:`fusion.planar.model.motion_terms`) and ``Q`` the random walks of v, w, b, k, c
+    with intensities ``q_v`` ((m/s)^2/s), ``q_w``, ``q_b`` ((rad/s)^2/s), ``q_k`` (1/s),
+    ``q_c`` ((rad/m)^2/s) (:func:`fusion.planar.model.process_noise_diagonal`).
     """
-    yaw = x[2]
-    v = x[3]
-    w = x[4]
-    phi = yaw + 0.5 * w * dt
-    c = math.cos(phi)
-    s = math.sin(phi)
-    x[0] += v * dt * c
-    x[1] += v * dt * s
-    x[2] += w * dt
-    # F = I + the non-zero off-diagonal terms below
-    f02 = -v * dt * s
-    f03 = dt * c
-    f04 = -0.5 * v * dt * dt * s
-    f12 = v * dt * c
-    f13 = dt * s
-    f14 = 0.5 * v * dt * dt * c
-    f24 = dt
+    dx, dy, dyaw, f02, f03, f04, f12, f13, f14, f24 = motion_terms(x, dt)
+    x[0] += dx
+    x[1] += dy
+    x[2] += dyaw
+    # F = I + the off-diagonal terms f_ij (rows 0, 1, 2)
     # A = F P (only rows 0, 1, 2 differ from P)
     A = P.copy()
     for j in range(NX):
@@ -106,11 +115,23 @@ def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c):
         P[i, 2] = A[i, 2] + f24 * A[i, 4]
         for j in range(3, NX):
             P[i, j] = A[i, j]
-    P[3, 3] += q_v * dt
-    P[4, 4] += q_w * dt
-    P[5, 5] += q_b * dt
-    P[6, 6] += q_k * dt
-    P[7, 7] += q_c * dt
+    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c)
+    for i in range(NX):
+        P[i, i] += q[i]
+
+
+@njit
+def innovation_variance(P, H, R, i):
+    """Variance (``S[i, i]``, ``S = H P H^T + R``) of component ``i`` of the innovation
+    ``z - h(x)`` of a measurement with Jacobian ``H`` (m, 8) and noise ``R`` (m, m)."""
+    acc = R[i, i]
+    for k in range(NX):
+        if H[i, k] != 0.0:
+            row = 0.0
+            for j in range(NX):
+                row += P[k, j] * H[i, j]
+            acc += H[i, k] * row
+    return acc
 
 
 @njit
@@ -149,7 +170,7 @@ def _cholesky_solve_rows(S, B, m, out):
 
 
 @njit
-def update_core(x, P, y, H, R, gate_index, gate, inflation, work_S):
+def update_core(x, P, y, H, R, gate_index, gate, inflation):
     """Kalman update (in place) with innovation ``y`` (m,), Jacobian ``H`` (m, 8), noise ``R``.
 
     Joseph form ``P = (I-KH) P (I-KH)^T + K R K^T``, gain by a Cholesky solve of ``S``.
@@ -168,7 +189,7 @@ def update_core(x, P, y, H, R, gate_index, gate, inflation, work_S):
             for k in range(NX):
                 acc += P[i, k] * H[j, k]
             PHt[i, j] = acc
-    S = work_S
+    S = np.zeros((m, m))
     for i in range(m):
         for j in range(m):
             acc = R[i, j]
@@ -248,14 +269,6 @@ def update_core(x, P, y, H, R, gate_index, gate, inflation, work_S):
 
 
 @njit
-def wrap_angle_scalar(a):
-    """Wrap ``a`` (rad) to (-pi, pi]."""
-    u = math.pi - a
-    m = u - 2.0 * math.pi * math.floor(u / (2.0 * math.pi))
-    return math.pi - m
-
-
-@njit
 def _advance(x, P, aux, par, t):
     """Bring the filter to time ``t``; returns False when the input is too late to use."""
     t_now = aux[A_T]
@@ -304,35 +317,26 @@ def step_core(x, P, aux, par, kind, t, a, b):
         return 6
     if not _advance(x, P, aux, par, t):
         return 5
-    S = np.zeros((2, 2))
     if kind == 0:
         if abs(a) >= par[P_GYRO_LIMIT]:
             # a saturated gyro reads the full-scale value, not the rate: skip it and let the
             # wheels carry the yaw rate until the gyro is back in range
             aux[A_SATURATED] += 1.0
             return 2
-        y = np.array([a - (x[4] + x[5])])
+        H = gyro_jacobian(x)
+        R = gyro_noise(par[P_GYRO_VAR])
+        y = gyro_h(x)
+        y[0] = a - y[0]
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
             # motion onset while standing still: a gyro reading the still model cannot
             # explain ends the stationary phase and gives w its freedom back (otherwise the
             # first turn would leak into the bias)
-            s_g = P[4, 4] + 2.0 * P[4, 5] + P[5, 5] + par[P_GYRO_VAR]
-            if y[0] * y[0] / s_g > par[P_GATE]:
+            if y[0] * y[0] / innovation_variance(P, H, R, 0) > par[P_GATE]:
                 aux[A_ZERO_COUNT] = 0.0
                 P[4, 4] += par[P_Q_W] * par[P_PERIOD]
-        H = np.zeros((1, NX))
-        H[0, 4] = 1.0
-        H[0, 5] = 1.0
-        R = np.full((1, 1), par[P_GYRO_VAR])
-        d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, S)
+        d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0)
     elif kind == 1 or kind == 3:
-        T = par[P_PERIOD]
-        sr = par[P_SPEED_RATIO]
         L = par[P_WHEEL_DISTANCE]
-        H = np.zeros((2, NX))
-        H[0, 3] = 1.0
-        H[1, 4] = 1.0
-        R = np.zeros((2, 2))
         if kind == 1:
             still = a == 0.0 and b == 0.0
         else:
@@ -342,54 +346,33 @@ def step_core(x, P, aux, par, kind, t, a, b):
         else:
             aux[A_ZERO_COUNT] = 0.0
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
-            y = np.array([-x[3], -x[4]])
-            R[0, 0] = par[P_ZUPT_V_STD] ** 2
-            R[1, 1] = par[P_ZUPT_W_STD] ** 2
-            d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, S)
+            y = -zupt_h(x)  # z = [0, 0]
+            d2, status = update_core(x, P, y, zupt_jacobian(x),
+                                     zupt_noise(par[P_ZUPT_V_STD], par[P_ZUPT_W_STD]),
+                                     -1, math.inf, 0.0)
             if status == 0:
                 status = 4
                 aux[A_ZUPTS] += 1.0
         else:
             if kind == 1:
-                dl = a * sr
-                dr = b * sr
-                v_m = 0.5 * (dl + dr) / T
-                w_m = (dr - dl) / (L * T)
-                tick = par[P_TICK_STD] * sr
-                ks = par[P_SCALE_STD]
-                var_l = tick * tick + (ks * dl) ** 2
-                var_r = tick * tick + (ks * dr) ** 2
-                # (v, w) = M (dl, dr) / T with M = [[1/2, 1/2], [-1/L, 1/L]]
-                R[0, 0] = 0.25 * (var_l + var_r) / (T * T)
-                R[0, 1] = 0.5 * (var_r - var_l) / (L * T * T)
-                R[1, 0] = R[0, 1]
-                R[1, 1] = (var_l + var_r) / (L * L * T * T)
+                z, R = ticks_measurement(a, b, par[P_SPEED_RATIO], par[P_PERIOD], L,
+                                         par[P_TICK_STD], par[P_SCALE_STD], par[P_SEP_STD],
+                                         par[P_WHEEL_W_STD])
             else:
                 # a twist from someone else's wheel odometry (nav_msgs/Odometry)
-                v_m = a
-                w_m = b
-                R[0, 0] = par[P_TWIST_V_STD] ** 2 + (par[P_SCALE_STD] * a) ** 2
-                R[1, 1] = par[P_TWIST_W_STD] ** 2
-            R[1, 1] += (par[P_SEP_STD] * w_m) ** 2 + par[P_WHEEL_W_STD] ** 2
-            # wheel model: v_m = v + c*w*L^2/4, w_m = (1 + k)*w + c*v
-            L2 = 0.25 * L * L
-            H[0, 4] = x[7] * L2
-            H[0, 7] = x[4] * L2
-            H[1, 3] = x[7]
-            H[1, 4] = 1.0 + x[6]
-            H[1, 6] = x[4]
-            H[1, 7] = x[3]
-            y = np.array([v_m - (x[3] + x[7] * x[4] * L2),
-                          w_m - ((1.0 + x[6]) * x[4] + x[7] * x[3])])
-            d2, status = update_core(x, P, y, H, R, 1, par[P_GATE], par[P_SLIP_INFLATION], S)
+                z, R = twist_measurement(a, b, par[P_TWIST_V_STD], par[P_TWIST_W_STD],
+                                         par[P_SCALE_STD], par[P_SEP_STD], par[P_WHEEL_W_STD])
+            y = wheel_h(x, L)
+            y[0] = z[0] - y[0]
+            y[1] = z[1] - y[1]
+            # the yaw-rate component is gated: a slipping wheel disagrees with the gyro
+            d2, status = update_core(x, P, y, wheel_jacobian(x, L), R, 1, par[P_GATE],
+                                     par[P_SLIP_INFLATION])
             if status == 1 or status == 2:
                 aux[A_SLIPS] += 1.0
     elif kind == 2:
-        y = np.array([wrap_angle_scalar(a - x[2])])
-        H = np.zeros((1, NX))
-        H[0, 2] = 1.0
-        R = np.full((1, 1), b * b)
-        d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, S)
+        y = yaw_residual(np.array([a]), yaw_h(x))
+        d2, status = update_core(x, P, y, yaw_jacobian(x), yaw_noise(b), -1, math.inf, 0.0)
     else:
         aux[A_ERROR] += 1.0
         return 6

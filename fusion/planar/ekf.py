@@ -14,10 +14,13 @@ by zero-velocity updates; a common distance scale (``speed_ratio`` wrong on both
 is not observable from a gyro and stays as it is configured. The class is a
 :class:`filterpy.kalman.ExtendedKalmanFilter`: ``x``, ``P``, ``y``, ``S``, ``K`` keep filterpy's
 meaning and filterpy's own ``update(z, HJacobian, Hx, R, residual=...)`` can fuse any extra
-measurement (a beacon, a scan match) into the same state. The built-in sensors use a compiled
-core (:mod:`fusion.planar._ekf_core`, numba when installed) that computes exactly filterpy's
-update equations (Joseph form) with a Cholesky solve instead of ``inv(S)``; a test checks it
-against filterpy's ``predict``/``update`` step by step.
+measurement (a beacon, a scan match) into the same state. The model below is written once, in
+:mod:`fusion.planar.model` (f, F, Q and each sensor's h, H, R); the built-in sensors run
+through the core :mod:`fusion.planar._ekf_core`, which computes filterpy's update equations
+(Joseph form) with a Cholesky solve instead of ``inv(S)``. numba compiles the core when it is
+installed (the ``fast`` extra); without it the same functions run as plain Python with the
+same results, more slowly. The tests drive a plain filterpy ``ExtendedKalmanFilter`` with the
+model's functions as the reference.
 
 Model:
 
@@ -74,15 +77,18 @@ from __future__ import annotations
 
 import heapq
 import math
+import warnings
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from filterpy.kalman import ExtendedKalmanFilter
 from numpy.typing import ArrayLike, NDArray
 
-from fusion._jit import HAVE_NUMBA
+from fusion.geometry.angles import wrap_angle_scalar
 from fusion.geometry.kinematics import DiffDriveParams
+from fusion.geometry.mount import vertical_rate
 from fusion.planar import _ekf_core as core
+from fusion.types.constants import UNOBSERVED_VARIANCE
 
 __all__ = [
     "STATE_NAMES",
@@ -98,7 +104,6 @@ __all__ = [
 ]
 
 STATE_NAMES = ("x", "y", "yaw", "v", "w", "gyro_bias_z", "wheel_rate_scale", "wheel_rate_per_speed")
-_UNOBSERVED = 99999.0  # seed 000's value for unobserved components in nav_msgs/Odometry
 
 
 @dataclass(frozen=True)
@@ -184,30 +189,6 @@ class EkfNoise:
             raise ValueError("EkfNoise zupt_v_std and zupt_w_std must be > 0")
 
 
-def vertical_rate(gyro: ArrayLike, quaternion: ArrayLike | None = None) -> NDArray[np.float64]:
-    """Rate about the world vertical (rad/s) from body-frame gyro rates (..., 3).
-
-    With ``quaternion`` (scalar first, body -> world ENU, e.g. from
-    :class:`fusion.attitude.mahony.Mahony`) the body rate is rotated into the world frame and its z
-    component returned; without it the robot is taken as level and ``gyro[..., 2]`` is returned.
-    """
-    g = np.asarray(gyro, dtype=float)
-    if g.shape[-1:] != (3,):
-        raise ValueError(f"gyro must have shape (..., 3), got {g.shape}")
-    if quaternion is None:
-        return g[..., 2].copy()
-    q = np.asarray(quaternion, dtype=float)
-    if q.shape[-1:] != (4,):
-        raise ValueError(f"quaternion must have shape (..., 4) [w, x, y, z], got {q.shape}")
-    w, x, y, z = np.moveaxis(q, -1, 0)
-    n2 = w * w + x * x + y * y + z * z
-    # third row of the rotation matrix of a (normalised) quaternion
-    r20 = 2.0 * (x * z - w * y) / n2
-    r21 = 2.0 * (y * z + w * x) / n2
-    r22 = 1.0 - 2.0 * (x * x + y * y) / n2
-    return r20 * g[..., 0] + r21 * g[..., 1] + r22 * g[..., 2]
-
-
 def odometry_covariances(P: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """nav_msgs/Odometry covariances (36-element, row major) from the EKF covariance.
 
@@ -219,12 +200,13 @@ def odometry_covariances(P: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.
     P = np.asarray(P, dtype=float)
     if P.ndim != 2 or P.shape[0] != P.shape[1] or P.shape[0] < 5:
         raise ValueError(f"P must be square with the state order x, y, yaw, v, w, got {P.shape}")
-    pose = np.diag([0.0, 0.0, _UNOBSERVED, _UNOBSERVED, _UNOBSERVED, 0.0])
+    u = UNOBSERVED_VARIANCE
+    pose = np.diag([0.0, 0.0, u, u, u, 0.0])
     idx = [0, 1, 5]
     for a, i in zip(idx, (0, 1, 2), strict=True):
         for b, j in zip(idx, (0, 1, 2), strict=True):
             pose[a, b] = P[i, j]
-    twist = np.diag([0.0, _UNOBSERVED, _UNOBSERVED, _UNOBSERVED, _UNOBSERVED, 0.0])
+    twist = np.diag([0.0, u, u, u, u, 0.0])
     twist[0, 0] = P[3, 3]
     twist[0, 5] = twist[5, 0] = P[3, 4]
     twist[5, 5] = P[4, 4]
@@ -360,6 +342,20 @@ class ReorderBuffer:
         return len(self._heap)
 
 
+def _check_backend(backend: str) -> None:
+    """The deprecated ``backend`` argument of :class:`PlanarEKF`: a warning or a clear error."""
+    if backend == "filterpy":
+        raise ValueError(
+            "PlanarEKF(backend='filterpy') was removed: the filter has one implementation "
+            "(fusion.planar._ekf_core over fusion.planar.model), compiled by numba when it is "
+            "installed and run as plain Python otherwise, with the same results; leave "
+            "backend out")
+    if backend not in ("auto", "core"):
+        raise ValueError(f"PlanarEKF backend is deprecated (leave it out), got {backend!r}")
+    warnings.warn("PlanarEKF's backend argument is deprecated and has no effect: leave it out",
+                  DeprecationWarning, stacklevel=3)
+
+
 class PlanarEKF(ExtendedKalmanFilter):
     """Wheel + gyro EKF with a gyro-bias state (see the module docstring for the model).
 
@@ -367,12 +363,13 @@ class PlanarEKF(ExtendedKalmanFilter):
         robot: chassis parameters (``wheel_distance`` m, ``speed_ratio`` m/tick,
             ``encode_sampling_time`` s).
         noise: :class:`EkfNoise`.
-        x0: initial state ``[x, y, yaw, v, w, b]`` (default zeros).
+        x0: initial state ``[x, y, yaw, v, w, b, k, c]`` (default zeros).
         P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c from ``noise``).
-        backend: ``"core"`` (the compiled core: ~500 k events/s with numba, but ~1 k/s
-            interpreted), ``"filterpy"`` (the same model on filterpy's ``predict``/``update``,
-            ~6 k events/s, the reference) or ``"auto"`` (default: ``"core"`` when numba is
-            installed, else ``"filterpy"``). Both agree to 1e-9 (tests).
+        backend: deprecated, leave it out. There is one implementation, the core
+            (:mod:`fusion.planar._ekf_core` over :mod:`fusion.planar.model`): compiled by numba
+            when installed, interpreted otherwise, with the same results. ``"core"`` and
+            ``"auto"`` are accepted with a :class:`DeprecationWarning`; ``"filterpy"`` (a
+            second transcription of the model, removed) raises :class:`ValueError`.
 
     Attributes:
         t: filter time, s (None before the first input).
@@ -386,16 +383,13 @@ class PlanarEKF(ExtendedKalmanFilter):
         noise: EkfNoise | None = None,
         x0: ArrayLike | None = None,
         P0: ArrayLike | None = None,
-        backend: str = "auto",
+        backend: str | None = None,
     ) -> None:
         super().__init__(dim_x=8, dim_z=2)
-        if backend not in ("auto", "core", "filterpy"):
-            raise ValueError(f"backend must be 'auto', 'core' or 'filterpy', got {backend!r}")
-        if backend == "auto":
-            backend = "core" if HAVE_NUMBA else "filterpy"
+        if backend is not None:
+            _check_backend(backend)
         self.robot = robot
         self.noise = noise if noise is not None else EkfNoise()
-        self.backend = backend
         n = self.noise
         self.x = np.zeros(8) if x0 is None else np.array(x0, dtype=float).reshape(8)
         if P0 is None:
@@ -458,7 +452,7 @@ class PlanarEKF(ExtendedKalmanFilter):
     @property
     def pose(self) -> NDArray[np.float64]:
         """``[x, y, yaw]`` (m, m, rad wrapped to (-pi, pi])."""
-        return np.array([self.x[0], self.x[1], core.wrap_angle_scalar(float(self.x[2]))])
+        return np.array([self.x[0], self.x[1], wrap_angle_scalar(float(self.x[2]))])
 
     @property
     def gyro_bias(self) -> float:
@@ -480,8 +474,6 @@ class PlanarEKF(ExtendedKalmanFilter):
 
     # -- streaming inputs --------------------------------------------------------------------
     def _step(self, kind: int, t: float, a: float, b: float) -> int:
-        if self.backend == "filterpy":
-            return self._step_filterpy(kind, float(t), float(a), float(b))
         self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
         self.P = np.ascontiguousarray(self.P, dtype=float)
         return int(core.step_core(self.x, self.P, self._aux, self._par, kind, float(t),
@@ -535,12 +527,9 @@ class PlanarEKF(ExtendedKalmanFilter):
         """Propagate to time ``t`` s without a measurement (ignored if ``t`` is not newer)."""
         if self.t is None or t <= self.t:
             return
-        if self.backend == "filterpy":
-            self._advance_filterpy(t)
-        else:
-            self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
-            self.P = np.ascontiguousarray(self.P, dtype=float)
-            core._advance(self.x, self.P, self._aux, self._par, float(t))
+        self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
+        self.P = np.ascontiguousarray(self.P, dtype=float)
+        core._advance(self.x, self.P, self._aux, self._par, float(t))
 
     # -- batch -------------------------------------------------------------------------------
     def process_batch(self, kinds, t_eff, a, b) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
@@ -561,145 +550,10 @@ class PlanarEKF(ExtendedKalmanFilter):
             raise ValueError("kinds, t_eff, a, b must have the same length")
         out = np.empty((n, 19))
         status = np.empty(n, dtype=np.int64)
-        if self.backend == "filterpy":
-            for k in range(n):
-                status[k] = self._step_filterpy(int(kinds[k]), t_eff[k], a[k], b[k])
-                out[k, :8] = self.x
-                out[k, 8:16] = np.diag(self.P)
-                out[k, 16:19] = self.P[0, 1], self.P[0, 2], self.P[1, 2]
-            return out, status
         self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
         self.P = np.ascontiguousarray(self.P, dtype=float)
         core.batch_core(self.x, self.P, self._aux, self._par, kinds, t_eff, a, b, out, status)
         return out, status
-
-    # -- the same model on filterpy's predict/update (reference backend) ---------------------
-    def predict_x(self, u=0) -> None:  # filterpy hook: nonlinear state propagation
-        dt = self._dt
-        yaw, v, w = self.x[2], self.x[3], self.x[4]
-        phi = yaw + 0.5 * w * dt
-        self.x = self.x + np.array([v * dt * math.cos(phi), v * dt * math.sin(phi), w * dt,
-                                    0.0, 0.0, 0.0, 0.0, 0.0])
-
-    def _predict_filterpy(self, dt: float, still: bool) -> None:
-        yaw, v, w = self.x[2], self.x[3], self.x[4]
-        phi = yaw + 0.5 * w * dt
-        c, s = math.cos(phi), math.sin(phi)
-        F = np.eye(8)
-        F[0, 2], F[0, 3], F[0, 4] = -v * dt * s, dt * c, -0.5 * v * dt * dt * s
-        F[1, 2], F[1, 3], F[1, 4] = v * dt * c, dt * s, 0.5 * v * dt * dt * c
-        F[2, 4] = dt
-        self.F = F
-        n = self.noise
-        f = n.still_scale if still else 1.0
-        self.Q = np.diag([0.0, 0.0, 0.0, f * n.accel_psd * dt, f * n.angular_accel_psd * dt,
-                          n.bias_psd * dt, n.calib_k_psd * dt, n.calib_c_psd * dt])
-        self._dt = dt
-        ExtendedKalmanFilter.predict(self)  # P = F P F^T + Q, x by predict_x
-
-    def _advance_filterpy(self, t: float) -> bool:
-        aux = self._aux
-        if math.isnan(aux[core.A_T]):
-            aux[core.A_T] = t
-            return True
-        dt = t - aux[core.A_T]
-        if dt < 0:
-            if -dt <= self.noise.late_tolerance:
-                aux[core.A_LATE_APPLIED] += 1
-                return True
-            aux[core.A_LATE_DROPPED] += 1
-            return False
-        still = aux[core.A_ZERO_COUNT] >= self.noise.zupt_frames
-        while dt > 0:
-            h = min(dt, self.noise.max_dt)
-            self._predict_filterpy(h, still)
-            dt -= h
-        aux[core.A_T] = t
-        return True
-
-    def _step_filterpy(self, kind: int, t: float, a: float, b: float) -> int:
-        aux = self._aux
-        n = self.noise
-        if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)):
-            aux[core.A_ERROR] += 1
-            return 6
-        if not self._advance_filterpy(t):
-            return 5
-        status = 0
-        if kind == core.EV_GYRO:
-            if abs(a) >= n.gyro_limit:
-                aux[core.A_SATURATED] += 1
-                return 2
-            H = np.array([[0, 0, 0, 0, 1.0, 1.0, 0, 0]])
-            if aux[core.A_ZERO_COUNT] >= n.zupt_frames:
-                s_g = float((H @ self.P @ H.T)[0, 0]) + n.gyro_std ** 2
-                if (a - self.x[4] - self.x[5]) ** 2 / s_g > n.slip_gate:
-                    aux[core.A_ZERO_COUNT] = 0
-                    self.P[4, 4] += n.angular_accel_psd * self.robot.encode_sampling_time
-            self.update(np.array([a]), lambda x: H, lambda x: H @ x,
-                        R=np.array([[n.gyro_std ** 2]]))
-        elif kind in (core.EV_WHEELS, core.EV_TWIST):
-            H = np.zeros((2, 8))
-            H[0, 3] = H[1, 4] = 1.0
-            if kind == core.EV_WHEELS:
-                still = a == 0 and b == 0
-            else:
-                still = abs(a) <= n.twist_zero_v and abs(b) <= n.twist_zero_w
-            aux[core.A_ZERO_COUNT] = aux[core.A_ZERO_COUNT] + 1 if still else 0
-            if aux[core.A_ZERO_COUNT] >= n.zupt_frames:
-                R = np.diag([n.zupt_v_std ** 2, n.zupt_w_std ** 2])
-                self.update(np.zeros(2), lambda x: H, lambda x: H @ x, R=R)
-                status = 4
-                aux[core.A_ZUPTS] += 1
-            else:
-                p = self.robot
-                T, L = p.encode_sampling_time, p.wheel_distance
-                if kind == core.EV_WHEELS:
-                    dl, dr = a * p.speed_ratio, b * p.speed_ratio
-                    z = np.array([0.5 * (dl + dr) / T, (dr - dl) / (L * T)])
-                    tick = n.tick_std * p.speed_ratio
-                    var = np.diag([tick ** 2 + (n.scale_std * dl) ** 2,
-                                   tick ** 2 + (n.scale_std * dr) ** 2])
-                    M = np.array([[0.5, 0.5], [-1.0 / L, 1.0 / L]]) / T
-                    R = M @ var @ M.T
-                else:
-                    z = np.array([a, b])
-                    R = np.diag([n.twist_v_std ** 2 + (n.scale_std * a) ** 2,
-                                 n.twist_w_std ** 2])
-                R[1, 1] += (n.separation_std * z[1]) ** 2 + n.wheel_w_std ** 2
-                x = self.x
-                L2 = 0.25 * L * L
-                H[0, 4], H[0, 7] = x[7] * L2, x[4] * L2
-                H[1, 3], H[1, 4], H[1, 6], H[1, 7] = x[7], 1.0 + x[6], x[4], x[3]
-
-                def hx(x):
-                    return np.array([x[3] + x[7] * x[4] * L2, (1.0 + x[6]) * x[4] + x[7] * x[3]])
-
-                S = H @ self.P @ H.T + R
-                y = z - hx(self.x)
-                d2 = y[1] ** 2 / S[1, 1]
-                if d2 > n.slip_gate:
-                    aux[core.A_SLIPS] += 1
-                    if n.slip_inflation <= 0:
-                        aux[core.A_LAST_D2] = d2
-                        aux[core.A_UPDATES] += 1
-                        return 2
-                    R = R * n.slip_inflation
-                    status = 1
-                self.update(z, lambda x: H, hx, R=R)
-        elif kind == core.EV_YAW:
-            H = np.array([[0, 0, 1.0, 0, 0, 0, 0, 0]])
-
-            def wrapped(z, hx):
-                return np.array([core.wrap_angle_scalar(float(z[0] - hx[0]))])
-
-            self.update(np.array([a]), lambda x: H, lambda x: H @ x,
-                        R=np.array([[b * b]]), residual=wrapped)
-        else:
-            aux[core.A_ERROR] += 1
-            return 6
-        aux[core.A_UPDATES] += 1
-        return status
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""Sinks for fused odometry: JSON lines, CSV, rosbag2/MCAP files, a Foxglove server, ROS 1.
+"""Sinks for fused odometry: JSON lines, CSV, rosbag2/MCAP files, a Foxglove server, ROS 1, ROS 2.
 
 One lifecycle for all (:class:`fusion.sinks.base.Sink`); :func:`open_sink` builds one from a
 short spec. Optional dependencies are imported when a sink opens, so importing this package
@@ -9,6 +9,7 @@ from fusion.sinks.bag import McapSink, Rosbag2Sink
 from fusion.sinks.base import Sink, SinkError
 from fusion.sinks.foxglove import FoxgloveSink
 from fusion.sinks.registry import open_sink
+from fusion.sinks.ros2 import Ros2Sink
 from fusion.sinks.ros_messages import Topics, ros_messages
 from fusion.sinks.text import CsvSink, JsonLinesSink
 
@@ -17,6 +18,7 @@ __all__ = [
     "FoxgloveSink",
     "JsonLinesSink",
     "McapSink",
+    "Ros2Sink",
     "Rosbag2Sink",
     "Sink",
     "SinkError",

@@ -1,4 +1,7 @@
 """File sinks in ROS 2 formats: a rosbag2 folder and a single MCAP file (``ros`` extra).
+
+The rosbag2 folder is always built aside and moved into place complete; the MCAP file can
+also be recorded live, crash-safe (:class:`McapSink` ``live=True``).
 """
 
 from __future__ import annotations
@@ -7,8 +10,9 @@ import contextlib
 from pathlib import Path
 from typing import Any
 
-from fusion.io.atomic import AtomicDirectory
-from fusion.sinks.base import Sink, SinkError, _need
+from fusion.io.atomic import AtomicDirectory, AtomicFile
+from fusion.io.incremental import DEFAULT_SYNC_INTERVAL, IncrementalFile
+from fusion.sinks.base import Sink, _need
 from fusion.sinks.cdr import _ros2_type, encode_cdr
 from fusion.sinks.ros_messages import MESSAGE_TYPES, Topics, ros_messages, stamp_ns
 from fusion.types.fused import FusedOdometry
@@ -67,7 +71,7 @@ class Rosbag2Sink(Sink):
         plugin = {"mcap": rosbag2.StoragePlugin.MCAP,
                   "sqlite3": rosbag2.StoragePlugin.SQLITE3}[self.storage]
         try:
-            self._writer = rosbag2.Writer(self._staged.staging / self._bag_name(), version=8,
+            self._writer = rosbag2.Writer(self._staged.staging / self.path.name, version=8,
                                           storage_plugin=plugin)
             if self.compression == "zstd":  # zstd-compressed MCAP chunks
                 self._writer.set_compression(rosbag2.CompressionMode.STORAGE,
@@ -90,24 +94,17 @@ class Rosbag2Sink(Sink):
         assert self._writer is not None and self._staged is not None
         writer, self._writer = self._writer, None
         writer.close()
-        return self._staged.staging / self._bag_name()
-
-    def _bag_name(self) -> str:
-        return self.path.name
+        return self._staged.staging / self.path.name
 
     def _close(self) -> None:
         try:
             built = self._finish_writer()
-            self._install(built)
+            assert self._staged is not None
+            self._staged.commit(built)  # replacing an old bag if allowed
         except BaseException:
             self._discard()
             raise
         self._discard()
-
-    def _install(self, built: Path) -> None:
-        """Move the finished bag folder to ``path`` (replacing an old one if allowed)."""
-        assert self._staged is not None
-        self._staged.commit(built)
 
     def _discard(self) -> None:
         if self._writer is not None:
@@ -122,28 +119,108 @@ class Rosbag2Sink(Sink):
         self._discard()
 
 
-class McapSink(Rosbag2Sink):
+class McapSink(Sink):
     """One self-contained ``.mcap`` file (ROS 2 profile, CDR messages with their ``ros2msg``
-    schemas) that Foxglove and any MCAP reader open directly.
+    schemas, the Jazzy definitions of :class:`Rosbag2Sink`) that Foxglove and any MCAP reader
+    open directly; written with the ``mcap`` package.
 
-    It is the data file of a :class:`Rosbag2Sink` bag with MCAP storage, moved to ``path`` by an
-    atomic rename on close: an existing file at ``path`` is replaced only by a complete one
-    (``overwrite`` defaults to True here, as for any single output file).
+    Two modes:
+
+    - offline (default): built in a hidden temporary file and renamed over ``path`` on close
+      (:class:`fusion.io.atomic.AtomicFile`): an existing file is replaced only by a complete
+      one; an error (``abort``) leaves it untouched. Equal records give byte-identical files.
+    - ``live=True`` (``fusion run``): a recording that survives a crash. Every
+      ``sync_interval`` seconds the open chunk is closed, written and fsynced
+      (:class:`fusion.io.incremental.IncrementalFile`), so after a SIGKILL or a power loss the
+      file at ``path`` holds every message up to the last sync; only its summary section (the
+      index at the end) is missing. :func:`fusion.io.bags.read_bag` reads such a file (up to
+      its last complete record), as does the ``mcap`` package's
+      :class:`mcap.stream_reader.StreamReader` (until it raises ``EndOfFile``), and the
+      ``mcap recover`` tool rewrites it into a complete file. A clean stop (close, and also
+      abort once records were written) writes the summary.
+
+    Args:
+        path: the ``.mcap`` file to write.
+        topics: topic names (:class:`Topics`).
+        overwrite: replace an existing file at ``path`` (True by default, as for any single
+            output file).
+        compression: ``"zstd"`` (default) or None, per chunk.
+        live: record live (crash-safe) instead of replacing the file atomically.
+        sync_interval: with ``live``, seconds between syncs (> 0).
     """
 
     def __init__(self, path: str | Path, *, topics: Topics | None = None,
-                 overwrite: bool = True, compression: str | None = "zstd") -> None:
-        super().__init__(path, storage="mcap", topics=topics, overwrite=overwrite,
-                         compression=compression)
+                 overwrite: bool = True, compression: str | None = "zstd", live: bool = False,
+                 sync_interval: float = DEFAULT_SYNC_INTERVAL) -> None:
+        super().__init__()
+        if compression not in (None, "zstd"):
+            raise ValueError(f"compression must be None or 'zstd', got {compression!r}")
+        if not sync_interval > 0:
+            raise ValueError(f"sync_interval must be > 0 s, got {sync_interval}")
+        self.path = Path(path)
+        self.topics = topics or Topics()
+        self.overwrite = overwrite
+        self.compression = compression
+        self.live = live
+        self.sync_interval = sync_interval
+        self._out: AtomicFile | None = None
+        self._writer: Any = None
+        self._channels: dict[str, int] = {}
 
-    def _bag_name(self) -> str:
-        # rosbags names the data file "<bag>.mcap" and records that name inside the file:
-        # a bag named after the stem makes it the final name (and the bytes independent of
-        # the temporary folder, so equal records give byte-identical files)
-        return self.path.stem if self.path.suffix == ".mcap" else self.path.name
+    def __repr__(self) -> str:
+        return f"McapSink({str(self.path)!r})"
 
-    def _install(self, built: Path) -> None:
-        files = sorted(built.glob("*.mcap"))
-        if len(files) != 1:
-            raise SinkError(f"{self.path}: expected one MCAP file in the bag, found {files}")
-        super()._install(files[0])  # a folder at path is an IsADirectoryError
+    def _open(self) -> None:
+        mcap_writer = _need("mcap.writer", "ros")
+        typesys = _need("rosbags.typesys", "ros")
+        store = typesys.get_typestore(typesys.Stores.ROS2_JAZZY)
+        if self.live:
+            self._out = IncrementalFile(self.path, "wb", overwrite=self.overwrite,
+                                        sync_interval=self.sync_interval)
+        else:
+            self._out = AtomicFile(self.path, "wb", overwrite=self.overwrite)
+        try:
+            compression = (mcap_writer.CompressionType.ZSTD if self.compression == "zstd"
+                           else mcap_writer.CompressionType.NONE)
+            self._writer = mcap_writer.Writer(self._out.file, compression=compression)
+            self._writer.start(profile="ros2", library="diffbot-fusion")
+            schemas: dict[str, int] = {}
+            for key, topic in self.topics.as_dict().items():
+                if topic is None:
+                    continue
+                name = _ros2_type(MESSAGE_TYPES[key])
+                if name not in schemas:
+                    text = store.generate_msgdef(name, ros_version=2)[0]
+                    schemas[name] = self._writer.register_schema(name, "ros2msg",
+                                                                 text.encode())
+                self._channels[key] = self._writer.register_channel(topic, "cdr",
+                                                                    schemas[name])
+        except BaseException:
+            self._out.discard()
+            raise
+
+    def _write(self, record: FusedOdometry) -> None:
+        ns = stamp_ns(record.t)
+        for key, _topic, msgtype, fields in ros_messages(record, self.topics):
+            self._writer.add_message(self._channels[key], log_time=ns, publish_time=ns,
+                                     data=encode_cdr(msgtype, fields))
+        if isinstance(self._out, IncrementalFile) and self._out.sync_interval_passed():
+            self._writer.flush()  # close the open chunk: the file is readable up to here
+            self._out.sync()
+
+    def _close(self) -> None:
+        assert self._out is not None
+        try:
+            self._writer.finish()
+        except BaseException:
+            self._out.discard()
+            raise
+        self._out.commit()
+
+    def _abort(self) -> None:
+        if self._out is None:
+            return
+        if self.live and self.records_written:  # a live recording keeps what it has
+            self._close()
+        else:
+            self._out.discard()

@@ -1,4 +1,5 @@
-"""Sinks for fused odometry: JSON lines, CSV, rosbag2/MCAP files, a Foxglove live server, ROS 1.
+"""Sinks for fused odometry: JSON lines, CSV, rosbag2/MCAP files, a Foxglove live server, ROS 1
+and ROS 2.
 
 Every sink has the same small interface: ``open()``, ``write(record)`` with a
 :class:`fusion.types.fused.FusedOdometry`, ``close()``, and use as a context manager (``with sink:``
@@ -23,14 +24,15 @@ topic                  type                    content
 =====================  ======================  =================================================
 
 Stamps are the record's ``t`` (s) as integer nanoseconds; ROS time cannot be negative, so a
-record with ``t < 0`` is a ValueError in the ROS-shaped sinks. The two live sinks (the ROS 1
-node and the Foxglove server) also take velocity commands on ``/cmd_vel``
+record with ``t < 0`` is a ValueError in the ROS-shaped sinks. The live sinks (the ROS 1
+node, the ROS 2 participant and the Foxglove server) also take velocity commands on ``/cmd_vel``
 (geometry_msgs/Twist) and hand ``(linear.x m/s, angular.z rad/s)`` to an ``on_cmd_vel``
 callback.
 
 Optional dependencies: ``rosbags`` for the bag sinks (``pip install 'diffbot-fusion[ros]'``),
-``foxglove-sdk`` for the live server (``[foxglove]``), Debian's ``python3-rospy`` and message
-packages for the ROS 1 node (:mod:`fusion.sinks.ros1`). They are imported when a sink opens.
+``foxglove-sdk`` for the live server (``[foxglove]``), ``cyclonedds`` for ROS 2 (``[ros2]``),
+Debian's ``python3-rospy`` and message packages for the ROS 1 node (:mod:`fusion.sinks.ros1`).
+They are imported when a sink opens.
 """
 
 from __future__ import annotations

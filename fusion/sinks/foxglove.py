@@ -108,11 +108,15 @@ class FoxgloveSink(Sink):
         ctx = foxglove.Context()
         extra: dict[str, Any] = {}
         if self.cmd_vel_topic is not None:
-            from foxglove.websocket import Capability
+            from foxglove.websocket import Capability, ServerListener
 
+            # the SDK's ServerListener gives every callback we do not handle (on_subscribe,
+            # on_unsubscribe, ...) its documented no-op; without it each client subscription
+            # logged "Callback failed: AttributeError"
+            listener = type("_Listener", (_CommandListener, ServerListener), {})(self)
             extra = {"capabilities": [Capability.ClientPublish],
                      "supported_encodings": ["json"],
-                     "server_listener": _CommandListener(self)}
+                     "server_listener": listener}
         try:
             self._server = foxglove.start_server(name=self.name, host=self.host,
                                                  port=self._port, context=ctx, **extra)
@@ -193,7 +197,9 @@ class FoxgloveSink(Sink):
 
 
 class _CommandListener:
-    """foxglove-sdk ServerListener: tracks client channels, forwards their messages."""
+    """The callbacks of a foxglove-sdk ServerListener that matter here: tracks client channels,
+    forwards their messages (mixed with ``foxglove.websocket.ServerListener`` in ``_open``,
+    which answers every other callback)."""
 
     def __init__(self, sink: FoxgloveSink) -> None:
         self.sink = sink

@@ -21,41 +21,17 @@ made with ``/usr/bin/python3 -m venv --system-site-packages`` to run this packag
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from typing import Any
 
-from fusion.sinks.base import Sink
 from fusion.sinks.ros_messages import MESSAGE_TYPES, Topics, ros_messages
+from fusion.sinks.ros_node import RateLimiter, RosNodeSink
 from fusion.types.fused import FusedOdometry
 
 __all__ = ["RateLimiter", "Ros1Sink"]
 
 
-class RateLimiter:
-    """Passes an event when at least ``1 / rate_hz`` s (of the events' own clock) have gone
-    by since the last one that passed; ``rate_hz=None`` passes everything.
-
-    The first event always passes; a clock that steps back restarts the schedule.
-    """
-
-    def __init__(self, rate_hz: float | None) -> None:
-        if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
-            raise ValueError(f"rate must be a positive number of Hz or None, got {rate_hz}")
-        self.period = 0.0 if rate_hz is None else 1.0 / rate_hz
-        self._last: float | None = None
-
-    def due(self, t: float) -> bool:
-        """True if an event at ``t`` (s) should be published."""
-        last = self._last
-        # 1e-9 s of slack: events on an exact grid (0.1 s at 10 Hz) are not lost to rounding
-        if last is None or t < last or t - last >= self.period - 1e-9:
-            self._last = t
-            return True
-        return False
-
-
-class Ros1Sink(Sink):
+class Ros1Sink(RosNodeSink):
     """A ROS 1 node that publishes each :class:`FusedOdometry` record (see the module doc).
 
     Args:
@@ -63,7 +39,8 @@ class Ros1Sink(Sink):
         node_name: ROS node name (used when this sink initialises the node).
         cmd_vel_topic: velocity command topic, or None not to subscribe.
         on_cmd_vel: ``callback(v, w)`` with linear.x (m/s) and angular.z (rad/s) of every
-            Twist received.
+            Twist received (one with a non-finite value is dropped and counted in
+            ``cmd_vel_rejected``).
         rate_hz: most records published per second of record time (seed 000 uses 10 Hz);
             None publishes every record.
         frame_id, child_frame_id, imu_frame_id: override the record's frame names.
@@ -93,28 +70,13 @@ class Ros1Sink(Sink):
         init_node: bool = True,
         queue_size: int = 10,
     ) -> None:
-        super().__init__()
-        if stamp not in ("now", "record"):
-            raise ValueError(f"stamp must be 'now' or 'record', got {stamp!r}")
-        if cmd_vel_topic is not None and not cmd_vel_topic.startswith("/"):
-            raise ValueError(f"cmd_vel_topic must be absolute like '/cmd_vel', got "
-                             f"{cmd_vel_topic!r}")
-        for name, value in (("frame_id", frame_id), ("child_frame_id", child_frame_id),
-                            ("imu_frame_id", imu_frame_id)):
-            if value is not None and (not isinstance(value, str) or not value):
-                raise ValueError(f"{name} must be a non-empty string or None, got {value!r}")
-        self.topics = topics or Topics()
+        super().__init__(topics, cmd_vel_topic=cmd_vel_topic, on_cmd_vel=on_cmd_vel,
+                         rate_hz=rate_hz, frame_id=frame_id, child_frame_id=child_frame_id,
+                         imu_frame_id=imu_frame_id, stamp=stamp)
         self.node_name = node_name
-        self.cmd_vel_topic = cmd_vel_topic
-        self.on_cmd_vel = on_cmd_vel
-        self.limiter = RateLimiter(rate_hz)
-        self.frames = {"frame_id": frame_id, "child_frame_id": child_frame_id,
-                       "imu_frame_id": imu_frame_id}
-        self.stamp = stamp
         self.master_uri = master_uri
         self.init_node = init_node
         self.queue_size = queue_size
-        self.cmd_vel_received = 0
         self._publishers: dict[str, Any] = {}
         self._subscriber: Any = None
         self._owns_node = False
@@ -169,9 +131,7 @@ class Ros1Sink(Sink):
         return cls
 
     def _on_twist(self, msg: Any) -> None:
-        self.cmd_vel_received += 1
-        if self.on_cmd_vel is not None:
-            self.on_cmd_vel(float(msg.linear.x), float(msg.angular.z))
+        self._command(msg.linear.x, msg.angular.z)
 
     def _build(self, msgtype: str, value: dict[str, Any], now: Any = None) -> Any:
         """A plain dict from :func:`fusion.sinks.ros_messages.ros_messages` -> a rospy message
@@ -197,11 +157,9 @@ class Ros1Sink(Sink):
         return cls(**kwargs)
 
     def _write(self, record: FusedOdometry) -> None:
-        if not self.limiter.due(record.t):
+        record = self._due(record)
+        if record is None:
             return
-        overrides = {k: v for k, v in self.frames.items() if v is not None}
-        if overrides:
-            record = FusedOdometry(**{**record.__dict__, **overrides})
         now = self._rospy.Time.now() if self.stamp == "now" else None  # one stamp per record
         for key, _topic, msgtype, fields in ros_messages(record, self.topics):
             self._publishers[key].publish(self._build(msgtype, fields, now))

@@ -69,7 +69,7 @@ def _quat(q: Any) -> dict[str, float]:
 
 
 def ros_messages(
-    record: FusedOdometry, topics: Topics | None = None
+    record: FusedOdometry, topics: Topics | None = None, *, stamp: int | None = None
 ) -> list[tuple[str, str, str, dict[str, Any]]]:
     """The ROS messages of one record as plain nested dicts, library neutral.
 
@@ -77,10 +77,13 @@ def ros_messages(
     wheel_right, skipping topics set to None and wheel speeds the record does not have.
     ``key`` is the :class:`Topics` field name, ``msgtype`` the ROS 1 spelling
     (``nav_msgs/Odometry``). Header stamps are integer nanoseconds (:func:`stamp_ns`); each
-    backend turns ``stamp`` into its own time type. Arrays (covariances) are float lists.
+    backend turns ``stamp`` into its own time type; ``stamp`` (ns, >= 0) replaces the record's
+    ``t`` in the headers (a live sink's wall-clock time). Arrays (covariances) are float lists.
     """
     topics = topics or Topics()
-    ns = stamp_ns(record.t)
+    if stamp is not None and not (isinstance(stamp, int) and stamp >= 0):
+        raise ValueError(f"stamp must be a non-negative integer of ns, got {stamp!r}")
+    ns = stamp_ns(record.t) if stamp is None else stamp
     yaw_q = _quat(record.yaw_quaternion)
     position = {"x": record.x, "y": record.y, "z": 0.0}
     out: list[tuple[str, str, str, dict[str, Any]]] = []

@@ -1,0 +1,8 @@
+"""Whole jobs over the pipeline: a replay of recorded logs into outputs, with its summary.
+
+Above :mod:`fusion.sinks` (a job opens its outputs) and below :mod:`fusion.cli` (which only
+parses arguments and prints): a user's script runs the same job as the command.
+
+- :mod:`fusion.jobs.replay`: replay a log directory, a DATA-uart2 capture or a ROS bag.
+- :mod:`fusion.jobs.plots`: the replay's trajectory and yaw plot (matplotlib).
+"""

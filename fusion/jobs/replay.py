@@ -1,0 +1,462 @@
+"""Replay recorded logs through the fusion pipeline into outputs, with a summary.
+
+Inputs: a log directory (``datasets/LOGDIR.md``: robot.toml, imu.csv, wheels.csv or
+wheels.uart2, optional truth.csv; read by :func:`fusion.io.logdir.read_logdir`), a DATA-uart2
+capture with a robot.toml, or a ROS bag (the IMU messages and a nav_msgs/Odometry twist).
+Every input runs through :class:`fusion.pipeline.core.FusionPipeline`'s batch entry point, the
+same object and code ``fusion run`` uses live.
+
+Outputs by suffix (:data:`OUTPUT_FORMATS`): ``.csv`` is the fused CSV
+(:mod:`fusion.io.fused_csv`) with the EKF state after every IMU sample (after every wheel
+frame or twist without an IMU); ``.mcap`` and ``.jsonl`` get the pipeline's records (one per
+wheel frame or twist) through :func:`fusion.sinks.registry.open_sink`. An existing file is only
+ever replaced by a complete one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
+from fusion.geometry.angles import wrap_angle
+from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
+from fusion.io.logdir import read_logdir
+from fusion.io.robot_toml import read_robot_toml
+from fusion.io.uart2 import read_uart2_capture
+from fusion.pipeline.core import FusionPipeline, PipelineStats
+from fusion.planar.odometry import WheelOdometry
+from fusion.planar.robot import RobotConfig
+from fusion.sinks.registry import open_sink
+
+__all__ = [
+    "CAPTURE_SUFFIXES",
+    "OUTPUT_FORMATS",
+    "BagReplay",
+    "LogJob",
+    "ReplayResult",
+    "Streams",
+    "check_plot_output",
+    "distance_travelled",
+    "find_log_dirs",
+    "fuse_streams",
+    "fused_table",
+    "is_bag",
+    "output_format",
+    "replay_bag",
+    "replay_capture",
+    "replay_logdir",
+    "replay_logs",
+    "run_log_job",
+]
+
+#: Output suffix -> format.
+OUTPUT_FORMATS = {".csv": "csv", ".mcap": "mcap", ".jsonl": "jsonl"}
+
+CAPTURE_SUFFIXES = (".uart2",)
+
+#: ``callback(done, total)``: seconds of log time replayed so far and in all.
+Progress = Callable[[float, float], None]
+
+
+@dataclass
+class Streams:
+    """What a replay fuses: IMU samples in the IMU frame (s, rad/s, m/s^2), wheel frames (s,
+    int ticks per period) and external odometry twists (s, m/s, rad/s); any may be None."""
+
+    imu_t: NDArray[np.float64] | None = None
+    gyro: NDArray[np.float64] | None = None
+    accel: NDArray[np.float64] | None = None
+    wheel_t: NDArray[np.float64] | None = None
+    ticks: NDArray[np.int64] | None = None
+    twist_t: NDArray[np.float64] | None = None
+    twist_v: NDArray[np.float64] | None = None
+    twist_w: NDArray[np.float64] | None = None
+
+    @staticmethod
+    def _has(a) -> bool:
+        return a is not None and a.size > 0
+
+    @property
+    def has_imu(self) -> bool:
+        return self._has(self.imu_t)
+
+    @property
+    def has_wheels(self) -> bool:
+        return self._has(self.wheel_t)
+
+    @property
+    def has_twist(self) -> bool:
+        return self._has(self.twist_t)
+
+    def span(self) -> tuple[float, float]:
+        """First and last stamp over the streams, s."""
+        ts = [a for a in (self.imu_t, self.wheel_t, self.twist_t) if self._has(a)]
+        if not ts:
+            raise ValueError("nothing to replay: no IMU sample, wheel frame or twist")
+        return min(float(a[0]) for a in ts), max(float(a[-1]) for a in ts)
+
+    def nominal_imu_rate(self) -> float:
+        """The IMU's nominal rate, Hz (the median interval, rounded: 100.0, not 99.99999 from
+        jittered stamps); 100 Hz without two samples (the attitude filter's first step, as
+        live)."""
+        if self.has_imu and self.imu_t.size >= 2:
+            dt = float(np.median(np.diff(self.imu_t)))
+            if math.isfinite(dt) and dt > 0:
+                return round(1.0 / dt, 3)
+        return 100.0
+
+
+@dataclass
+class ReplayResult:
+    """What a replay did (picklable: a worker process returns it).
+
+    Attributes:
+        source, output: input and output paths.
+        span: s of log time; n_imu, n_wheels: IMU samples and wheel frames read (a bag:
+            odometry messages).
+        rows: rows of the fused table (the state at every IMU sample, or wheel frame without
+            an IMU); records: pipeline records (one per wheel frame or twist).
+        final: last fused pose (x m, y m, yaw rad wrapped); distance: integral of |v|, m.
+        gyro_bias: rad/s; k (1), c (rad/m): the EKF's wheel yaw-rate calibration states.
+        stats: the pipeline's counters (:meth:`fusion.pipeline.core.PipelineStats.as_dict`)
+            and the EKF's ``invalid`` count.
+        wheel_distance: robot.toml's wheel separation, m.
+        truth: with truth, ``distance`` m and the fused/wheel-only final position error (% of
+            distance) and yaw RMSE (deg); else None.
+        notes: warnings for the user.
+    """
+
+    source: str
+    output: str
+    span: float
+    n_imu: int
+    n_wheels: int
+    rows: int
+    records: int
+    final: tuple[float, float, float]
+    distance: float
+    gyro_bias: float
+    k: float
+    c: float
+    stats: dict[str, Any]
+    wheel_distance: float
+    truth: dict[str, float] | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def output_format(path: Path) -> str:
+    """The output format of ``path`` by suffix; checks that it can be written there.
+
+    Raises:
+        ValueError: unknown suffix, missing folder, or a folder at ``path``.
+    """
+    fmt = OUTPUT_FORMATS.get(path.suffix.lower())
+    if fmt is None:
+        raise ValueError(f"{path}: unknown output type {path.suffix or '(no suffix)'!r}; "
+                         "give a .csv, .mcap or .jsonl file")
+    if not path.parent.is_dir():
+        raise ValueError(f"{path}: the folder {path.parent} does not exist")
+    if path.is_dir():
+        raise ValueError(f"{path}: is a folder; give a file path")
+    return fmt
+
+
+def is_bag(path: Path) -> bool:
+    """A ROS 1 .bag, an .mcap file or a ROS 2 bag folder (metadata.yaml)."""
+    if path.is_file():
+        return path.suffix.lower() in (".bag", ".mcap")
+    return (path / "metadata.yaml").is_file()
+
+
+def find_log_dirs(path: Path) -> list[Path]:
+    """The subfolders of ``path`` that are log directories (have robot.toml), sorted."""
+    return sorted(p for p in path.iterdir() if p.is_dir() and (p / "robot.toml").is_file())
+
+
+def fuse_streams(robot: RobotConfig, streams: Streams, output: Path, *, tilt: bool = True,
+                 progress: Progress | None = None
+                 ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats]:
+    """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl).
+
+    Returns ``(table, pipeline, stats)``: ``table`` (N, 19) in the fused CSV's columns
+    (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state after every IMU sample (after
+    every wheel frame or twist without an IMU).
+    """
+    fmt = output_format(output)
+    t0, t1 = streams.span()
+    sources = [name for name, on in (("imu", streams.has_imu), ("wheels", streams.has_wheels),
+                                     ("twist", streams.has_twist)) if on]
+    sinks = [] if fmt == "csv" else [open_sink(f"{fmt}:{output}")]
+    pipe = FusionPipeline(
+        robot, sinks, tilt=tilt, sources=sources, imu_rate_hz=streams.nominal_imu_rate(),
+        state_rows=("imu",) if streams.has_imu else ("wheels", "twist"),
+        on_progress=None if progress is None else (lambda t: progress(t - t0, t1 - t0)))
+    with pipe:
+        pipe.push_arrays(streams.imu_t, streams.gyro, streams.accel, streams.wheel_t,
+                         streams.ticks, twist_t=streams.twist_t, twist_v=streams.twist_v,
+                         twist_w=streams.twist_w)
+    table = fused_table(pipe.state_rows, robot.chassis.speed_ratio
+                         / robot.chassis.encode_sampling_time)
+    if fmt == "csv":
+        write_fused_csv(output, table)
+    if progress is not None:
+        progress(t1 - t0, t1 - t0)
+    return table, pipe, pipe.finish_stats()
+
+
+def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.float64]:
+    """Fused CSV rows (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`) from (N, 22) rows of
+    :attr:`FusionPipeline.state_rows` (yaw wrapped; wheel ticks times ``m_per_tick_s``,
+    m/tick/s, give rim speeds in m/s)."""
+    out = np.empty((rows.shape[0], len(FUSED_CSV_COLUMNS)))
+    out[:, 0] = rows[:, 0]  # t
+    out[:, 1:3] = rows[:, 1:3]  # x, y
+    out[:, 3] = wrap_angle(rows[:, 3])
+    out[:, 4:9] = rows[:, 4:9]  # v, w, b, k, c
+    out[:, 9:12] = rows[:, 9:12]  # var x, y, yaw
+    out[:, 12:15] = rows[:, 17:20]  # cov xy, x yaw, y yaw
+    out[:, 15:17] = rows[:, 12:14]  # var v, w
+    out[:, 17:19] = rows[:, 20:22] * m_per_tick_s
+    return out
+
+
+def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
+                  plot: str | Path | None = None, robot: RobotConfig | None = None,
+                  progress: Progress | None = None) -> ReplayResult:
+    """Replay a log directory into ``output``; optionally draw ``plot`` (PNG).
+
+    ``robot`` replaces the directory's own robot.toml (geometry, IMU mount, EKF tuning).
+    Raises on bad input, leaving no partial output.
+    """
+    path, output = Path(path), Path(output)
+    log = read_logdir(path, imu_frame="imu")
+    if log.wheel_t is None or log.wheel_t.size == 0:
+        raise ValueError(f"{path}: wheels.csv is missing or empty; the fused odometry needs "
+                         "the wheel encoder frames")
+    streams = Streams(log.imu_t, log.gyro, log.accel, log.wheel_t, log.ticks)
+    return _finish(path, output, robot or log.robot, streams, log.truth_t, log.truth,
+                   tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats)
+
+
+def replay_capture(path: str | Path, output: str | Path, robot: RobotConfig | str | Path, *,
+                   plot: str | Path | None = None,
+                   progress: Progress | None = None) -> ReplayResult:
+    """Replay a DATA-uart2 capture (wheel odometry only) with the chassis of ``robot`` (a
+    :class:`RobotConfig` or a robot.toml path). A timed capture is stamped as the live link
+    stamps; a raw one on the firmware period (:meth:`fusion.io.uart2.Uart2Capture.frame_times`).
+    """
+    path, output = Path(path), Path(output)
+    if not isinstance(robot, RobotConfig):
+        robot = read_robot_toml(robot)
+    period = robot.chassis.encode_sampling_time
+    cap = read_uart2_capture(path, period=period)
+    if not len(cap):
+        raise ValueError(f"{path}: no DATA-uart2 frame in the capture (parser counters: "
+                         f"{cap.stats})")
+    streams = Streams(wheel_t=np.asarray(cap.frame_times(period), dtype=np.float64),
+                      ticks=np.column_stack([cap.left, cap.right]).astype(np.int64))
+    return _finish(path, output, robot, streams, None, None, tilt=True, plot=plot,
+                   progress=progress, capture_stats=cap.stats)
+
+
+def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, truth_t, truth, *,
+            tilt: bool, plot, progress, capture_stats) -> ReplayResult:
+    if plot is not None:
+        check_plot_output(Path(plot))
+    table, pipe, stats = fuse_streams(robot, streams, output, tilt=tilt, progress=progress)
+    chassis = robot.chassis
+    ekf = pipe.ekf
+    wheel_t, ticks = streams.wheel_t, streams.ticks
+    n_imu = int(streams.imu_t.size) if streams.has_imu else 0
+    t0, t1 = streams.span()
+    notes = []
+    if capture_stats is not None:
+        bad = {k: v for k, v in capture_stats.items() if k not in ("frames", "bytes_in") and v}
+        if bad:
+            notes.append(f"capture parser counters: {bad}")
+    if n_imu and (wheel_t[-1] > streams.imu_t[-1] + chassis.encode_sampling_time
+                  or wheel_t[0] < streams.imu_t[0] - chassis.encode_sampling_time):
+        notes.append(f"wheel frames span {wheel_t[0]:.3f}-{wheel_t[-1]:.3f} s, the IMU "
+                     f"{streams.imu_t[0]:.3f}-{streams.imu_t[-1]:.3f} s; rows are written at "
+                     "IMU samples only, so the output covers the IMU's span")
+    t_out, xy, yaw = table[:, 0], table[:, 1:3], table[:, 3]
+    wheel = WheelOdometry(chassis).update_batch(ticks[:, 0], ticks[:, 1])
+    truth_res = None
+    if truth_t is not None and truth_t.size:
+        truth_res = _truth_errors(t_out, xy, yaw, wheel_t, wheel, truth_t, truth)
+    if plot is not None:
+        from fusion.jobs.plots import plot_replay
+
+        plot_replay(Path(plot), path.name, t_out, table[:, 1:4], wheel_t, wheel, truth_t,
+                    truth)
+    last = table[-1]
+    return ReplayResult(
+        source=str(path), output=str(output), span=t1 - t0, n_imu=n_imu,
+        n_wheels=int(wheel_t.size), rows=int(table.shape[0]), records=stats.records,
+        final=(float(last[1]), float(last[2]), float(last[3])),
+        distance=_distance(t_out, table[:, 4]), gyro_bias=float(ekf.gyro_bias),
+        k=float(ekf.x[6]), c=float(ekf.x[7]),
+        stats={**stats.as_dict(), "invalid": ekf.stats["invalid"]},
+        wheel_distance=chassis.wheel_distance, truth=truth_res, notes=notes)
+
+
+def _truth_errors(t, xy, yaw, wheel_t, wheel, truth_t, truth) -> dict[str, float]:
+    """Final position error (% of the true distance) and yaw RMSE (deg) of the fused and the
+    wheel-only tracks inside the truth's span."""
+    tr = _truth_at(truth_t, truth, t)
+    dist = path_length(truth)
+    inside = (t >= truth_t[0]) & (t <= truth_t[-1])
+    wtruth = _truth_at(truth_t, truth, wheel_t)
+    w_in = (wheel_t >= truth_t[0]) & (wheel_t <= truth_t[-1])
+    nan = math.nan  # a robot that did not move has no error per distance
+    return {
+        "distance": dist,
+        "fused_pct": final_position_error_percent(xy[inside], tr[inside, :2], dist)
+        if dist > 0 else nan,
+        "fused_yaw_deg": math.degrees(yaw_rmse(yaw[inside], tr[inside, 2])),
+        "wheel_pct": final_position_error_percent(wheel[w_in, :2], wtruth[w_in, :2], dist)
+        if dist > 0 else nan,
+        "wheel_yaw_deg": math.degrees(yaw_rmse(wheel[w_in, 2], wtruth[w_in, 2])),
+    }
+
+
+def check_plot_output(path: Path | None = None) -> None:
+    """Refuse a plot before any work: matplotlib missing, or ``path``'s folder missing."""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise ValueError("--plot needs matplotlib: pip install 'diffbot-fusion[demo]'") \
+            from None
+    if path is not None and not path.parent.is_dir():
+        raise ValueError(f"{path}: the folder {path.parent} does not exist")
+
+
+@dataclass
+class BagReplay:
+    """What :func:`replay_bag` did: the fused table (fused CSV columns), the pipeline, its
+    counters, the bag's own odometry pose moved to start at the origin ((K, 3) x m, y m, yaw
+    rad at ``odom_t``), and the bag's IMU and odometry (:func:`fusion.io.bags.read_bag`)."""
+
+    table: NDArray[np.float64]
+    pipeline: FusionPipeline
+    stats: PipelineStats
+    odom_t: NDArray[np.float64]
+    own: NDArray[np.float64]
+    imu: Any
+    odom: Any
+
+
+def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
+               robot: RobotConfig | None = None,
+               imu_mount_rpy: tuple[float, float, float] | None = None, tilt: bool = True,
+               plot: str | Path | None = None,
+               progress: Progress | None = None) -> BagReplay:
+    """Replay a ROS bag's IMU messages and odometry twists (the ``ros`` extra).
+
+    ``robot``: wheel_distance and [ekf] tuning (default: neutral values; the wheel distance
+    only enters the small radius-mismatch term of the speed); ``imu_mount_rpy`` (rad)
+    replaces the robot's IMU mount.
+    """
+    from fusion.geometry.kinematics import DiffDriveParams
+    from fusion.io.bags import read_bag
+
+    path, output = Path(path), Path(output)
+    output_format(output)
+    if plot is not None:
+        check_plot_output(Path(plot))
+    if robot is None:
+        robot = RobotConfig(DiffDriveParams(wheel_distance=0.5, speed_ratio=1e-4,
+                                            encode_sampling_time=0.02))
+    if imu_mount_rpy is not None:
+        robot = dataclasses.replace(robot, imu_mount_rpy=tuple(imu_mount_rpy))
+    bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic)
+    imu, odom = bag.imu, bag.odometry
+    streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=odom.t, twist_v=odom.v,
+                      twist_w=odom.w)
+    table, pipe, stats = fuse_streams(robot, streams, output, tilt=tilt, progress=progress)
+    x0, y0, th0 = odom.x[0], odom.y[0], odom.yaw[0]
+    c, sn = math.cos(th0), math.sin(th0)
+    dx, dy = odom.x - x0, odom.y - y0
+    own = np.column_stack([c * dx + sn * dy, -sn * dx + c * dy, wrap_angle(odom.yaw - th0)])
+    if plot is not None:
+        from fusion.jobs.plots import plot_replay
+
+        plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
+                    None, ref_label=f"the bag's own odometry ({odom_topic})")
+    return BagReplay(table, pipe, stats, odom.t, own, imu, odom)
+
+
+@dataclass(frozen=True)
+class LogJob:
+    """One log of a folder replay: input and output paths, tilt compensation, optional PNG."""
+
+    source: str
+    output: str
+    tilt: bool = True
+    plot: str | None = None
+
+
+def run_log_job(job: LogJob) -> tuple[str, Any]:
+    """Replay one log; ``("ok", ReplayResult)`` or ``("error", message)`` (the message names
+    the log; a worker process runs this)."""
+    try:
+        return "ok", replay_logdir(job.source, job.output, tilt=job.tilt, plot=job.plot)
+    except Exception as exc:  # reported in the summary; the other logs go on
+        msg = str(exc) or type(exc).__name__
+        if job.source not in msg:
+            msg = f"{job.source}: {msg}"
+        return "error", f"{msg} ({type(exc).__name__})"
+
+
+def replay_logs(jobs: list[LogJob], workers: int,
+                on_done: Callable[[LogJob, tuple[str, Any]], None] | None = None
+                ) -> dict[str, tuple[str, Any]]:
+    """Replay many logs in ``workers`` processes (1: in this process); returns each job's
+    :func:`run_log_job` result by source path. A worker that dies fails its log only."""
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    results: dict[str, tuple[str, Any]] = {}
+    if workers == 1:
+        for job in jobs:
+            results[job.source] = run_log_job(job)
+            if on_done is not None:
+                on_done(job, results[job.source])
+        return results
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        futures = {pool.submit(run_log_job, job): job for job in jobs}
+        for fut in as_completed(futures):
+            job = futures[fut]
+            try:
+                results[job.source] = fut.result()
+            except Exception as exc:  # a worker died (killed, out of memory)
+                results[job.source] = ("error", f"{job.source}: worker failed: {exc!r}")
+            if on_done is not None:
+                on_done(job, results[job.source])
+    return results
+
+
+def _distance(t: NDArray[np.float64], v: NDArray[np.float64]) -> float:
+    """Distance travelled, m: the integral of the fused |v| (the polyline through 100 Hz
+    position estimates would add their noise)."""
+    v = np.abs(v)
+    return float(np.sum(0.5 * (v[1:] + v[:-1]) * np.diff(t)))
+
+
+def distance_travelled(table: NDArray[np.float64]) -> float:
+    """Distance travelled in a fused table, m (the integral of the fused |v|)."""
+    return _distance(table[:, 0], table[:, 4])
+
+
+def _truth_at(truth_t, truth, t) -> NDArray[np.float64]:
+    yaw = np.unwrap(truth[:, 2])
+    return np.column_stack([np.interp(t, truth_t, truth[:, 0]),
+                            np.interp(t, truth_t, truth[:, 1]),
+                            np.interp(t, truth_t, yaw)])

@@ -1,0 +1,264 @@
+"""The planar EKF's model, written once: motion, process noise and every measurement.
+
+State ``x = [x, y, yaw, v, w, b, k, c]`` (m, m, rad, m/s, rad/s, rad/s, 1, rad/m; see
+:mod:`fusion.planar.ekf` for their meaning). Each function is plain arithmetic in numba's
+subset: the compiled core (:mod:`fusion.planar._ekf_core`) calls these very functions, they
+run interpreted when numba is absent, and the tests drive filterpy's own
+:class:`~filterpy.kalman.ExtendedKalmanFilter` with them as the reference. Nothing else in
+the project restates this algebra.
+
+- Motion (constant twist over ``dt`` s): ``yaw += w*dt``, ``x += v*dt*cos(yaw + w*dt/2)``,
+  ``y += v*dt*sin(yaw + w*dt/2)``; v, w, b, k, c stay. :func:`transition` (f),
+  :func:`transition_jacobian` (F); both from :func:`motion_terms`.
+- Process noise: random walks of v, w, b, k, c, :func:`process_noise` (Q).
+- Gyro: ``z = w + b`` (rad/s about the world vertical).
+- Wheel frame or external twist: ``v_m = v + c*w*L^2/4``, ``w_m = (1 + k)*w + c*v``
+  (m/s, rad/s), with ``L`` the wheel distance (m).
+- Zero-velocity update (ZUPT): ``z = [v, w] = [0, 0]``.
+- Absolute yaw: ``z = yaw``, the residual wrapped to (-pi, pi].
+
+Measurement functions come in threes: ``*_h(x)`` the predicted measurement (m,),
+``*_jacobian(x)`` its Jacobian (m, 8), ``*_noise(...)`` its covariance R (m, m).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from fusion._jit import njit
+from fusion.geometry.angles import wrap_angle_scalar
+
+__all__ = [
+    "NX",
+    "gyro_h",
+    "gyro_jacobian",
+    "gyro_noise",
+    "motion_terms",
+    "process_noise",
+    "process_noise_diagonal",
+    "ticks_measurement",
+    "transition",
+    "transition_jacobian",
+    "twist_measurement",
+    "wheel_h",
+    "wheel_jacobian",
+    "yaw_h",
+    "yaw_jacobian",
+    "yaw_noise",
+    "yaw_residual",
+    "zupt_h",
+    "zupt_jacobian",
+    "zupt_noise",
+]
+
+NX = 8  # state size
+
+
+# -- motion --------------------------------------------------------------------------------------
+@njit
+def motion_terms(x, dt):
+    """Increments and Jacobian entries of the constant-twist motion over ``dt`` s.
+
+    Returns ``(dx, dy, dyaw, f02, f03, f04, f12, f13, f14, f24)``: the increments of x (m),
+    y (m) and yaw (rad), and the non-zero off-diagonal entries ``F[i, j] = f_ij`` of the
+    Jacobian ``F = I + ...`` (every other entry of ``F`` is that of the identity).
+    """
+    yaw = x[2]
+    v = x[3]
+    w = x[4]
+    phi = yaw + 0.5 * w * dt
+    c = math.cos(phi)
+    s = math.sin(phi)
+    return (v * dt * c, v * dt * s, w * dt,
+            -v * dt * s, dt * c, -0.5 * v * dt * dt * s,
+            v * dt * c, dt * s, 0.5 * v * dt * dt * c,
+            dt)
+
+
+@njit
+def transition(x, dt):
+    """f(x, dt): the state (8,) after ``dt`` s of constant-twist motion (a new array)."""
+    t = motion_terms(x, dt)
+    out = x.copy()
+    out[0] += t[0]
+    out[1] += t[1]
+    out[2] += t[2]
+    return out
+
+
+@njit
+def transition_jacobian(x, dt):
+    """F(x, dt) = df/dx (8, 8) at the prior state ``x``."""
+    t = motion_terms(x, dt)
+    F = np.eye(NX)
+    F[0, 2] = t[3]
+    F[0, 3] = t[4]
+    F[0, 4] = t[5]
+    F[1, 2] = t[6]
+    F[1, 3] = t[7]
+    F[1, 4] = t[8]
+    F[2, 4] = t[9]
+    return F
+
+
+@njit
+def process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c):
+    """Diagonal of Q over ``dt`` s (a tuple of 8): random walks of v ((m/s)^2/s), w and b
+    ((rad/s)^2/s), k (1/s) and c ((rad/m)^2/s); the pose gets no noise of its own."""
+    return (0.0, 0.0, 0.0, q_v * dt, q_w * dt, q_b * dt, q_k * dt, q_c * dt)
+
+
+@njit
+def process_noise(dt, q_v, q_w, q_b, q_k, q_c):
+    """Q(dt) (8, 8), diagonal: see :func:`process_noise_diagonal`."""
+    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c)
+    Q = np.zeros((NX, NX))
+    for i in range(NX):
+        Q[i, i] = q[i]
+    return Q
+
+
+# -- gyro: z = w + b -----------------------------------------------------------------------------
+@njit
+def gyro_h(x):
+    """Predicted gyro rate about the world vertical, rad/s: ``[w + b]``."""
+    return np.array([x[4] + x[5]])
+
+
+@njit
+def gyro_jacobian(x):
+    """d(gyro_h)/dx (1, 8)."""
+    H = np.zeros((1, NX))
+    H[0, 4] = 1.0
+    H[0, 5] = 1.0
+    return H
+
+
+@njit
+def gyro_noise(variance):
+    """R (1, 1) of one gyro sample with ``variance`` (rad/s)^2."""
+    return np.full((1, 1), variance)
+
+
+# -- wheel frame or external twist: v_m = v + c*w*L^2/4, w_m = (1 + k)*w + c*v --------------------
+@njit
+def wheel_h(x, wheel_distance):
+    """Predicted wheel twist ``[v_m, w_m]`` (m/s, rad/s) for wheel distance ``L`` (m)."""
+    L2 = 0.25 * wheel_distance * wheel_distance
+    return np.array([x[3] + x[7] * x[4] * L2, (1.0 + x[6]) * x[4] + x[7] * x[3]])
+
+
+@njit
+def wheel_jacobian(x, wheel_distance):
+    """d(wheel_h)/dx (2, 8)."""
+    L2 = 0.25 * wheel_distance * wheel_distance
+    H = np.zeros((2, NX))
+    H[0, 3] = 1.0
+    H[0, 4] = x[7] * L2
+    H[0, 7] = x[4] * L2
+    H[1, 3] = x[7]
+    H[1, 4] = 1.0 + x[6]
+    H[1, 6] = x[4]
+    H[1, 7] = x[3]
+    return H
+
+
+@njit
+def _add_yaw_rate_noise(R, w_m, separation_std, wheel_w_std):
+    """Noise every wheel yaw rate ``w_m`` (rad/s) shares: a relative ``separation_std`` (1)
+    and a white ``wheel_w_std`` (rad/s), added to ``R[1, 1]`` in place."""
+    R[1, 1] += (separation_std * w_m) ** 2 + wheel_w_std ** 2
+
+
+@njit
+def ticks_measurement(left, right, speed_ratio, period, wheel_distance, tick_std, scale_std,
+                      separation_std, wheel_w_std):
+    """The twist ``z = [v_m, w_m]`` (m/s, rad/s) of one wheel frame and its R (2, 2).
+
+    ``left``, ``right``: ticks counted in one ``period`` (s); ``speed_ratio`` m/tick;
+    ``wheel_distance`` L (m). Each wheel's travel has the noise of ``tick_std`` ticks
+    (quantisation) and a relative ``scale_std``; ``(v, w) = M (dl, dr) / T`` with
+    ``M = [[1/2, 1/2], [-1/L, 1/L]]`` carries it over. Returns ``(z, R)``.
+    """
+    T = period
+    L = wheel_distance
+    dl = left * speed_ratio
+    dr = right * speed_ratio
+    v_m = 0.5 * (dl + dr) / T
+    w_m = (dr - dl) / (L * T)
+    tick = tick_std * speed_ratio
+    var_l = tick * tick + (scale_std * dl) ** 2
+    var_r = tick * tick + (scale_std * dr) ** 2
+    R = np.zeros((2, 2))
+    R[0, 0] = 0.25 * (var_l + var_r) / (T * T)
+    R[0, 1] = 0.5 * (var_r - var_l) / (L * T * T)
+    R[1, 0] = R[0, 1]
+    R[1, 1] = (var_l + var_r) / (L * L * T * T)
+    _add_yaw_rate_noise(R, w_m, separation_std, wheel_w_std)
+    return np.array([v_m, w_m]), R
+
+
+@njit
+def twist_measurement(v, w, v_std, w_std, scale_std, separation_std, wheel_w_std):
+    """``z = [v, w]`` (m/s, rad/s) of an external wheel odometry (nav_msgs/Odometry twist)
+    and its R (2, 2): ``v_std`` plus a relative ``scale_std`` on v, ``w_std`` on w, plus the
+    wheel yaw-rate noise. Returns ``(z, R)``."""
+    R = np.zeros((2, 2))
+    R[0, 0] = v_std ** 2 + (scale_std * v) ** 2
+    R[1, 1] = w_std ** 2
+    _add_yaw_rate_noise(R, w, separation_std, wheel_w_std)
+    return np.array([v, w]), R
+
+
+# -- zero-velocity update: z = [v, w] = 0 --------------------------------------------------------
+@njit
+def zupt_h(x):
+    """Predicted ``[v, w]`` (m/s, rad/s) of the zero-velocity pseudo-measurement."""
+    return np.array([x[3], x[4]])
+
+
+@njit
+def zupt_jacobian(x):
+    """d(zupt_h)/dx (2, 8)."""
+    H = np.zeros((2, NX))
+    H[0, 3] = 1.0
+    H[1, 4] = 1.0
+    return H
+
+
+@njit
+def zupt_noise(v_std, w_std):
+    """R (2, 2) of the ZUPT: ``v_std`` m/s, ``w_std`` rad/s."""
+    R = np.zeros((2, 2))
+    R[0, 0] = v_std ** 2
+    R[1, 1] = w_std ** 2
+    return R
+
+
+# -- absolute yaw: z = yaw, residual wrapped -----------------------------------------------------
+@njit
+def yaw_h(x):
+    """Predicted yaw, rad (continuous, not wrapped)."""
+    return np.array([x[2]])
+
+
+@njit
+def yaw_jacobian(x):
+    """d(yaw_h)/dx (1, 8)."""
+    H = np.zeros((1, NX))
+    H[0, 2] = 1.0
+    return H
+
+
+@njit
+def yaw_noise(std):
+    """R (1, 1) of an absolute yaw with standard deviation ``std`` rad."""
+    return np.full((1, 1), std * std)
+
+
+@njit
+def yaw_residual(z, hx):
+    """``z - hx`` (1,) wrapped to (-pi, pi] rad: a yaw near +pi and one near -pi are close."""
+    return np.array([wrap_angle_scalar(z[0] - hx[0])])

@@ -1,0 +1,136 @@
+"""Reference for the planar EKF: a plain filterpy ``ExtendedKalmanFilter`` driven by the model.
+
+filterpy does the Kalman algebra (``predict``: ``P = F P F^T + Q``; ``update``: ``inv(S)``,
+Joseph form, ``residual``); :mod:`fusion.planar.model` gives f, F, Q and each sensor's h, H
+and R; the filter's logic (time bookkeeping, late inputs, ZUPTs, slip gating, motion onset,
+saturated gyro) is written here again from :mod:`fusion.planar.ekf`'s description, with
+numpy, independently of :mod:`fusion.planar._ekf_core`. Used by tests/test_ekf.py and
+benchmarks/ekf_speed.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from filterpy.kalman import ExtendedKalmanFilter
+
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.planar import model
+from fusion.planar.ekf import EkfNoise
+
+__all__ = ["FilterpyReference"]
+
+GYRO, WHEELS, YAW, TWIST = 0, 1, 2, 3
+
+
+class FilterpyReference:
+    """The planar EKF on ``filterpy.kalman.ExtendedKalmanFilter`` (not a subclass of it).
+
+    ``step(kind, t, a, b)`` takes the events of :func:`fusion.planar.ekf.merge_events` and
+    returns the same status codes as :meth:`fusion.planar.ekf.PlanarEKF.process_batch`;
+    ``stats`` counts like :attr:`fusion.planar.ekf.PlanarEKF.stats`.
+    """
+
+    def __init__(self, robot: DiffDriveParams, noise: EkfNoise, x0, P0) -> None:
+        self.robot = robot
+        self.noise = noise
+        self.kf = ExtendedKalmanFilter(dim_x=8, dim_z=2)
+        self.kf.x = np.array(x0, dtype=float)
+        self.kf.P = np.array(P0, dtype=float)
+        self.t: float | None = None
+        self.zero_count = 0
+        self.stats = dict.fromkeys(("slips", "zupts", "late_dropped", "late_applied",
+                                    "invalid", "gyro_saturated", "updates"), 0)
+
+    # -- time ------------------------------------------------------------------------------------
+    def _predict(self, dt: float, still: bool) -> None:
+        n, kf = self.noise, self.kf
+        f = n.still_scale if still else 1.0
+        kf.F = model.transition_jacobian(kf.x, dt)
+        kf.Q = model.process_noise(dt, n.accel_psd * f, n.angular_accel_psd * f, n.bias_psd,
+                                   n.calib_k_psd, n.calib_c_psd)
+        kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
+        kf.predict()
+
+    def _advance(self, t: float) -> bool:
+        n = self.noise
+        if self.t is None:
+            self.t = t
+            return True
+        dt = t - self.t
+        if dt < 0:
+            if -dt <= n.late_tolerance:
+                self.stats["late_applied"] += 1
+                return True
+            self.stats["late_dropped"] += 1
+            return False
+        still = self.zero_count >= n.zupt_frames
+        while dt > 0:
+            h = min(dt, n.max_dt)
+            self._predict(h, still)
+            dt -= h
+        self.t = t
+        return True
+
+    # -- one event -------------------------------------------------------------------------------
+    def step(self, kind: int, t: float, a: float, b: float) -> int:
+        n, kf, r = self.noise, self.kf, self.robot
+        if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)):
+            self.stats["invalid"] += 1
+            return 6
+        if not self._advance(t):
+            return 5
+        status = 0
+        if kind == GYRO:
+            if abs(a) >= n.gyro_limit:
+                self.stats["gyro_saturated"] += 1
+                return 2
+            H = model.gyro_jacobian(kf.x)
+            R = model.gyro_noise(n.gyro_std ** 2)
+            if self.zero_count >= n.zupt_frames:
+                s = (H @ kf.P @ H.T + R)[0, 0]
+                if (a - model.gyro_h(kf.x)[0]) ** 2 / s > n.slip_gate:
+                    self.zero_count = 0
+                    kf.P[4, 4] += n.angular_accel_psd * r.encode_sampling_time
+            kf.update(np.array([a]), model.gyro_jacobian, model.gyro_h, R=R)
+        elif kind in (WHEELS, TWIST):
+            if kind == WHEELS:
+                still = a == 0 and b == 0
+            else:
+                still = abs(a) <= n.twist_zero_v and abs(b) <= n.twist_zero_w
+            self.zero_count = self.zero_count + 1 if still else 0
+            if self.zero_count >= n.zupt_frames:
+                kf.update(np.zeros(2), model.zupt_jacobian, model.zupt_h,
+                          R=model.zupt_noise(n.zupt_v_std, n.zupt_w_std))
+                status = 4
+                self.stats["zupts"] += 1
+            else:
+                L = r.wheel_distance
+                if kind == WHEELS:
+                    z, R = model.ticks_measurement(a, b, r.speed_ratio, r.encode_sampling_time,
+                                                   L, n.tick_std, n.scale_std,
+                                                   n.separation_std, n.wheel_w_std)
+                else:
+                    z, R = model.twist_measurement(a, b, n.twist_v_std, n.twist_w_std,
+                                                   n.scale_std, n.separation_std,
+                                                   n.wheel_w_std)
+                H = model.wheel_jacobian(kf.x, L)
+                S = H @ kf.P @ H.T + R
+                y = z - model.wheel_h(kf.x, L)
+                if y[1] ** 2 / S[1, 1] > n.slip_gate:  # the yaw rate disagrees: a slip
+                    self.stats["slips"] += 1
+                    if n.slip_inflation <= 0:
+                        self.stats["updates"] += 1
+                        return 2
+                    R = R * n.slip_inflation
+                    status = 1
+                kf.update(z, model.wheel_jacobian, model.wheel_h, R=R, args=(L,), hx_args=(L,))
+        elif kind == YAW:
+            kf.update(np.array([a]), model.yaw_jacobian, model.yaw_h, R=model.yaw_noise(b),
+                      residual=model.yaw_residual)
+        else:
+            self.stats["invalid"] += 1
+            return 6
+        self.stats["updates"] += 1
+        return status
