@@ -76,10 +76,21 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         "--output": [changes(k, "-o", "other.csv") for k in ("broad", "csv", "csv+mag")],
         "--axes": [changes("broad", "--axes", "9"), changes("csv+mag", "--axes", "9"),
                    refused("csv", "--axes 9 needs magnetometer columns", "--axes", "9")],
-        "--kp": [changes(k, "--kp", "2") for k in ("broad", "csv", "csv+mag")],
-        "--ki": [changes(k, "--ki", "0.3") for k in ("broad", "csv", "csv+mag")],
-        "--initial-quaternion": [changes(k, "--initial-quaternion", "0", "0", "0", "1")
-                                 for k in ("broad", "csv", "csv+mag")],
+        "--filter": [changes(k, "--filter", "mahony") for k in ("broad", "csv", "csv+mag")],
+        "--offline": [*(changes(k, "--offline") for k in ("broad", "csv", "csv+mag")),
+                      refused("csv", "--offline is a Keel mode", "--offline", "--filter",
+                              "mahony")],
+        "--kp": [*(changes(k, "--kp", "2", both=("--filter", "mahony"))
+                   for k in ("broad", "csv", "csv+mag")),
+                 refused("csv", "--kp: Mahony-only option(s); add --filter mahony", "--kp", "2")],
+        "--ki": [*(changes(k, "--ki", "0.3", both=("--filter", "mahony"))
+                   for k in ("broad", "csv", "csv+mag")),
+                 refused("csv", "--ki: Mahony-only option(s)", "--ki", "0.3")],
+        "--initial-quaternion": [
+            *(changes(k, "--initial-quaternion", "0", "0", "0", "1", both=both)
+              for k in ("broad", "csv", "csv+mag") for both in ((), ("--filter", "mahony"))),
+            refused("csv", "cannot be used with --offline", "--initial-quaternion", "1", "0",
+                    "0", "0", "--offline")],
     },
     "imu": {
         # --bus and --sim choose the input kind; --bus needs hardware (tests/test_mpu6050_cli)

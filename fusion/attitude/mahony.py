@@ -49,7 +49,16 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from fusion._jit import njit
+from fusion._jit import compiled_entry_point, njit
+from fusion.attitude._inputs import (
+    as_rows,
+    check_dt,
+    check_dts,
+    explicit_periods,
+    timestamps_array,
+    unit_quaternion,
+    vec3,
+)
 from fusion.geometry import quaternion as quat
 from fusion.types.constants import STANDARD_GRAVITY
 
@@ -156,7 +165,7 @@ class MahonyParams:
         if not (math.isfinite(self.rest_min_duration) and self.rest_min_duration >= 0):
             raise ValueError(f"rest_min_duration must be >= 0, got {self.rest_min_duration!r}")
         if self.sample_period is not None:
-            _check_dt(self.sample_period)
+            check_dt(self.sample_period)
         if self.accel_rejection is not None and not self.accel_rejection > 0:
             raise ValueError(f"accel_rejection must be > 0 or None, got {self.accel_rejection!r}")
 
@@ -371,50 +380,11 @@ def _run_one9(B, g, a, m, dt):
           m[0], m[1], m[2], True, dt)
 
 
-def _entry_point(dispatcher, n_vectors: int):
-    """``dispatcher`` compiled for its one signature, callable without numba's type dispatch.
-
-    Dispatch costs about 1 us per call, as much as the filter step itself; the compiled entry
-    point of the one signature we use skips it (callers guarantee the types: float64 arrays of
-    shape (3,)). Falls back to the dispatcher, or to the plain Python function without numba.
-    """
-    try:
-        from numba import types
-
-        vec = types.float64[:]  # any stride: rows and columns of bigger arrays too
-        sig = (types.float64[::1], *(vec,) * n_vectors, types.float64)
-        dispatcher.compile(sig)
-        return dispatcher.overloads[sig].entry_point
-    except Exception:  # numba missing (plain function) or an internal API change
-        return dispatcher
-
-
 _run_one6_fast = None
 _run_one9_fast = None
 _F64 = np.dtype(np.float64)
 _NDARRAY = np.ndarray
 _SHAPE3 = (3,)
-
-
-# --------------------------------------------------------------------------------------------
-# Input checks
-# --------------------------------------------------------------------------------------------
-
-
-def _check_dt(dt: float) -> float:
-    dt = float(dt)
-    if not (math.isfinite(dt) and dt > 0):
-        raise ValueError(f"sample period dt must be finite and > 0 s, got {dt!r}")
-    return dt
-
-
-def _as_rows(name: str, a: ArrayLike, n: int | None = None) -> NDArray[np.float64]:
-    arr = np.ascontiguousarray(a, dtype=np.float64)
-    if arr.ndim != 2 or arr.shape[1] != 3:
-        raise ValueError(f"{name} must have shape (N, 3), got {arr.shape}")
-    if n is not None and arr.shape[0] != n:
-        raise ValueError(f"{name} has {arr.shape[0]} rows but gyro has {n}")
-    return arr
 
 
 class Mahony:
@@ -464,10 +434,7 @@ class Mahony:
         self.axes = axes
         self._initial = None
         if initial_quaternion is not None:
-            q0 = np.asarray(initial_quaternion, dtype=float)
-            if q0.shape != (4,):
-                raise ValueError(f"initial_quaternion must have shape (4,), got {q0.shape}")
-            self._initial = quat.normalize(q0)
+            self._initial = unit_quaternion("initial_quaternion", initial_quaternion)
         self.params = params
         self.reset()
 
@@ -621,8 +588,8 @@ class Mahony:
         return self._update_general(gyro, accel, mag, dt, timestamp)
 
     def _update_general(self, gyro, accel, mag, dt, timestamp) -> NDArray[np.float64]:
-        g = _vec3("gyro", gyro)
-        a = _vec3("accel", accel)
+        g = vec3("gyro", gyro)
+        a = vec3("accel", accel)
         if dt is None and timestamp is None and self._default_dt is not None:
             dt = self._default_dt  # already validated
         else:
@@ -633,16 +600,16 @@ class Mahony:
                 self._C[_C_ACC_SKIP] += 1
                 return quat.IDENTITY.copy()
             if _run_one6_fast is None:
-                _run_one6_fast = _entry_point(_run_one6, 2)
+                _run_one6_fast = compiled_entry_point(_run_one6, 2)
             _run_one6_fast(self._B, g, a, dt)
             self._arm_fast_path()
         else:
-            m = _vec3("mag", mag)
+            m = vec3("mag", mag)
             if not self._initialised and not self._initialise(a, m):
                 self._C[_C_ACC_SKIP] += 1
                 return quat.IDENTITY.copy()
             if _run_one9_fast is None:
-                _run_one9_fast = _entry_point(_run_one9, 3)
+                _run_one9_fast = compiled_entry_point(_run_one9, 3)
             _run_one9_fast(self._B, g, a, m, dt)
         return self._q.copy()
 
@@ -668,7 +635,7 @@ class Mahony:
             dt = self._params.sample_period
             if dt is None:
                 raise ValueError("no dt: pass dt=, timestamps, or set sample_period")
-        return _check_dt(dt)
+        return check_dt(dt)
 
     # -- batch --------------------------------------------------------------------------------
 
@@ -693,11 +660,11 @@ class Mahony:
                 measured from the previous call's last timestamp when there was one, else it is
                 ``sample_period`` if set, else the first difference.
         """
-        g = _as_rows("gyro", gyro)
+        g = as_rows("gyro", gyro)
         n = g.shape[0]
-        a = _as_rows("accel", accel, n)
+        a = as_rows("accel", accel, n)
         use_mag = self.axes == 9 and mag is not None
-        m = _as_rows("mag", mag, n) if use_mag else np.zeros((0, 3))
+        m = as_rows("mag", mag, n) if use_mag else np.zeros((0, 3))
         dts = self._batch_dt(n, dt, timestamps)
         out = np.empty((n, 4))
         if n == 0:
@@ -720,14 +687,9 @@ class Mahony:
 
     def _batch_dt(self, n: int, dt, timestamps) -> NDArray[np.float64]:
         if timestamps is not None:
-            t = np.asarray(timestamps, dtype=np.float64)
-            if t.shape != (n,):
-                raise ValueError(f"timestamps must have shape ({n},), got {t.shape}")
+            t = timestamps_array(timestamps, n)
             if n == 0:
                 return np.zeros(1)
-            if not np.all(np.isfinite(t)):
-                bad = int(np.flatnonzero(~np.isfinite(t))[0])
-                raise ValueError(f"timestamps[{bad}] is not finite ({t[bad]!r})")
             if dt is None:
                 if self._last_t is not None:
                     first = t[0] - self._last_t
@@ -740,7 +702,7 @@ class Mahony:
                 dts = np.empty(n)
                 dts[0] = first
                 dts[1:] = np.diff(t)
-                self._check_dts(dts, "timestamps must increase strictly: at index")
+                check_dts(dts, "timestamps must increase strictly: at index")
                 self._last_t = float(t[-1])
                 return dts
             self._last_t = float(t[-1])
@@ -748,25 +710,4 @@ class Mahony:
             if self._params.sample_period is None:
                 raise ValueError("no dt: pass dt=, timestamps=, or set sample_period")
             return np.array([self._params.sample_period])
-        dts = np.atleast_1d(np.asarray(dt, dtype=np.float64))
-        if dts.shape not in ((1,), (n,)):
-            raise ValueError(f"dt must be a scalar or have shape ({n},), got {dts.shape}")
-        self._check_dts(dts, "dt must be finite and > 0 s: at index")
-        return np.ascontiguousarray(dts)
-
-    @staticmethod
-    def _check_dts(dts: NDArray, message: str) -> None:
-        bad = ~(np.isfinite(dts) & (dts > 0))
-        if np.any(bad):
-            i = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"{message} {i} (dt = {dts[i]!r} s)")
-
-
-def _vec3(name: str, v: ArrayLike) -> NDArray[np.float64]:
-    """``v`` as a float64 (3,) array; the common case costs one type check."""
-    if type(v) is np.ndarray and v.dtype is _F64 and v.shape == (3,):
-        return v
-    arr = np.asarray(v, dtype=np.float64)
-    if arr.shape != (3,):
-        raise ValueError(f"{name} must have 3 components, got shape {arr.shape}")
-    return arr
+        return explicit_periods(dt, n)
