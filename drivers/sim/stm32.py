@@ -433,14 +433,15 @@ def main(argv: list[str] | None = None) -> int:
         os.makedirs(args.link_dir, exist_ok=True)
         data_link = os.path.join(args.link_dir, "data")
         debug_link = os.path.join(args.link_dir, "debug")
+
     def on_term(signum, frame):  # SIGTERM (kill, systemd) stops like Ctrl-C: links removed
         raise KeyboardInterrupt
 
     signal.signal(signal.SIGTERM, on_term)
     sim = PtyStm32(Stm32Sim(params), data_link=data_link, debug_link=debug_link).start()
-    print(f"data (DATA-uart2):   {sim.data_port}", flush=True)
-    print(f"debug (DEBUG-uart1): {sim.debug_port}", flush=True)
-    try:
+    try:  # a SIGTERM may come as soon as the ports are printed
+        print(f"data (DATA-uart2):   {sim.data_port}", flush=True)
+        print(f"debug (DEBUG-uart1): {sim.debug_port}", flush=True)
         end = None if args.duration is None else time.monotonic() + args.duration
         while end is None or time.monotonic() < end:
             time.sleep(0.1)
