@@ -2,8 +2,8 @@
 writing the same content its own way, and messages/s of fusion.io.bags.read_bag beside a bare
 rosbags read loop.
 
-- McapSink (ROS 2 CDR, written with the mcap package, 5 messages per record) vs foxglove-sdk's own MCAP
-  writer with its protobuf schemas (foxglove.Odometry, FrameTransforms, JSON IMU/speeds).
+- McapSink (ROS 2 CDR, written with the mcap package, 5 messages per record) vs foxglove-sdk's
+  own MCAP writer with its protobuf schemas (foxglove.Odometry, FrameTransforms, JSON IMU/speeds).
 - Rosbag2Sink (sqlite3 storage) vs the same messages serialised and written by rosbags
   directly (what our message building adds).
 - JsonLinesSink to memory vs json.dumps of the same dicts.
