@@ -66,6 +66,7 @@ from fusion.evaluation.trajectory import (
 )
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.planar.ekf import EkfNoise, fuse, pose_covariances
+from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.odometry import TwistOdometry, WheelOdometry
 
 ROBOT = EXAMPLE_ROBOT
@@ -129,14 +130,16 @@ def kinematic_section(seeds: int, duration: float) -> None:
     _table(results)
 
 
-def score_physics_run(run) -> tuple[dict[str, tuple[float, float]], float]:
+def score_physics_run(run, noise: EkfNoise | None = None
+                      ) -> tuple[dict[str, tuple[float, float]], float]:
     """Errors of the three contenders on one physics run, and the EKF's NEES fraction."""
     robot = run.robot.chassis
     tw = run.truth_at(run.wheel_t)
     out = {"wheel only": _errors(wheel_only(robot, run.ticks), tw, run.distance)}
     stops = gyro_at_stops(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     out["gyro at stops"] = _errors(stops.poses, tw, run.distance)
-    track, _ = fuse(robot, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks)
+    track, _ = fuse(robot, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+                    noise=noise, imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
     k = track.kind == GYRO_ROWS
     est = track.states[k, :3]
     truth = run.truth_at(track.t[k])
@@ -212,7 +215,8 @@ def bag_section() -> None:
     contenders["gyro at stops"] = gyro_at_stops_twist(imu.t, imu.gyro, imu.accel, t, odom.v,
                                                       odom.w).poses
     robot = DiffDriveParams(wheel_distance=0.5, speed_ratio=1e-4, encode_sampling_time=0.02)
-    track, _ = fuse(robot, imu.t, imu.gyro[:, 2], twist_t=t, twist_v=odom.v, twist_w=odom.w)
+    track, _ = fuse(robot, imu.t, imu.gyro[:, 2], twist_t=t, twist_v=odom.v, twist_w=odom.w,
+                    imu_motion=imu_motion_codes(imu.t, imu.gyro, imu.accel))
     k = track.kind == GYRO_ROWS
     fused = track.states[k, :3]
     contenders["fused EKF"] = np.column_stack([np.interp(t, track.t[k], fused[:, j])

@@ -27,6 +27,7 @@ from fusion.io.fused_csv import write_fused_csv
 from fusion.jobs.replay import fused_table
 from fusion.pipeline.core import FusionPipeline
 from fusion.planar.ekf import fuse, vertical_rate
+from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import RobotConfig
 from fusion.sinks.text import JsonLinesSink
 
@@ -114,7 +115,8 @@ def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
                                                                 timestamps=imu.t)
             gz = vertical_rate(imu.gyro, q)
         track, _ = fuse(NEUTRAL.chassis, imu.t, gz, noise=NEUTRAL.ekf, twist_t=odom.t,
-                        twist_v=odom.v, twist_w=odom.w)
+                        twist_v=odom.v, twist_w=odom.w,
+                        imu_motion=imu_motion_codes(imu.t, imu.gyro, imu.accel))
         rows = track.output_rows()
         assert rows.sum() == N_IMU
         no_wheels = np.full((int(rows.sum()), 2), np.nan)

@@ -24,6 +24,7 @@ from fusion.pipeline.records import _fast_record, _record_fields
 from fusion.pipeline.sources import capture_events, logdir_events, merge_by_time, replay
 from fusion.planar import _ekf_core as core
 from fusion.planar.ekf import EkfNoise, fuse, vertical_rate
+from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import RobotConfig
 from fusion.sinks.text import JsonLinesSink
 from fusion.types.fused import FusedOdometry
@@ -49,14 +50,17 @@ def events(run):
 
 
 def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
-    """Oracle: Mahony.update_batch -> ekf.vertical_rate -> ekf.fuse (batch, merge_events'
-    own ordering), composed here from the library's pieces. The pipeline, fed one event at a
-    time in host order, must publish exactly the fused state after every wheel frame."""
+    """Oracle: Mahony.update_batch -> ekf.vertical_rate, imu_motion_codes -> ekf.fuse
+    (batch, merge_events' own ordering), composed here from the library's pieces. The
+    pipeline, fed one event at a time in host order, must publish exactly the fused state
+    after every wheel frame."""
     robot = RobotConfig(chassis=run.robot)
     q = Mahony(axes=6, sample_period=0.01).update_batch(run.gyro, run.accel,
                                                          timestamps=run.imu_t)
     gz = vertical_rate(run.gyro, q)
-    track, ekf = fuse(run.robot, run.imu_t, gz, run.wheel_t, run.ticks, EkfNoise())
+    motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    track, ekf = fuse(run.robot, run.imu_t, gz, run.wheel_t, run.ticks, EkfNoise(),
+                      imu_motion=motion)
     rows = track.states[track.kind == core.EV_WHEELS]
     t_rows = track.t_filter[track.kind == core.EV_WHEELS]
 
@@ -294,7 +298,8 @@ def _push_any(pipe, ev):
 
 
 def test_twists_stream_into_the_ekfs_own_twist_update(run):
-    """Oracle: Mahony.update_batch -> vertical_rate -> ekf.fuse(twist_t=...) composed by hand
+    """Oracle: Mahony.update_batch -> vertical_rate, imu_motion_codes -> ekf.fuse(twist_t=...)
+    composed by hand
     (merge_events' ordering). IMU samples and twists pushed one at a time in host order must
     publish exactly the fused state after every twist."""
     robot = RobotConfig(chassis=run.robot)
@@ -303,7 +308,7 @@ def test_twists_stream_into_the_ekfs_own_twist_update(run):
                                                          timestamps=run.imu_t)
     gz = vertical_rate(run.gyro, q)
     track, ekf = fuse(run.robot, run.imu_t, gz, noise=EkfNoise(), twist_t=tt, twist_v=tv,
-                      twist_w=tw)
+                      twist_w=tw, imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
     is_t = track.kind == core.EV_TWIST
     rows, t_rows = track.states[is_t], track.t_filter[is_t]
 

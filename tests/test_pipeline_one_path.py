@@ -24,6 +24,7 @@ from fusion.geometry.mount import vertical_rate
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.sources import merge_by_time
 from fusion.planar.ekf import PlanarEKF
+from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import RobotConfig
 from fusion.sinks.text import JsonLinesSink
 from fusion.types.samples import ImuSample, WheelTicks
@@ -89,6 +90,8 @@ def _reference(run, window: float, sources: tuple[str, ...]):
                                                          timestamps=run.imu_t)
     rate = vertical_rate(run.gyro, q)
     rate_at = dict(zip(run.imu_t.tolist(), rate.tolist()))
+    motion_at = dict(zip(run.imu_t.tolist(),
+                         imu_motion_codes(run.imu_t, run.gyro, run.accel).tolist()))
     heap: list = []
     marks = {name: -math.inf for name in sources}
     newest = -math.inf
@@ -97,7 +100,7 @@ def _reference(run, window: float, sources: tuple[str, ...]):
     def apply(ev):
         kind, t, a, b = ev
         if kind == "imu":
-            ekf.update_gyro(t, a)
+            ekf.update_gyro(t, a, motion_at[t])
         else:
             ekf.update_wheels(t, a, b)
             out.append(ekf.x.copy())

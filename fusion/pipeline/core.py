@@ -65,6 +65,7 @@ from fusion.pipeline import _event_core as ev_core
 from fusion.pipeline.records import _fast_record, _record_fields
 from fusion.planar import _ekf_core as core
 from fusion.planar.ekf import PlanarEKF
+from fusion.planar.imu_motion import ImuMotionDetector
 from fusion.planar.robot import RobotConfig
 from fusion.types.fused import FusedOdometry
 from fusion.types.lifecycle import Lifecycle
@@ -113,6 +114,8 @@ class PipelineStats:
         records: records published.
         late_dropped, late_applied: inputs the EKF dropped as too late / fused at its own time.
         slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
+        encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
+            (or the stop would have been impossibly hard): flagged and not fused.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
         gap_count: gaps seen in total; frames_missing: frames missing in them.
     """
@@ -128,6 +131,7 @@ class PipelineStats:
     late_applied: int = 0
     slips: int = 0
     zupts: int = 0
+    encoder_faults: int = 0
     gap_count: int = 0
     frames_missing: int = 0
     gaps: collections.deque = field(default_factory=lambda: collections.deque(maxlen=100))
@@ -234,6 +238,8 @@ class FusionPipeline(Lifecycle):
         self.ekf = PlanarEKF(chassis, robot.ekf)
         self.mahony = mahony if mahony is not None else Mahony(axes=6,
                                                                sample_period=1.0 / imu_rate_hz)
+        # still / moving per IMU sample, for the EKF's ZUPT and encoder-fault decisions
+        self._motion = ImuMotionDetector()
         self._mount = _matrix_or_none(robot.imu_to_base())
         self._sched = ev_core.new_sched(*(name in sources for name in _SOURCES))
         self._heap_f = np.empty((256, 4))
@@ -423,10 +429,11 @@ class FusionPipeline(Lifecycle):
                     gyro, accel = imu_to_base(R, gyro), imu_to_base(R, accel)
                 q = self._attitude(imu_t, gyro, accel)
                 rate = vertical_rate(gyro, q) if self.tilt else gyro[:, 2].copy()
+                motion = self._motion.update_batch(imu_t, gyro, accel)
                 self._last_imu_t = float(imu_t[-1])
                 stats.imu_samples += imu_t.size
                 ref0 = self._imu_rows.append(q, gyro, accel)
-                parts.append((imu_t, _EV_GYRO, imu_t, rate, np.zeros(imu_t.size),
+                parts.append((imu_t, _EV_GYRO, imu_t, rate, motion,
                               np.arange(ref0, ref0 + imu_t.size)))
         if wheel_t is not None and wheel_t.size:
             dropped, wheel_t, (ticks,) = _in_order(wheel_t, self._last_wheel_t, ticks)
@@ -606,6 +613,7 @@ class FusionPipeline(Lifecycle):
         self.stats.late_applied = s["late_applied"]
         self.stats.slips = s["slips"]
         self.stats.zupts = s["zupts"]
+        self.stats.encoder_faults = s["encoder_faults"]
         return self.stats
 
     def latency_percentiles(self, *qs: float) -> list[float]:

@@ -69,7 +69,10 @@ P_TWIST_W_STD = 22
 P_TWIST_ZERO_V = 23
 P_TWIST_ZERO_W = 24
 P_GYRO_LIMIT = 25
-PAR_SIZE = 26
+P_STOP_DECEL = 26
+P_YAW_FIX_RATE = 27
+P_YAW_FIX_BURST = 28
+PAR_SIZE = 29
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -81,7 +84,24 @@ A_LAST_D2 = 6
 A_UPDATES = 7
 A_ERROR = 8
 A_SATURATED = 9
-AUX_SIZE = 10
+A_IMU_MOTION = 10  # the last IMU sample's motion code (fusion.planar.imu_motion)
+A_FAULTS = 11  # wheel frames or twists flagged as encoder faults
+A_FLAGS = 12  # flags of the last wheel frame or twist: FLAG_ZUPT | FLAG_SLIP | FLAG_FAULT
+A_WHEEL_T = 13  # effective time of the last wheel frame or twist (NaN: none yet)
+A_YAW_BUDGET = 14  # yaw correction rate measurements may still make now, rad
+AUX_SIZE = 15
+# per-frame flags
+FLAG_ZUPT = 1
+FLAG_SLIP = 2
+FLAG_FAULT = 4
+# IMU motion codes (fusion.planar.imu_motion)
+MOTION_UNKNOWN = 0
+MOTION_STILL = 1
+MOTION_UNSURE = 2
+MOTION_MOVING = 3
+# rate measurements correct the states from here on: never x, y (only through the motion
+# model); yaw at a bounded rate (see update_core)
+FIRST_RATE_STATE = 2
 # event kinds
 EV_GYRO = 0
 EV_WHEELS = 1
@@ -170,10 +190,16 @@ def _cholesky_solve_rows(S, B, m, out):
 
 
 @njit
-def update_core(x, P, y, H, R, gate_index, gate, inflation):
+def update_core(x, P, y, H, R, gate_index, gate, inflation, first, yaw_cap):
     """Kalman update (in place) with innovation ``y`` (m,), Jacobian ``H`` (m, 8), noise ``R``.
 
     Joseph form ``P = (I-KH) P (I-KH)^T + K R K^T``, gain by a Cholesky solve of ``S``.
+    Only the states ``first..7`` are corrected: the gain rows of the states before ``first``
+    are zero (a Schmidt "consider" update; the Joseph form keeps ``P`` the covariance of the
+    estimate for that gain). Rate measurements pass ``first = FIRST_RATE_STATE`` so that
+    they never move the position (x, y) except through the motion model. The yaw row of the
+    gain is scaled down, if need be, so that the update moves yaw by at most ``yaw_cap``
+    rad (``inf``: no limit); again any gain keeps the Joseph-form ``P`` consistent.
     Gating: the squared Mahalanobis distance of component ``gate_index`` of the innovation
     (``-1``: of the whole vector) is compared with ``gate``; above it, ``R`` is multiplied by
     ``inflation`` before the update (``inflation <= 0``: the update is skipped).
@@ -227,6 +253,17 @@ def update_core(x, P, y, H, R, gate_index, gate, inflation):
     Kt = np.zeros((m, NX))
     if not _cholesky_solve_rows(S, Bt, m, Kt):
         return d2, 3
+    for j in range(m):
+        for i in range(first):
+            Kt[j, i] = 0.0
+    if first <= 2:
+        dyaw = 0.0
+        for j in range(m):
+            dyaw += Kt[j, 2] * y[j]
+        if abs(dyaw) > yaw_cap:
+            scale = yaw_cap / abs(dyaw)
+            for j in range(m):
+                Kt[j, 2] *= scale
     for i in range(NX):
         acc = 0.0
         for j in range(m):
@@ -276,6 +313,9 @@ def _advance(x, P, aux, par, t):
         aux[A_T] = t
         return True
     dt = t - t_now
+    if dt > 0.0:
+        aux[A_YAW_BUDGET] = min(aux[A_YAW_BUDGET] + par[P_YAW_FIX_RATE] * dt,
+                                par[P_YAW_FIX_BURST])
     if dt < 0.0:
         if -dt <= par[P_LATE_TOLERANCE]:
             aux[A_LATE_APPLIED] += 1.0
@@ -298,19 +338,137 @@ def _advance(x, P, aux, par, t):
 
 
 @njit
+def _rate_update(x, P, aux, y, H, R):
+    """:func:`update_core` for a rate measurement (gyro, wheels, twist, ZUPT): the position
+    is not corrected, the heading by at most the yaw budget, which the update spends.
+
+    The budget refills at ``yaw_fix_rate`` rad/s up to ``yaw_fix_burst`` rad
+    (:func:`_advance`): over any interval of ``T`` s, rate measurements change the heading by
+    at most ``yaw_fix_burst + yaw_fix_rate*T``. Returns ``(d2, status)``.
+    """
+    yaw = x[2]
+    d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, FIRST_RATE_STATE,
+                             aux[A_YAW_BUDGET])
+    aux[A_YAW_BUDGET] = max(aux[A_YAW_BUDGET] - abs(x[2] - yaw), 0.0)
+    return d2, status
+
+
+@njit
+def _wheel_update(x, P, aux, par, z, R):
+    """Fuse a wheel twist ``z = [v_m, w_m]`` with noise ``R``; returns ``(d2, status)``.
+
+    The yaw-rate component is gated (chi-square, 1 dof, against the gyro-corrected rate
+    state): a frame above the gate is a slip, and only its speed is fused, with its noise
+    multiplied by ``slip_inflation`` (0: nothing is fused). A slipping frame's yaw rate is
+    never fused, so it cannot bend the heading.
+    """
+    L = par[P_WHEEL_DISTANCE]
+    H = wheel_jacobian(x, L)
+    y = wheel_h(x, L)
+    y[0] = z[0] - y[0]
+    y[1] = z[1] - y[1]
+    d2 = y[1] * y[1] / innovation_variance(P, H, R, 1)
+    if d2 <= par[P_GATE]:
+        _, status = _rate_update(x, P, aux, y, H, R)
+        return d2, status
+    aux[A_SLIPS] += 1.0
+    aux[A_FLAGS] = FLAG_SLIP
+    inflation = par[P_SLIP_INFLATION]
+    if inflation <= 0.0:
+        return d2, 2
+    H1 = np.zeros((1, NX))
+    for j in range(NX):
+        H1[0, j] = H[0, j]
+    _, status = _rate_update(x, P, aux, np.array([y[0]]), H1,
+                             np.full((1, 1), R[0, 0] * inflation))
+    return d2, 1 if status == 0 else status
+
+
+@njit
+def _impossible_stop(x, P, aux, par, t):
+    """True when zero wheel speed at ``t`` needs a harder braking than ``stop_decel`` since
+    the last wheel frame (three standard deviations of v allowed on top)."""
+    dt = par[P_PERIOD]
+    if not math.isnan(aux[A_WHEEL_T]) and t - aux[A_WHEEL_T] > dt:
+        dt = t - aux[A_WHEEL_T]
+    return abs(x[3]) > par[P_STOP_DECEL] * dt + 3.0 * math.sqrt(P[3, 3])
+
+
+@njit
+def _wheel_event(x, P, aux, par, kind, t, a, b):
+    """A wheel frame (kind 1) or an external twist (kind 3); returns ``(d2, status)``.
+
+    Zero wheel speed is a stop only if the IMU agrees: with the IMU moving (or, unless it is
+    still, a stop harder than ``stop_decel`` allows) it is an encoder fault, flagged and not
+    fused (status 7): the pose coasts on the motion model, its covariance growing. A stop
+    that lasts ``zupt_frames`` frames with a still IMU (or no IMU information) gives a ZUPT;
+    before that, or with the IMU unsure, the zero speed is fused as an ordinary frame.
+    """
+    aux[A_FLAGS] = 0.0
+    if kind == 1:
+        still = a == 0.0 and b == 0.0
+    else:
+        still = abs(a) <= par[P_TWIST_ZERO_V] and abs(b) <= par[P_TWIST_ZERO_W]
+    imu = aux[A_IMU_MOTION]
+    if still:
+        fault = imu == MOTION_MOVING or (imu != MOTION_STILL
+                                         and _impossible_stop(x, P, aux, par, t))
+        aux[A_WHEEL_T] = t
+        if fault:
+            aux[A_FAULTS] += 1.0
+            aux[A_FLAGS] = FLAG_FAULT
+            aux[A_ZERO_COUNT] = 0.0
+            return math.nan, 7
+        aux[A_ZERO_COUNT] += 1.0
+        if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES] and (imu == MOTION_STILL
+                                                        or imu == MOTION_UNKNOWN):
+            y = -zupt_h(x)  # z = [0, 0]
+            d2, status = _rate_update(x, P, aux, y, zupt_jacobian(x),
+                                      zupt_noise(par[P_ZUPT_V_STD], par[P_ZUPT_W_STD]))
+            if status == 0:
+                status = 4
+                aux[A_ZUPTS] += 1.0
+                aux[A_FLAGS] = FLAG_ZUPT
+            return d2, status
+    else:
+        if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
+            # motion onset after a stop: the speed may have grown during this period at the
+            # moving robot's pace, not the still one's
+            P[3, 3] += par[P_Q_V] * par[P_PERIOD]
+        aux[A_ZERO_COUNT] = 0.0
+        aux[A_WHEEL_T] = t
+    L = par[P_WHEEL_DISTANCE]
+    if kind == 1:
+        z, R = ticks_measurement(a, b, par[P_SPEED_RATIO], par[P_PERIOD], L,
+                                 par[P_TICK_STD], par[P_SCALE_STD], par[P_SEP_STD],
+                                 par[P_WHEEL_W_STD])
+    else:
+        # a twist from someone else's wheel odometry (nav_msgs/Odometry)
+        z, R = twist_measurement(a, b, par[P_TWIST_V_STD], par[P_TWIST_W_STD],
+                                 par[P_SCALE_STD], par[P_SEP_STD], par[P_WHEEL_W_STD])
+    return _wheel_update(x, P, aux, par, z, R)
+
+
+@njit
 def step_core(x, P, aux, par, kind, t, a, b):
     """Process one input event at effective time ``t`` (s); returns the update status.
 
-    kind 0 (gyro): ``a`` = yaw rate about the world z axis, rad/s.
+    kind 0 (gyro): ``a`` = yaw rate about the world z axis, rad/s; ``b`` = the sample's IMU
+    motion code (:mod:`fusion.planar.imu_motion`; 0 = unknown).
     kind 1 (wheels): ``a``, ``b`` = left, right ticks in one period; ``t`` is the period's
     midpoint (stamp - period/2 - latency), the instant whose speed the period's mean equals.
     kind 2 (absolute yaw): ``a`` = yaw, rad; ``b`` = its standard deviation, rad.
     kind 3 (twist): ``a`` = forward speed m/s, ``b`` = yaw rate rad/s of an external wheel
     odometry (nav_msgs/Odometry twist), taken as instantaneous at ``t``.
 
-    Status: 0 applied, 1 applied down-weighted (slip), 2 gated out (or a saturated gyro
-    sample skipped), 3 S not positive definite,
-    4 zero-velocity update, 5 dropped as too late, 6 invalid input.
+    Only the absolute yaw corrects the pose directly; the rate measurements (gyro, wheels,
+    twist, ZUPT) correct v, w, b, k, c, and the pose follows through the motion model.
+
+    Status: 0 applied, 1 slip (speed fused down-weighted, yaw rate not fused), 2 gated out
+    (or a saturated gyro sample skipped), 3 S not positive definite,
+    4 zero-velocity update, 5 dropped as too late, 6 invalid input,
+    7 encoder fault (zero wheel speed while the IMU or the speed says the robot moves; not
+    fused).
     """
     if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)):
         aux[A_ERROR] += 1.0
@@ -318,6 +476,10 @@ def step_core(x, P, aux, par, kind, t, a, b):
     if not _advance(x, P, aux, par, t):
         return 5
     if kind == 0:
+        if b == MOTION_STILL or b == MOTION_UNSURE or b == MOTION_MOVING:
+            aux[A_IMU_MOTION] = b
+        else:
+            aux[A_IMU_MOTION] = MOTION_UNKNOWN
         if abs(a) >= par[P_GYRO_LIMIT]:
             # a saturated gyro reads the full-scale value, not the rate: skip it and let the
             # wheels carry the yaw rate until the gyro is back in range
@@ -329,50 +491,21 @@ def step_core(x, P, aux, par, kind, t, a, b):
         y[0] = a - y[0]
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
             # motion onset while standing still: a gyro reading the still model cannot
-            # explain ends the stationary phase and gives w its freedom back (otherwise the
-            # first turn would leak into the bias)
-            if y[0] * y[0] / innovation_variance(P, H, R, 0) > par[P_GATE]:
+            # explain, or an IMU that shakes, ends the stationary phase and gives w its
+            # freedom back (otherwise the first turn would leak into the bias)
+            if (y[0] * y[0] / innovation_variance(P, H, R, 0) > par[P_GATE]
+                    or b == MOTION_MOVING):
                 aux[A_ZERO_COUNT] = 0.0
                 P[4, 4] += par[P_Q_W] * par[P_PERIOD]
-        d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0)
+        d2, status = _rate_update(x, P, aux, y, H, R)
     elif kind == 1 or kind == 3:
-        L = par[P_WHEEL_DISTANCE]
-        if kind == 1:
-            still = a == 0.0 and b == 0.0
-        else:
-            still = abs(a) <= par[P_TWIST_ZERO_V] and abs(b) <= par[P_TWIST_ZERO_W]
-        if still:
-            aux[A_ZERO_COUNT] += 1.0
-        else:
-            aux[A_ZERO_COUNT] = 0.0
-        if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
-            y = -zupt_h(x)  # z = [0, 0]
-            d2, status = update_core(x, P, y, zupt_jacobian(x),
-                                     zupt_noise(par[P_ZUPT_V_STD], par[P_ZUPT_W_STD]),
-                                     -1, math.inf, 0.0)
-            if status == 0:
-                status = 4
-                aux[A_ZUPTS] += 1.0
-        else:
-            if kind == 1:
-                z, R = ticks_measurement(a, b, par[P_SPEED_RATIO], par[P_PERIOD], L,
-                                         par[P_TICK_STD], par[P_SCALE_STD], par[P_SEP_STD],
-                                         par[P_WHEEL_W_STD])
-            else:
-                # a twist from someone else's wheel odometry (nav_msgs/Odometry)
-                z, R = twist_measurement(a, b, par[P_TWIST_V_STD], par[P_TWIST_W_STD],
-                                         par[P_SCALE_STD], par[P_SEP_STD], par[P_WHEEL_W_STD])
-            y = wheel_h(x, L)
-            y[0] = z[0] - y[0]
-            y[1] = z[1] - y[1]
-            # the yaw-rate component is gated: a slipping wheel disagrees with the gyro
-            d2, status = update_core(x, P, y, wheel_jacobian(x, L), R, 1, par[P_GATE],
-                                     par[P_SLIP_INFLATION])
-            if status == 1 or status == 2:
-                aux[A_SLIPS] += 1.0
+        d2, status = _wheel_event(x, P, aux, par, kind, t, a, b)
+        if status == 7:
+            return status
     elif kind == 2:
         y = yaw_residual(np.array([a]), yaw_h(x))
-        d2, status = update_core(x, P, y, yaw_jacobian(x), yaw_noise(b), -1, math.inf, 0.0)
+        d2, status = update_core(x, P, y, yaw_jacobian(x), yaw_noise(b), -1, math.inf, 0.0, 0,
+                                 math.inf)
     else:
         aux[A_ERROR] += 1.0
         return 6

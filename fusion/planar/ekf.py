@@ -131,7 +131,16 @@ class EkfNoise:
             gyro samples between ZUPTs then all inform the bias).
         slip_gate: chi-square threshold (1 dof) of the wheel/gyro yaw-rate disagreement
             (10.83 = 0.1 % false alarms).
-        slip_inflation: factor on the wheel noise of a gated frame (0: drop the frame).
+        slip_inflation: factor on the speed noise of a gated (slipping) frame, whose yaw
+            rate is never fused (0: drop the frame).
+        stop_decel: hardest braking the robot can do, m/s^2: zero wheel speed that would
+            need more (with three standard deviations of v on top), while the IMU is not
+            still, is an encoder fault, not a stop.
+        yaw_fix_rate, yaw_fix_burst: rate measurements (gyro, wheels, twists, ZUPTs) never
+            correct the position (it follows from the motion model), and the heading by at
+            most ``yaw_fix_burst + yaw_fix_rate*T`` (rad; rad/s) over any ``T`` s: a heading
+            error that a better bias or wheel scale reveals is corrected at that pace, never
+            in a jump.
         late_tolerance: inputs at most this much older than the filter time are fused at the
             filter time, s; older ones are dropped.
         max_dt: longest single prediction step, s.
@@ -163,6 +172,9 @@ class EkfNoise:
     still_scale: float = 1e-4
     slip_gate: float = 10.83
     slip_inflation: float = 1e4
+    stop_decel: float = 3.0
+    yaw_fix_rate: float = math.radians(0.5)
+    yaw_fix_burst: float = math.radians(1.0)
     late_tolerance: float = 0.05
     max_dt: float = 0.05
     wheel_latency: float = 0.0
@@ -176,9 +188,9 @@ class EkfNoise:
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            if name == "gyro_limit":
+            if name in ("gyro_limit", "yaw_fix_rate", "yaw_fix_burst"):
                 if not (isinstance(value, (int, float)) and value > 0):
-                    raise ValueError(f"EkfNoise.gyro_limit must be > 0 rad/s (or inf), got "
+                    raise ValueError(f"EkfNoise.{name} must be > 0 rad/s (or inf), got "
                                      f"{value!r}")
                 continue
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
@@ -240,6 +252,7 @@ def merge_events(
     twist_t: ArrayLike | None = None,
     twist_v: ArrayLike | None = None,
     twist_w: ArrayLike | None = None,
+    imu_motion: ArrayLike | None = None,
 ):
     """Merge gyro, wheel, absolute-yaw and twist inputs into one time-ordered event list.
 
@@ -251,6 +264,8 @@ def merge_events(
         yaw_t, yaw, yaw_std: absolute yaw stamps (s), values (rad), standard deviations (rad).
         twist_t, twist_v, twist_w: external odometry twists: stamps (s), forward speed (m/s),
             yaw rate (rad/s), fused at their stamps.
+        imu_motion: (N,) IMU motion code of each gyro sample
+            (:func:`fusion.planar.imu_motion.imu_motion_codes`), or None (unknown).
 
     Returns:
         ``(kinds, t_eff, a, b, stamp)`` arrays sorted by effective time (stable; at equal
@@ -275,7 +290,13 @@ def merge_events(
         kinds.append(np.full(it.size, core.EV_GYRO))
         ts.append(it)
         aa.append(gz)
-        bb.append(np.zeros(it.size))
+        if imu_motion is None:
+            bb.append(np.zeros(it.size))
+        else:
+            mc = np.asarray(imu_motion, dtype=float).reshape(-1)
+            if mc.size != it.size:
+                raise ValueError(f"{it.size} IMU stamps but {mc.size} motion codes")
+            bb.append(mc)
         st.append(it)
     if yaw_t is not None:
         yt = np.asarray(yaw_t, dtype=float).reshape(-1)
@@ -374,7 +395,7 @@ class PlanarEKF(ExtendedKalmanFilter):
     Attributes:
         t: filter time, s (None before the first input).
         stats: counters: ``slips``, ``zupts``, ``late_dropped``, ``late_applied``,
-            ``invalid``, ``gyro_saturated``, ``updates``.
+            ``invalid``, ``gyro_saturated``, ``encoder_faults``, ``updates``.
     """
 
     def __init__(
@@ -427,8 +448,13 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_TWIST_ZERO_V] = n.twist_zero_v
         par[core.P_TWIST_ZERO_W] = n.twist_zero_w
         par[core.P_GYRO_LIMIT] = n.gyro_limit
+        par[core.P_STOP_DECEL] = n.stop_decel
+        par[core.P_YAW_FIX_RATE] = n.yaw_fix_rate
+        par[core.P_YAW_FIX_BURST] = n.yaw_fix_burst
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
+        self._aux[core.A_WHEEL_T] = math.nan
+        self._aux[core.A_YAW_BUDGET] = n.yaw_fix_burst
 
     # -- state -------------------------------------------------------------------------------
     @property
@@ -446,6 +472,7 @@ class PlanarEKF(ExtendedKalmanFilter):
             "late_applied": int(a[core.A_LATE_APPLIED]),
             "invalid": int(a[core.A_ERROR]),
             "gyro_saturated": int(a[core.A_SATURATED]),
+            "encoder_faults": int(a[core.A_FAULTS]),
             "updates": int(a[core.A_UPDATES]),
         }
 
@@ -479,18 +506,19 @@ class PlanarEKF(ExtendedKalmanFilter):
         return int(core.step_core(self.x, self.P, self._aux, self._par, kind, float(t),
                                   float(a), float(b)))
 
-    def update_gyro(self, t: float, rate_z: float) -> int:
-        """Fuse a yaw rate about the world vertical (rad/s) stamped ``t`` (s).
+    def update_gyro(self, t: float, rate_z: float, motion: int = 0) -> int:
+        """Fuse a yaw rate about the world vertical (rad/s) stamped ``t`` (s), with the
+        sample's IMU motion code ``motion`` (:mod:`fusion.planar.imu_motion`; 0 unknown).
 
         Use :func:`vertical_rate` for a tilted robot. Returns the status code of
         :func:`fusion.planar._ekf_core.step_core` (0 applied, 5 dropped as too late, 6 invalid).
         """
-        return self._step(core.EV_GYRO, t, rate_z, 0.0)
+        return self._step(core.EV_GYRO, t, rate_z, motion)
 
     def update_wheels(self, t: float, left: int, right: int) -> int:
         """Fuse one wheel frame: ``left``, ``right`` ticks counted in the period ending at
-        host time ``t`` (s). Returns the status (0 applied, 1 down-weighted as slip, 4 ZUPT,
-        5 too late)."""
+        host time ``t`` (s). Returns the status (0 applied, 1 slip: speed down-weighted, yaw
+        rate not fused, 4 ZUPT, 5 too late, 7 encoder fault: not fused)."""
         t_eff = t - 0.5 * self.robot.encode_sampling_time - self.noise.wheel_latency
         return self._step(core.EV_WHEELS, t_eff, left, right)
 
@@ -599,6 +627,7 @@ def fuse(
     twist_t: ArrayLike | None = None,
     twist_v: ArrayLike | None = None,
     twist_w: ArrayLike | None = None,
+    imu_motion: ArrayLike | None = None,
 ) -> tuple[FusedTrack, PlanarEKF]:
     """Fuse recorded streams offline (merged by effective time, see the module docstring).
 
@@ -611,6 +640,10 @@ def fuse(
         yaw_t, yaw, yaw_std: optional absolute yaw (s, rad, rad).
         twist_t, twist_v, twist_w: optional external odometry twists (s, m/s, rad/s), e.g.
             from a ROS bag's nav_msgs/Odometry, instead of (or besides) wheel ticks.
+        imu_motion: (N,) IMU motion code per gyro sample
+            (:func:`fusion.planar.imu_motion.imu_motion_codes` of the base-frame gyro and
+            accelerometer), or None: the stops are then judged by the wheels and the gyro rate
+            alone.
 
     Returns:
         ``(track, filter)``; the filter holds the final state.
@@ -618,7 +651,7 @@ def fuse(
     ekf = PlanarEKF(robot, noise)
     kinds, t_eff, a, b, stamp = merge_events(
         imu_t, gyro_z, wheel_t, ticks, robot.encode_sampling_time, ekf.noise.wheel_latency,
-        yaw_t, yaw, yaw_std, twist_t, twist_v, twist_w,
+        yaw_t, yaw, yaw_std, twist_t, twist_v, twist_w, imu_motion,
     )
     states, status = ekf.process_batch(kinds, t_eff, a, b)
     return FusedTrack(stamp, kinds, states, status, ekf.stats, t_eff), ekf

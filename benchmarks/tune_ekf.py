@@ -1,0 +1,117 @@
+"""Choose the planar EKF's defaults by leave-one-seed-out cross-validation on the physics simulator.
+
+Tuning runs: fusion.evaluation.physics_sim scenarios "plain", "all" and "all+dead", and the
+kinematic simulator's degraded mission (fusion.evaluation.synthetic), 300 s, seeds 100-105:
+disjoint from seeds 0-7 that benchmarks/ekf_accuracy.py and the tests report (those are never
+looked at here). Each configuration of a small grid of EkfNoise fields runs on every tuning
+run; a seed's score is the mean over the three scenarios of
+
+    yaw RMSE (deg) + final position error (% of distance) + (1 - fraction of rows whose pose
+    NEES lies inside its 95 % bounds)
+
+(lower is better; the four scenarios weigh the same). For each seed the configuration best on
+the other seeds is chosen and scored on the held-out seed: the mean of those held-out scores is
+the cross-validated (CV) figure. The configuration best on all tuning seeds is the one to ship
+as the default; its mean over them is printed too, labelled in-sample.
+
+Last run (23:00 UTC 2026-11-24): CV objective 5.205; best in-sample 5.158 with accel_psd
+0.002, yaw_fix_rate 0.25 deg/s, slip_inflation 100; the shipped defaults (0.002, 0.5 deg/s,
+1e4) score 5.173 in-sample, within 0.3 %: slip_inflation stays 1e4, which keeps a slipping
+frame's speed out of the distance on the kinematic slip test (tests/test_ekf.py).
+
+The IMU motion thresholds (fusion.planar.imu_motion.MotionThresholds) are not tuned here: they
+come from the sensors' noise (a few standard deviations of an MPU6050 at rest) and from the
+order of magnitude of vibration while driving.
+
+Run: python benchmarks/tune_ekf.py   (a few minutes on one core)
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+
+import numpy as np
+from _cv import leave_one_out  # benchmarks/_cv.py (scripts run from benchmarks/)
+
+from fusion.evaluation.physics_sim import physics_scenario
+from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+from fusion.evaluation.trajectory import (
+    final_position_error_percent,
+    nees,
+    nees_fraction_within,
+    pose_errors,
+    yaw_rmse,
+)
+from fusion.planar import _ekf_core as core
+from fusion.planar.ekf import EkfNoise, fuse, pose_covariances
+from fusion.planar.imu_motion import imu_motion_codes
+
+SEEDS = range(100, 106)
+SCENARIOS = ("plain", "all", "all+dead", "kinematic")
+GRID = {
+    "accel_psd": [0.002, 0.006, 0.02, 0.06],
+    "yaw_fix_rate": [math.radians(0.25), math.radians(0.5), math.radians(1.0)],
+    "slip_inflation": [1e2, 1e4],
+}
+
+
+def configs() -> list[dict]:
+    keys = list(GRID)
+    return [dict(zip(keys, values, strict=True)) for values in itertools.product(*GRID.values())]
+
+
+def score(run, robot, codes, noise: EkfNoise) -> float:
+    """The tuning objective of one run (see the module docstring)."""
+    track, _ = fuse(robot, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+                    noise=noise, imu_motion=codes)
+    k = track.kind == core.EV_GYRO
+    est = track.states[k, :3]
+    if not np.isfinite(track.states[k]).all():
+        return math.inf
+    truth = run.truth_at(track.t[k])
+    inside = nees_fraction_within(nees(pose_errors(est, truth), pose_covariances(track.states[k])),
+                                  3)
+    return (math.degrees(yaw_rmse(est[:, 2], truth[:, 2]))
+            + final_position_error_percent(est[:, :2], truth, run.distance) + (1.0 - inside))
+
+
+def main() -> None:
+    t0 = time.perf_counter()
+    grid = configs()
+    table = np.zeros((len(grid), len(SEEDS)))
+    for j, seed in enumerate(SEEDS):
+        for scenario in SCENARIOS:
+            if scenario == "kinematic":
+                run = degraded_mission(seed=seed, duration=300.0)
+                robot = EXAMPLE_ROBOT
+            else:
+                run = physics_scenario(scenario, seed=seed)
+                robot = run.robot.chassis
+            codes = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+            for i, cfg in enumerate(grid):
+                table[i, j] += score(run, robot, codes, EkfNoise(**cfg)) / len(SCENARIOS)
+    cv = leave_one_out(table)
+    default = EkfNoise()
+    current = next(i for i, cfg in enumerate(grid)
+                   if all(getattr(default, k) == v for k, v in cfg.items()))
+
+    def show(cfg: dict) -> str:
+        return ", ".join(f"{k}={math.degrees(v):.2f} deg/s" if k == "yaw_fix_rate"
+                         else f"{k}={v:g}" for k, v in cfg.items())
+
+    print(f"EKF tuning: {len(grid)} configurations x {len(SEEDS)} seeds x "
+          f"{len(SCENARIOS)} scenarios ({time.perf_counter() - t0:.0f} s)")
+    print("objective per seed: mean over scenarios of yaw RMSE deg + final error % + "
+          "(1 - NEES fraction inside 95 %)")
+    for j, seed in enumerate(SEEDS):
+        print(f"  seed {seed}: held out {cv.held_out[j]:.3f} with {show(grid[cv.chosen[j]])}")
+    print(f"cross-validated objective (leave one seed out): {cv.cv_mean:.3f}")
+    print(f"best on all tuning seeds (IN-SAMPLE {cv.in_sample:.3f}): {show(grid[cv.best])}")
+    print(f"current EkfNoise defaults: {show(grid[current])}, in-sample "
+          f"{table[current].mean():.3f}")
+
+
+if __name__ == "__main__":
+    main()
