@@ -14,14 +14,10 @@ the other seeds is chosen and scored on the held-out seed: the mean of those hel
 the cross-validated (CV) figure. The configuration best on all tuning seeds is the one to ship
 as the default; its mean over them is printed too, labelled in-sample.
 
-Last run (23:00 UTC 2026-11-24): CV objective 5.205; best in-sample 5.158 with accel_psd
-0.002, yaw_fix_rate 0.25 deg/s, slip_inflation 100; the shipped defaults (0.002, 0.5 deg/s,
-1e4) score 5.173 in-sample, within 0.3 %: slip_inflation stays 1e4, which keeps a slipping
-frame's speed out of the distance on the kinematic slip test (tests/test_ekf.py).
-
-The IMU motion thresholds (fusion.planar.imu_motion.MotionThresholds) are not tuned here: they
-come from the sensors' noise (a few standard deviations of an MPU6050 at rest) and from the
-order of magnitude of vibration while driving.
+Last run (2026-11-24, 24 configurations, 228 s): CV objective 5.165 (leave one seed out);
+best on all tuning seeds (in-sample 5.133): accel_psd 0.002, slip_inflation 1e4,
+wheel_w_corr_time 0, yaw_fix_rate 0.25 deg/s, tied to the third decimal with 0.5 deg/s, which
+the shipped defaults use (in-sample 5.133).
 
 Run: python benchmarks/tune_ekf.py   (a few minutes on one core)
 """
@@ -51,9 +47,10 @@ from fusion.planar.imu_motion import imu_motion_codes
 SEEDS = range(100, 106)
 SCENARIOS = ("plain", "all", "all+dead", "kinematic")
 GRID = {
-    "accel_psd": [0.002, 0.006, 0.02, 0.06],
-    "yaw_fix_rate": [math.radians(0.25), math.radians(0.5), math.radians(1.0)],
+    "accel_psd": [0.002, 0.02],
+    "yaw_fix_rate": [math.radians(0.25), math.radians(0.5)],
     "slip_inflation": [1e2, 1e4],
+    "wheel_w_corr_time": [0.0, 0.5, 2.0],
 }
 
 

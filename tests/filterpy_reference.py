@@ -45,6 +45,7 @@ class FilterpyReference:
         self.t: float | None = None
         self.zero_count = 0
         self.imu_motion = 0
+        self.in_fault = False
         self.wheel_t: float | None = None
         self.yaw_budget = noise.yaw_fix_burst
         self.stats = dict.fromkeys(("slips", "zupts", "late_dropped", "late_applied",
@@ -121,6 +122,7 @@ class FilterpyReference:
                     kf.P[4, 4] += n.angular_accel_psd * r.encode_sampling_time
             self._rate_update(np.array([a]) - model.gyro_h(kf.x), H, R)
         elif kind in (WHEELS, TWIST):
+            in_fault, self.in_fault = self.in_fault, False
             if kind == WHEELS:
                 still = a == 0 and b == 0
             else:
@@ -133,9 +135,14 @@ class FilterpyReference:
                     since = max(since, t - self.wheel_t)
                 hard = abs(kf.x[3]) > n.stop_decel * since + 3 * math.sqrt(kf.P[3, 3])
                 self.wheel_t = t
-                if self.imu_motion == MOVING or (self.imu_motion != STILL and hard):
+                creep = (2 * r.speed_ratio / r.encode_sampling_time if kind == WHEELS
+                         else 2 * n.twist_zero_v)
+                turning = abs(kf.x[3]) + 0.5 * r.wheel_distance * abs(kf.x[4]) > creep
+                if (self.imu_motion == MOVING and turning) or (
+                        self.imu_motion != STILL and (hard or in_fault)):
                     self.zero_count = 0
                     self.stats["encoder_faults"] += 1
+                    self.in_fault = True
                     return 7
             else:
                 self.wheel_t = t

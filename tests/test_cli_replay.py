@@ -132,7 +132,8 @@ def test_replay_of_the_sample_ros_bag(datasets_dir, tmp_path, capsys):
     assert data.shape[0] == 3061  # one row per IMU message
     assert data[0, 0] == pytest.approx(47.58)
     assert np.all(np.isfinite(data[:, :17]))
-    assert np.all(np.isnan(data[:, 17:]))  # a bag's twists carry no wheel speeds
+    assert np.all(np.isnan(data[:, 17:19]))  # a bag's twists carry no wheel speeds
+    assert set(np.unique(data[:, 19:22]).tolist()) <= {0.0, 1.0}  # zupt, slip, fault flags
     assert np.all(np.diff(data[:, 0]) > 0)
     text = capsys.readouterr().out
     assert "3061 IMU messages (base_link), 3060 odometry messages (odom -> base_link)" in text

@@ -99,6 +99,16 @@ def test_jsonl_equals_the_pipeline_fed_by_hand_from_read_bag(bag, msgs, tmp_path
     assert out.read_text() == buf.getvalue()
 
 
+def _twist_flags(track):
+    """Per event, the flags of the last twist before it, from the EKF's status codes (4 ZUPT,
+    1 or 2 slip, 7 encoder fault): bits 1, 2, 4."""
+    code = np.select([track.status == 4, np.isin(track.status, (1, 2)), track.status == 7],
+                     [1.0, 2.0, 4.0], 0.0)
+    is_twist = track.kind == 3
+    last = np.maximum.accumulate(np.where(is_twist, np.arange(track.kind.size), -1))
+    return np.where(last >= 0, code[np.maximum(last, 0)], 0.0)
+
+
 def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
     """The CSV (state after every IMU message) is the old fuse()-based output, byte for
     byte, once the Mahony filter's first step is the nominal IMU period (0.02 s) as in the
@@ -121,7 +131,8 @@ def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
         assert rows.sum() == N_IMU
         no_wheels = np.full((int(rows.sum()), 2), np.nan)
         write_fused_csv(tmp_path / "ref.csv", fused_table(
-            np.column_stack([track.t[rows], track.states[rows], no_wheels]), 1.0))
+            np.column_stack([track.t[rows], track.states[rows], no_wheels,
+                             _twist_flags(track)[rows]]), 1.0))
         assert out.read_bytes() == (tmp_path / "ref.csv").read_bytes()
 
 

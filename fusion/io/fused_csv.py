@@ -14,7 +14,13 @@ per published record. Both use these columns, in this order:
 ``var_x`` .. ``cov_y_yaw``  pose covariance: m^2, m^2, rad^2, m^2, m*rad, m*rad
 ``var_v``, ``var_w``        (m/s)^2, (rad/s)^2
 ``wheel_left_speed``, ..    rim speed of each wheel in the last wheel frame, m/s
+``zupt``, ``slip``,         1 or 0: what the EKF made of the last wheel frame (or odometry twist):
+``encoder_fault``           a zero-velocity update, a slip (yaw rate not fused), an encoder fault
+                            (zero speed while the IMU moved; not fused)
 ==========================  =====================================================================
+
+Files written before the flag columns existed (the first 19 columns only) still read: their
+flags come back as NaN (unknown).
 
 An empty cell is a value the row does not have (a record carries no bias states; no wheel
 frame yet). Numbers are written with Python's shortest round-trip repr: every bit of the value,
@@ -35,13 +41,17 @@ from numpy.typing import NDArray
 from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 
-__all__ = ["FUSED_CSV_COLUMNS", "format_fused_row", "read_fused_csv", "write_fused_csv"]
+__all__ = ["FLAG_COLUMNS", "FUSED_CSV_COLUMNS", "format_fused_row", "read_fused_csv",
+           "write_fused_csv"]
 
 FUSED_CSV_COLUMNS = (
     "t", "x", "y", "yaw", "v", "w", "gyro_bias_z", "wheel_rate_scale", "wheel_rate_per_speed",
     "var_x", "var_y", "var_yaw", "cov_xy", "cov_x_yaw", "cov_y_yaw", "var_v", "var_w",
-    "wheel_left_speed", "wheel_right_speed",
+    "wheel_left_speed", "wheel_right_speed", "zupt", "slip", "encoder_fault",
 )
+#: The columns of fused CSVs written before the per-record flags (still read).
+FLAG_COLUMNS = ("zupt", "slip", "encoder_fault")
+_OLD_COLUMNS = FUSED_CSV_COLUMNS[:-len(FLAG_COLUMNS)]
 
 _HEADER = ",".join(FUSED_CSV_COLUMNS) + "\n"
 
@@ -57,7 +67,7 @@ def format_fused_row(values: Sequence[float | None]) -> str:
 
 def write_fused_csv(path: str | Path, rows: NDArray[np.float64] | Iterable[Sequence[float]]
                     ) -> None:
-    """Write ``rows`` ((N, 19) in :data:`FUSED_CSV_COLUMNS` order; NaN = empty) to ``path``,
+    """Write ``rows`` ((N, 22) in :data:`FUSED_CSV_COLUMNS` order; NaN = empty) to ``path``,
     atomically (an existing file is replaced only by a complete one)."""
     table = np.asarray(rows, dtype=np.float64).reshape(-1, len(FUSED_CSV_COLUMNS))
     with atomic_write(Path(path), encoding="ascii", newline="") as fh:
@@ -66,27 +76,31 @@ def write_fused_csv(path: str | Path, rows: NDArray[np.float64] | Iterable[Seque
 
 
 def read_fused_csv(path: str | Path) -> dict[str, NDArray[np.float64]]:
-    """Columns of a fused CSV by name (empty cells NaN).
+    """Columns of a fused CSV by name (empty cells NaN; every one of
+    :data:`FUSED_CSV_COLUMNS`, the flags NaN in a file written before they existed).
 
     Raises:
-        LogFormatError: the header is not :data:`FUSED_CSV_COLUMNS` or a cell is not a
-            number (naming ``file:line``).
+        LogFormatError: the header is neither :data:`FUSED_CSV_COLUMNS` nor the older one
+            without the flags, or a cell is not a number (naming ``file:line``).
     """
     path = Path(path)
     with path.open(newline="", encoding="ascii") as fh:
         reader = csv.reader(fh)
         header = next(reader, None)
-        if header is None or tuple(header) != FUSED_CSV_COLUMNS:
+        if header is None or tuple(header) not in (FUSED_CSV_COLUMNS, _OLD_COLUMNS):
             raise LogFormatError(f"{path}:1: not a fused CSV (expected the header "
                                  f"{','.join(FUSED_CSV_COLUMNS)})")
+        width = len(header)
         rows = []
         for line, row in enumerate(reader, start=2):
-            if len(row) != len(FUSED_CSV_COLUMNS):
-                raise LogFormatError(f"{path}:{line}: {len(row)} cells, expected "
-                                     f"{len(FUSED_CSV_COLUMNS)}")
+            if len(row) != width:
+                raise LogFormatError(f"{path}:{line}: {len(row)} cells, expected {width}")
             try:
                 rows.append([float(c) if c else math.nan for c in row])
             except ValueError:
                 raise LogFormatError(f"{path}:{line}: a cell is not a number: {row}") from None
-    table = np.array(rows, dtype=np.float64).reshape(-1, len(FUSED_CSV_COLUMNS))
-    return {name: table[:, i].copy() for i, name in enumerate(FUSED_CSV_COLUMNS)}
+    table = np.array(rows, dtype=np.float64).reshape(-1, width)
+    out = {name: table[:, i].copy() for i, name in enumerate(header)}
+    for name in FUSED_CSV_COLUMNS[width:]:
+        out[name] = np.full(table.shape[0], math.nan)
+    return out

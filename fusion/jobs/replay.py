@@ -186,7 +186,7 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path, *, tilt: bo
                  ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats]:
     """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl).
 
-    Returns ``(table, pipeline, stats)``: ``table`` (N, 19) in the fused CSV's columns
+    Returns ``(table, pipeline, stats)``: ``table`` (N, 22) in the fused CSV's columns
     (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state after every IMU sample (after
     every wheel frame or twist without an IMU).
     """
@@ -213,7 +213,7 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path, *, tilt: bo
 
 
 def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.float64]:
-    """Fused CSV rows (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`) from (N, 22) rows of
+    """Fused CSV rows (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`) from (N, 23) rows of
     :attr:`FusionPipeline.state_rows` (yaw wrapped; wheel ticks times ``m_per_tick_s``,
     m/tick/s, give rim speeds in m/s)."""
     out = np.empty((rows.shape[0], len(FUSED_CSV_COLUMNS)))
@@ -225,6 +225,9 @@ def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.fl
     out[:, 12:15] = rows[:, 17:20]  # cov xy, x yaw, y yaw
     out[:, 15:17] = rows[:, 12:14]  # var v, w
     out[:, 17:19] = rows[:, 20:22] * m_per_tick_s
+    flags = rows[:, 22].astype(np.int64)
+    for i, bit in enumerate((1, 2, 4)):  # zupt, slip, encoder fault
+        out[:, 19 + i] = (flags & bit) != 0
     return out
 
 

@@ -26,11 +26,13 @@ call: the heap size plus the new events):
 - ``pub`` rows, one per record due (:data:`PUB_WIDTH` columns, indices ``U_*``): the filter
   time, ``x`` (8), ``P[:5, :5]`` row major (25), the refs of the last applied IMU sample and
   wheel frame (-1: none yet), the stamp of the wheel frame or twist that triggered the record
-  (NaN for a rate tick) and the EKF status of the triggering event;
+  (NaN for a rate tick), the EKF status of the triggering event and the flags of the last wheel
+  frame or twist (:data:`fusion.planar._ekf_core.FLAG_ZUPT`, ``FLAG_SLIP``, ``FLAG_FAULT``);
 - ``trace`` rows for every applied event whose kind is in ``trace_mask`` (bit ``1 << kind``):
   the event's effective time, the 19 columns of
   :meth:`fusion.planar.ekf.PlanarEKF.process_batch` (state, diag(P), pose cross terms) and
-  the left and right ticks of the last applied wheel frame (NaN before the first).
+  the left and right ticks of the last applied wheel frame (NaN before the first) and the
+  flags of the last wheel frame or twist.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ import math
 import numpy as np
 
 from fusion._jit import njit
-from fusion.planar._ekf_core import A_T, EV_GYRO, EV_TWIST, EV_WHEELS, NX, step_core
+from fusion.planar._ekf_core import A_FLAGS, A_T, EV_GYRO, EV_TWIST, EV_WHEELS, NX, step_core
 
 __all__ = ["PUB_WIDTH", "SCHED_SIZE", "TRACE_WIDTH", "new_sched", "run_events", "source_of",
            "write_pub_row"]
@@ -75,9 +77,10 @@ U_LAST_GYRO = U_P + 25
 U_LAST_WHEEL = U_LAST_GYRO + 1
 U_STAMP = U_LAST_WHEEL + 1
 U_STATUS = U_STAMP + 1
-PUB_WIDTH = U_STATUS + 1
+U_FLAGS = U_STATUS + 1
+PUB_WIDTH = U_FLAGS + 1
 
-TRACE_WIDTH = 1 + 2 * NX + 3 + 2
+TRACE_WIDTH = 1 + 2 * NX + 3 + 2 + 1
 
 
 def new_sched(use_imu: bool, use_wheels: bool, use_twist: bool) -> np.ndarray:
@@ -181,6 +184,7 @@ def write_pub_row(pub, n_pub, x, P, aux, sched, stamp, status):
     row[U_LAST_WHEEL] = sched[S_LAST_WHEEL]
     row[U_STAMP] = stamp
     row[U_STATUS] = status
+    row[U_FLAGS] = aux[A_FLAGS]
     return n_pub + 1
 
 
@@ -229,6 +233,7 @@ def _apply(heap_f, heap_i, row, x, P, aux, par, sched, rate, trace_mask, pub, n_
         out[3 + 2 * NX] = P[1, 2]
         out[4 + 2 * NX] = sched[S_LAST_LEFT]
         out[5 + 2 * NX] = sched[S_LAST_RIGHT]
+        out[6 + 2 * NX] = aux[A_FLAGS]
         n_trace += 1
     return n_pub, n_trace
 

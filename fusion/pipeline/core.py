@@ -577,7 +577,7 @@ class FusionPipeline(Lifecycle):
         p0 = ev_core.U_P
         return _fast_record(_record_fields(t, row[x0:x0 + 8], row[p0:p0 + 25], q, gyro_xy,
                                            accel, speeds, self.robot.odom_frame,
-                                           self.robot.base_frame))
+                                           self.robot.base_frame, int(row[ev_core.U_FLAGS])))
 
     def current_record(self) -> FusedOdometry:
         """The fused state now as a :class:`FusedOdometry` (frames from the config).
@@ -595,11 +595,12 @@ class FusionPipeline(Lifecycle):
 
     @property
     def state_rows(self) -> NDArray[np.float64]:
-        """(N, 22) EKF state after each event of the ``state_rows`` kinds so far: the event's
+        """(N, 23) EKF state after each event of the ``state_rows`` kinds so far: the event's
         effective time (s), the 19 columns of
         :meth:`fusion.planar.ekf.PlanarEKF.process_batch` (state with continuous yaw,
-        diag(P), pose cross terms), and the left and right ticks of the last wheel frame
-        fused (NaN before the first)."""
+        diag(P), pose cross terms), the left and right ticks of the last wheel frame
+        fused (NaN before the first) and the EKF's flags of the last wheel frame or twist
+        (bits 1 ZUPT, 2 slip, 4 encoder fault)."""
         if not self._trace_chunks:
             return np.zeros((0, ev_core.TRACE_WIDTH))
         if len(self._trace_chunks) > 1:

@@ -23,9 +23,10 @@ def _frozen(a: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 def _record_fields(t, x, p5, q, gyro_xy, accel, wheel_speeds, frame_id,
-                   child_frame_id) -> dict[str, Any]:
+                   child_frame_id, flags=0) -> dict[str, Any]:
     """The :class:`FusedOdometry` fields of a filter state: ``x`` (at least v and w, as
-    ``[x, y, yaw, v, w, ...]``), ``p5`` the 25 values of ``P[:5, :5]`` row major; the
+    ``[x, y, yaw, v, w, ...]``), ``p5`` the 25 values of ``P[:5, :5]`` row major, ``flags``
+    the EKF's flags of the last wheel frame (bits 1 ZUPT, 2 slip, 4 encoder fault); the
     nav_msgs/Odometry covariances in the layout of :func:`fusion.planar.ekf.odometry_covariances`,
     symmetrised."""
     (p00, p01, p02, _, _, p10, p11, p12, _, _, p20, p21, p22, _, _,
@@ -62,6 +63,7 @@ def _record_fields(t, x, p5, q, gyro_xy, accel, wheel_speeds, frame_id,
         "wheel_left_speed": None if wheel_speeds is None else float(wheel_speeds[0]),
         "wheel_right_speed": None if wheel_speeds is None else float(wheel_speeds[1]),
         "frame_id": frame_id, "child_frame_id": child_frame_id,
+        "zupt": bool(flags & 1), "slip": bool(flags & 2), "encoder_fault": bool(flags & 4),
         "_sum": sum(pose) + sum(twist),
     }
 
@@ -109,4 +111,7 @@ def _fast_record(f: dict[str, Any]) -> FusedOdometry:
     put(rec, "linear_acceleration",
         None if accel is None else _frozen(np.array(accel, dtype=np.float64)))
     put(rec, "imu_frame_id", f["child_frame_id"])
+    put(rec, "zupt", f["zupt"])
+    put(rec, "slip", f["slip"])
+    put(rec, "encoder_fault", f["encoder_fault"])
     return rec

@@ -72,7 +72,8 @@ P_GYRO_LIMIT = 25
 P_STOP_DECEL = 26
 P_YAW_FIX_RATE = 27
 P_YAW_FIX_BURST = 28
-PAR_SIZE = 29
+P_WHEEL_W_CORR = 29
+PAR_SIZE = 30
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -398,12 +399,19 @@ def _impossible_stop(x, P, aux, par, t):
 def _wheel_event(x, P, aux, par, kind, t, a, b):
     """A wheel frame (kind 1) or an external twist (kind 3); returns ``(d2, status)``.
 
-    Zero wheel speed is a stop only if the IMU agrees: with the IMU moving (or, unless it is
-    still, a stop harder than ``stop_decel`` allows) it is an encoder fault, flagged and not
-    fused (status 7): the pose coasts on the motion model, its covariance growing. A stop
+    Zero wheel speed is a stop only if the IMU agrees: with the IMU moving while the state
+    expects the wheels to turn by more than two ticks per period (a twist: twice
+    ``twist_zero_v``), or, unless the IMU is still, a stop harder than ``stop_decel`` allows,
+    or a fault already under way, it is an
+    encoder fault, flagged and not fused (status 7): the pose coasts on the motion model, its
+    covariance growing; the fault lasts until the ticks come back or the IMU is still. A stop
     that lasts ``zupt_frames`` frames with a still IMU (or no IMU information) gives a ZUPT;
     before that, or with the IMU unsure, the zero speed is fused as an ordinary frame.
     """
+    in_fault = aux[A_FLAGS] == FLAG_FAULT
+    interval = par[P_PERIOD]
+    if not math.isnan(aux[A_WHEEL_T]) and t - aux[A_WHEEL_T] > 0.0:
+        interval = t - aux[A_WHEEL_T]
     aux[A_FLAGS] = 0.0
     if kind == 1:
         still = a == 0.0 and b == 0.0
@@ -411,8 +419,13 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         still = abs(a) <= par[P_TWIST_ZERO_V] and abs(b) <= par[P_TWIST_ZERO_W]
     imu = aux[A_IMU_MOTION]
     if still:
-        fault = imu == MOTION_MOVING or (imu != MOTION_STILL
-                                         and _impossible_stop(x, P, aux, par, t))
+        if kind == 1:
+            creep = 2.0 * par[P_SPEED_RATIO] / par[P_PERIOD]
+        else:
+            creep = 2.0 * par[P_TWIST_ZERO_V]
+        turning = abs(x[3]) + 0.5 * par[P_WHEEL_DISTANCE] * abs(x[4]) > creep
+        fault = (imu == MOTION_MOVING and turning) or (imu != MOTION_STILL and (
+            in_fault or _impossible_stop(x, P, aux, par, t)))
         aux[A_WHEEL_T] = t
         if fault:
             aux[A_FAULTS] += 1.0
@@ -446,6 +459,13 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         # a twist from someone else's wheel odometry (nav_msgs/Odometry)
         z, R = twist_measurement(a, b, par[P_TWIST_V_STD], par[P_TWIST_W_STD],
                                  par[P_SCALE_STD], par[P_SEP_STD], par[P_WHEEL_W_STD])
+    # the wheels' yaw-rate error is correlated over wheel_w_corr_time s (skid, slip, tyre
+    # creep): frames closer together than that do not average it down
+    inflate = par[P_WHEEL_W_CORR] / interval
+    if inflate > 1.0:
+        R[1, 1] *= inflate
+        R[0, 1] *= math.sqrt(inflate)
+        R[1, 0] = R[0, 1]
     return _wheel_update(x, P, aux, par, z, R)
 
 

@@ -136,6 +136,10 @@ class EkfNoise:
         stop_decel: hardest braking the robot can do, m/s^2: zero wheel speed that would
             need more (with three standard deviations of v on top), while the IMU is not
             still, is an encoder fault, not a stop.
+        wheel_w_corr_time: correlation time of the wheels' yaw-rate error, s (skid-steer
+            scrub, slip, tyre creep are not white): the yaw-rate noise of wheel frames or
+            twists closer together than this is multiplied by ``wheel_w_corr_time/interval``
+            so that they do not average it down (0: white).
         yaw_fix_rate, yaw_fix_burst: rate measurements (gyro, wheels, twists, ZUPTs) never
             correct the position (it follows from the motion model), and the heading by at
             most ``yaw_fix_burst + yaw_fix_rate*T`` (rad; rad/s) over any ``T`` s: a heading
@@ -173,6 +177,7 @@ class EkfNoise:
     slip_gate: float = 10.83
     slip_inflation: float = 1e4
     stop_decel: float = 3.0
+    wheel_w_corr_time: float = 0.0
     yaw_fix_rate: float = math.radians(0.5)
     yaw_fix_burst: float = math.radians(1.0)
     late_tolerance: float = 0.05
@@ -451,6 +456,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_STOP_DECEL] = n.stop_decel
         par[core.P_YAW_FIX_RATE] = n.yaw_fix_rate
         par[core.P_YAW_FIX_BURST] = n.yaw_fix_burst
+        par[core.P_WHEEL_W_CORR] = n.wheel_w_corr_time
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan

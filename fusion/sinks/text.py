@@ -133,5 +133,6 @@ class CsvSink(_FileOutput):
         self._fh.write(format_fused_row((
             record.t, record.x, record.y, yaw, record.v, record.w,
             None, None, None, P[0, 0], P[1, 1], P[5, 5], P[0, 1], P[0, 5], P[1, 5],
-            Q[0, 0], Q[5, 5], record.wheel_left_speed, record.wheel_right_speed)))
+            Q[0, 0], Q[5, 5], record.wheel_left_speed, record.wheel_right_speed,
+            record.zupt, record.slip, record.encoder_fault)))
         self._synced()

@@ -106,6 +106,10 @@ class FusedOdometry:
         wheel_left_speed, wheel_right_speed: wheel rim speeds, m/s, or None.
         frame_id, child_frame_id: frame names (REP-105 defaults ``odom``, ``base_footprint``).
         imu_frame_id: frame of the IMU message (default: ``child_frame_id``).
+        zupt, slip, encoder_fault: what the EKF made of the last wheel frame (or odometry
+            twist) before this record: a zero-velocity update (wheels and IMU still), a slip
+            (its yaw rate disagreed with the gyro and was not fused), an encoder fault (zero
+            wheel speed while the IMU showed motion; not fused, the pose coasted).
     """
 
     t: float
@@ -124,6 +128,9 @@ class FusedOdometry:
     frame_id: str = "odom"
     child_frame_id: str = "base_footprint"
     imu_frame_id: str | None = field(default=None)
+    zupt: bool = False
+    slip: bool = False
+    encoder_fault: bool = False
 
     def __post_init__(self) -> None:
         put = partial(object.__setattr__, self)  # the dataclass is frozen
@@ -166,6 +173,8 @@ class FusedOdometry:
                 raise ValueError(f"FusedOdometry.{name} must be a non-empty string")
         if self.imu_frame_id is None:
             put("imu_frame_id", self.child_frame_id)
+        for name in ("zupt", "slip", "encoder_fault"):
+            put(name, bool(getattr(self, name)))
 
     @property
     def yaw_quaternion(self) -> NDArray[np.float64]:
@@ -197,6 +206,9 @@ class FusedOdometry:
             "frame_id": self.frame_id,
             "child_frame_id": self.child_frame_id,
             "imu_frame_id": self.imu_frame_id,
+            "zupt": self.zupt,
+            "slip": self.slip,
+            "encoder_fault": self.encoder_fault,
         }
 
     def __eq__(self, other: object) -> bool:
