@@ -1,7 +1,7 @@
 """Choose the planar EKF's defaults by leave-one-seed-out cross-validation on the physics simulator.
 
-Tuning runs: fusion.evaluation.physics_sim scenarios "plain", "all" and "all+dead", and the
-kinematic simulator's degraded mission (fusion.evaluation.synthetic), 300 s, seeds 100-105:
+Tuning runs: fusion.evaluation.physics_sim scenarios "plain", "all", "all+dead" and
+"moving-start" (every error, already driving at the first sample), and the kinematic simulator's degraded mission (fusion.evaluation.synthetic), 300 s, seeds 100-105:
 disjoint from seeds 0-7 that benchmarks/ekf_accuracy.py and the tests report (those are never
 looked at here). Each configuration of a small grid of EkfNoise fields runs on every tuning
 run; a seed's score is the mean over the three scenarios of
@@ -9,15 +9,20 @@ run; a seed's score is the mean over the three scenarios of
     yaw RMSE (deg) + final position error (% of distance) + (1 - fraction of rows whose pose
     NEES lies inside its 95 % bounds)
 
-(lower is better; the four scenarios weigh the same). For each seed the configuration best on
+(lower is better; the five scenarios weigh the same). For each seed the configuration best on
 the other seeds is chosen and scored on the held-out seed: the mean of those held-out scores is
 the cross-validated (CV) figure. The configuration best on all tuning seeds is the one to ship
 as the default; its mean over them is printed too, labelled in-sample.
 
-Last run (2026-11-24, 24 configurations, 228 s): CV objective 5.165 (leave one seed out);
-best on all tuning seeds (in-sample 5.133): accel_psd 0.002, slip_inflation 1e4,
-wheel_w_corr_time 0, yaw_fix_rate 0.25 deg/s, tied to the third decimal with 0.5 deg/s, which
-the shipped defaults use (in-sample 5.133).
+Last runs (2026-11-24): (1) accel_psd x yaw_fix_rate x slip_inflation x wheel_w_corr_time,
+24 configurations over four scenarios: CV objective 5.165; best in-sample 5.133 with accel_psd
+0.002, slip_inflation 1e4, wheel_w_corr_time 0 and yaw_fix_rate 0.25 deg/s, tied with 0.5
+deg/s (the shipped value). (2) This grid (five scenarios): CV objective 5.875; best in-sample
+5.761 with turn_w_std 0.5 (every fold but one chose it; 0.2 the other), wheel_w_corr_time 0;
+the shipped defaults (turn_w_std 0) score 6.136. NOT adopted: with turn_w_std 0.5 a turn
+teaches the wheel calibration k nothing (tests/test_ekf_acceptance.py's k convergence fails)
+and the wheels cannot carry a turn while the gyro is saturated (tests/test_ekf.py); the
+objective above does not see either. The lead decides.
 
 Run: python benchmarks/tune_ekf.py   (a few minutes on one core)
 """
@@ -31,7 +36,12 @@ import time
 import numpy as np
 from _cv import leave_one_out  # benchmarks/_cv.py (scripts run from benchmarks/)
 
-from fusion.evaluation.physics_sim import physics_scenario
+from fusion.evaluation.physics_sim import (
+    all_errors,
+    indoor_mission,
+    physics_scenario,
+    simulate_physics,
+)
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
 from fusion.evaluation.trajectory import (
     final_position_error_percent,
@@ -45,12 +55,12 @@ from fusion.planar.ekf import EkfNoise, fuse, pose_covariances
 from fusion.planar.imu_motion import imu_motion_codes
 
 SEEDS = range(100, 106)
-SCENARIOS = ("plain", "all", "all+dead", "kinematic")
+SCENARIOS = ("plain", "all", "all+dead", "moving-start", "kinematic")
+# accel_psd 0.002, slip_inflation 1e4 and yaw_fix_rate 0.5 deg/s won the earlier, wider grids
+# (see the last runs below); this one searches the wheel yaw-rate noise
 GRID = {
-    "accel_psd": [0.002, 0.02],
-    "yaw_fix_rate": [math.radians(0.25), math.radians(0.5)],
-    "slip_inflation": [1e2, 1e4],
-    "wheel_w_corr_time": [0.0, 0.5, 2.0],
+    "turn_w_std": [0.0, 0.05, 0.1, 0.2, 0.5],
+    "wheel_w_corr_time": [0.0, 2.0],
 }
 
 
@@ -83,6 +93,10 @@ def main() -> None:
             if scenario == "kinematic":
                 run = degraded_mission(seed=seed, duration=300.0)
                 robot = EXAMPLE_ROBOT
+            elif scenario == "moving-start":
+                run = simulate_physics(indoor_mission(seed, 300.0, moving_start=True),
+                                       all_errors(seed), seed)
+                robot = run.robot.chassis
             else:
                 run = physics_scenario(scenario, seed=seed)
                 robot = run.robot.chassis

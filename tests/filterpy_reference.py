@@ -117,12 +117,16 @@ class FilterpyReference:
             R = model.gyro_noise(n.gyro_std ** 2)
             if self.zero_count >= n.zupt_frames:
                 s = (H @ kf.P @ H.T + R)[0, 0]
-                if (a - model.gyro_h(kf.x)[0]) ** 2 / s > n.slip_gate or b == MOVING:
+                if ((a - model.gyro_h(kf.x)[0]) ** 2 / s > n.slip_gate
+                        or self.imu_motion == MOVING):
                     self.zero_count = 0
                     kf.P[4, 4] += n.angular_accel_psd * r.encode_sampling_time
             self._rate_update(np.array([a]) - model.gyro_h(kf.x), H, R)
         elif kind in (WHEELS, TWIST):
             in_fault, self.in_fault = self.in_fault, False
+            interval = r.encode_sampling_time
+            if self.wheel_t is not None and t - self.wheel_t > 0:
+                interval = t - self.wheel_t
             if kind == WHEELS:
                 still = a == 0 and b == 0
             else:
@@ -138,8 +142,9 @@ class FilterpyReference:
                 creep = (2 * r.speed_ratio / r.encode_sampling_time if kind == WHEELS
                          else 2 * n.twist_zero_v)
                 turning = abs(kf.x[3]) + 0.5 * r.wheel_distance * abs(kf.x[4]) > creep
-                if (self.imu_motion == MOVING and turning) or (
-                        self.imu_motion != STILL and (hard or in_fault)):
+                if ((self.imu_motion == MOVING and turning)
+                        or (in_fault and self.imu_motion in (UNSURE, MOVING))
+                        or (self.imu_motion != STILL and hard)):
                     self.zero_count = 0
                     self.stats["encoder_faults"] += 1
                     self.in_fault = True
@@ -165,6 +170,12 @@ class FilterpyReference:
                     z, R = model.twist_measurement(a, b, n.twist_v_std, n.twist_w_std,
                                                    n.scale_std, n.separation_std,
                                                    n.wheel_w_std)
+                R = R.copy()
+                R[1, 1] += (n.turn_w_std * kf.x[4]) ** 2  # turns: relative to the state's rate
+                inflate = n.wheel_w_corr_time / interval  # correlated yaw-rate error
+                if inflate > 1:
+                    R[1, 1] *= inflate
+                    R[0, 1] = R[1, 0] = R[0, 1] * math.sqrt(inflate)
                 H = model.wheel_jacobian(kf.x, L)
                 S = H @ kf.P @ H.T + R
                 y = z - model.wheel_h(kf.x, L)

@@ -73,8 +73,10 @@ def _every_kind_of_event(run):
 
 
 @pytest.mark.parametrize("noise", [EkfNoise(gyro_limit=4.3),
-                                   EkfNoise(slip_inflation=0.0, zupt_frames=3)],
-                         ids=["inflate-slips", "drop-slips"])
+                                   EkfNoise(slip_inflation=0.0, zupt_frames=3),
+                                   EkfNoise(gyro_limit=4.3, turn_w_std=0.2,
+                                            wheel_w_corr_time=0.1)],
+                         ids=["inflate-slips", "drop-slips", "turn-noise"])
 def test_core_equals_filterpy_driven_by_the_model(short_run, noise):
     # filterpy's own ExtendedKalmanFilter (predict with the model's f, F, Q; update with each
     # sensor's h, H, R and the wrapped yaw residual; inv(S)) against the core (Cholesky),

@@ -73,7 +73,8 @@ P_STOP_DECEL = 26
 P_YAW_FIX_RATE = 27
 P_YAW_FIX_BURST = 28
 P_WHEEL_W_CORR = 29
-PAR_SIZE = 30
+P_TURN_W_STD = 30
+PAR_SIZE = 31
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -402,7 +403,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
     Zero wheel speed is a stop only if the IMU agrees: with the IMU moving while the state
     expects the wheels to turn by more than two ticks per period (a twist: twice
     ``twist_zero_v``), or, unless the IMU is still, a stop harder than ``stop_decel`` allows,
-    or a fault already under way, it is an
+    or a fault already under way while the IMU is not still (and known), it is an
     encoder fault, flagged and not fused (status 7): the pose coasts on the motion model, its
     covariance growing; the fault lasts until the ticks come back or the IMU is still. A stop
     that lasts ``zupt_frames`` frames with a still IMU (or no IMU information) gives a ZUPT;
@@ -424,8 +425,9 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         else:
             creep = 2.0 * par[P_TWIST_ZERO_V]
         turning = abs(x[3]) + 0.5 * par[P_WHEEL_DISTANCE] * abs(x[4]) > creep
-        fault = (imu == MOTION_MOVING and turning) or (imu != MOTION_STILL and (
-            in_fault or _impossible_stop(x, P, aux, par, t)))
+        fault = ((imu == MOTION_MOVING and turning)
+                 or (in_fault and (imu == MOTION_UNSURE or imu == MOTION_MOVING))
+                 or (imu != MOTION_STILL and _impossible_stop(x, P, aux, par, t)))
         aux[A_WHEEL_T] = t
         if fault:
             aux[A_FAULTS] += 1.0
@@ -461,6 +463,10 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
                                  par[P_SCALE_STD], par[P_SEP_STD], par[P_WHEEL_W_STD])
     # the wheels' yaw-rate error is correlated over wheel_w_corr_time s (skid, slip, tyre
     # creep): frames closer together than that do not average it down
+    # in a turn the wheels' yaw rate is off by a share of the rate (scrub, tyre creep), which
+    # must not teach the gyro bias: noise relative to the state's rate (not the measured one,
+    # so that a slip on a straight line does not hide behind its own rate)
+    R[1, 1] += (par[P_TURN_W_STD] * x[4]) ** 2
     inflate = par[P_WHEEL_W_CORR] / interval
     if inflate > 1.0:
         R[1, 1] *= inflate
@@ -514,7 +520,7 @@ def step_core(x, P, aux, par, kind, t, a, b):
             # explain, or an IMU that shakes, ends the stationary phase and gives w its
             # freedom back (otherwise the first turn would leak into the bias)
             if (y[0] * y[0] / innovation_variance(P, H, R, 0) > par[P_GATE]
-                    or b == MOTION_MOVING):
+                    or aux[A_IMU_MOTION] == MOTION_MOVING):
                 aux[A_ZERO_COUNT] = 0.0
                 P[4, 4] += par[P_Q_W] * par[P_PERIOD]
         d2, status = _rate_update(x, P, aux, y, H, R)

@@ -136,6 +136,8 @@ class EkfNoise:
         stop_decel: hardest braking the robot can do, m/s^2: zero wheel speed that would
             need more (with three standard deviations of v on top), while the IMU is not
             still, is an encoder fault, not a stop.
+        turn_w_std: relative noise of the wheels' yaw rate in a turn, on the filter's own
+            yaw-rate state (1): turns teach little about the gyro bias, straight driving does.
         wheel_w_corr_time: correlation time of the wheels' yaw-rate error, s (skid-steer
             scrub, slip, tyre creep are not white): the yaw-rate noise of wheel frames or
             twists closer together than this is multiplied by ``wheel_w_corr_time/interval``
@@ -177,6 +179,7 @@ class EkfNoise:
     slip_gate: float = 10.83
     slip_inflation: float = 1e4
     stop_decel: float = 3.0
+    turn_w_std: float = 0.0
     wheel_w_corr_time: float = 0.0
     yaw_fix_rate: float = math.radians(0.5)
     yaw_fix_burst: float = math.radians(1.0)
@@ -457,6 +460,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_YAW_FIX_RATE] = n.yaw_fix_rate
         par[core.P_YAW_FIX_BURST] = n.yaw_fix_burst
         par[core.P_WHEEL_W_CORR] = n.wheel_w_corr_time
+        par[core.P_TURN_W_STD] = n.turn_w_std
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan
