@@ -1,10 +1,11 @@
 """Choose the planar EKF's defaults by leave-one-seed-out cross-validation on the physics simulator.
 
 Tuning runs: fusion.evaluation.physics_sim scenarios "plain", "all", "all+dead" and
-"moving-start" (every error, already driving at the first sample), and the kinematic simulator's degraded mission (fusion.evaluation.synthetic), 300 s, seeds 100-105:
-disjoint from seeds 0-7 that benchmarks/ekf_accuracy.py and the tests report (those are never
-looked at here). Each configuration of a small grid of EkfNoise fields runs on every tuning
-run; a seed's score is the mean over the three scenarios of
+"moving-start" (every error, already driving at the first sample), and the kinematic
+simulator's degraded mission (fusion.evaluation.synthetic), 300 s, seeds 100-105: disjoint
+from seeds 0-7 that benchmarks/ekf_accuracy.py and the tests report (those are never looked at
+here). Each configuration of a small grid of EkfNoise fields runs on every tuning run; a
+seed's score is the mean over the scenarios of
 
     yaw RMSE (deg) + final position error (% of distance) + (1 - fraction of rows whose pose
     NEES lies inside its 95 % bounds)
