@@ -256,3 +256,22 @@ def test_no_scheduler_is_a_clear_error(tmp_path):
                                                                  f"{_free_port()}"),
                                    connect_timeout=1.0):
             pass
+
+
+def test_tune_on_the_dask_workers_matches_serial(fleet, dask_processes):
+    """``fusion tune``'s folds as tasks on the same engine: the result of the serial run."""
+    from fusion.io.robot_toml import read_robot_toml
+    from fusion.jobs.tune import tune
+
+    logs, _ = fleet
+    paths = find_log_dirs(logs)[:4]
+    base = read_robot_toml(paths[0] / "robot.toml")
+    serial = tune("odometry", paths, base, folds=2, budget=6)
+    client = _client(dask_processes.address)
+    try:
+        distributed = tune("odometry", paths, base, folds=2, budget=6, client=client)
+    finally:
+        client.close()
+    assert distributed.final.values == serial.final.values
+    assert [f.test_scores for _, f in distributed.folds] == \
+        [f.test_scores for _, f in serial.folds]

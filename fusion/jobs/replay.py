@@ -181,20 +181,21 @@ def find_log_dirs(path: Path) -> list[Path]:
     return sorted(p for p in path.iterdir() if p.is_dir() and (p / "robot.toml").is_file())
 
 
-def fuse_streams(robot: RobotConfig, streams: Streams, output: Path, *, tilt: bool = True,
-                 progress: Progress | None = None
+def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
+                 tilt: bool = True, progress: Progress | None = None
                  ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats]:
-    """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl).
+    """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl;
+    None: no file, the table only).
 
     Returns ``(table, pipeline, stats)``: ``table`` (N, 19) in the fused CSV's columns
     (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state after every IMU sample (after
     every wheel frame or twist without an IMU).
     """
-    fmt = output_format(output)
+    fmt = None if output is None else output_format(output)
     t0, t1 = streams.span()
     sources = [name for name, on in (("imu", streams.has_imu), ("wheels", streams.has_wheels),
                                      ("twist", streams.has_twist)) if on]
-    sinks = [] if fmt == "csv" else [open_sink(f"{fmt}:{output}")]
+    sinks = [] if fmt in (None, "csv") else [open_sink(f"{fmt}:{output}")]
     pipe = FusionPipeline(
         robot, sinks, tilt=tilt, sources=sources, imu_rate_hz=streams.nominal_imu_rate(),
         state_rows=("imu",) if streams.has_imu else ("wheels", "twist"),

@@ -1,0 +1,120 @@
+"""``fusion tune``: k-fold cross-validated parameters from logs with truth.
+
+The synthetic logs are driven by a robot whose true wheel separation is 3 % wider than its
+robot.toml says (0.309 m against 0.300 m; no radius mismatch, no slip): tuning the odometry
+must recover the true separation, and its cross-validated score must be the true geometry's.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+
+import numpy as np
+import pytest
+
+from fusion.cli import main
+from fusion.evaluation.crossval import kfold_splits
+from fusion.evaluation.synthetic import degraded_mission
+from fusion.io.logdir import read_logdir, write_synthetic_run
+from fusion.io.robot_toml import read_robot_toml
+from fusion.jobs import tune as job
+
+NOMINAL = 0.300  # m, robot.toml's wheel_distance (EXAMPLE_ROBOT)
+TRUE = NOMINAL * 1.03  # m, the simulated robot's
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory):
+    root = tmp_path_factory.mktemp("tune")
+    for i in range(6):
+        run = degraded_mission(seed=100 + i, duration=25.0, separation_error=0.03,
+                               radius_mismatch=0.0, slip_patches=0)
+        assert run.true_wheel_distance == pytest.approx(TRUE)
+        write_synthetic_run(root / f"log{i}", run)
+    return root
+
+
+def test_tune_odometry_recovers_the_true_wheel_separation(logs, tmp_path, capsys):
+    out = tmp_path / "robot.toml"
+    assert main(["tune", "odometry", str(logs), "--folds", "3", "--budget", "25", "-o",
+                 str(out)]) == 0
+    printed = capsys.readouterr().out
+    tuned = read_robot_toml(out).chassis.wheel_distance
+    # tolerance: 0.3 % of the separation (0.9 mm); the robot.toml was 3 % off
+    assert tuned == pytest.approx(TRUE, rel=3e-3)
+    assert f"wheel_distance = {tuned!r}" in printed  # the robot.toml section printed
+    folds = re.findall(r"fold (\d): CV ([\d.]+)  in-sample ([\d.]+)  defaults ([\d.]+)", printed)
+    assert sorted(f[0] for f in folds) == ["1", "2", "3"]
+    cv, defaults = map(float, re.search(r"cross-validated ([\d.]+), defaults ([\d.]+)",
+                                        printed).groups())
+    # reference: every log's wheel-only yaw RMSE with the true geometry and with robot.toml's
+    base = read_robot_toml(logs / "log0" / "robot.toml")
+    true_robot = job.apply_parameters(base, {"wheel_distance": TRUE}, job.TARGETS["odometry"])
+    loaded = [read_logdir(p, imu_frame="imu") for p in sorted(logs.iterdir())]
+    true_score = np.mean([job.odometry_yaw_rmse(true_robot, log) for log in loaded])
+    default_score = np.mean([job.odometry_yaw_rmse(base, log) for log in loaded])
+    assert defaults == pytest.approx(default_score, abs=1e-4)
+    assert default_score > 1.0  # deg: the 3 % error shows
+    assert cv == pytest.approx(true_score, abs=0.005)  # as good as the truth, held out
+
+
+def test_process_pool_gives_the_serial_result(logs):
+    base = read_robot_toml(logs / "log0" / "robot.toml")
+    serial = job.tune("odometry", [logs], base, folds=2, budget=8)
+    pooled = job.tune("odometry", [logs], base, folds=2, budget=8, jobs=2)
+    assert pooled.final.values == serial.final.values
+    assert [f.test_scores for _, f in pooled.folds] == [f.test_scores for _, f in serial.folds]
+    assert sorted(i for test, _ in serial.folds for i in test) == list(range(6))
+
+
+def test_ekf_target_scores_the_fused_odometry(logs):
+    """Two logs, two folds, a few evaluations: the search never ends worse than the
+    defaults in-sample, and its held-out scores are real scores."""
+    paths = sorted(logs.iterdir())[:2]
+    base = read_robot_toml(paths[0] / "robot.toml")
+    result = job.tune("ekf", paths, base, folds=2, budget=4)
+    assert result.final.evaluations == 4
+    assert result.final.train_score <= result.final.default_train_score
+    assert set(result.final.values) == {"gyro_std", "bias_psd", "scale_std"}
+    log = read_logdir(paths[1], imu_frame="imu")
+    assert result.folds[1][1].default_test_scores == [job.fused_position_rmse(base, log)]
+    assert "[ekf]\ngyro_std = " in job.tuned_section(result)
+
+
+def test_a_log_without_truth_is_named(logs, tmp_path, capsys):
+    folder = tmp_path / "logs"
+    shutil.copytree(logs, folder)
+    (folder / "log3" / "truth.csv").unlink()
+    assert main(["tune", "odometry", str(folder)]) == 2
+    assert f"{folder / 'log3'}: no truth.csv" in capsys.readouterr().err
+
+
+def test_search_minimises_within_the_budget():
+    calls = []
+
+    def bowl(u):
+        calls.append(u.copy())
+        return float(np.sum((u - np.array([0.3, -0.2])) ** 2))
+
+    u, value, n = job.search(bowl, [(-1.0, 1.0), (-1.0, 1.0)], 60)
+    assert n == len(calls) <= 60
+    assert np.all(calls[0] == 0.0)  # the defaults first
+    assert u == pytest.approx([0.3, -0.2], abs=0.02)
+    assert value == pytest.approx(bowl(u), abs=0) and value < 1e-3
+    u1, value1, n1 = job.search(lambda u: float((u[0] - 0.4) ** 2), [(-1.0, 1.0)], 20)
+    assert n1 <= 20 and u1[0] == pytest.approx(0.4, abs=1e-3) and value1 < 1e-6
+    u0, _, n0 = job.search(bowl, [(-1.0, 1.0), (-1.0, 1.0)], 1)
+    assert n0 == 1 and np.all(u0 == 0.0)
+
+
+def test_kfold_splits_partition_the_runs():
+    folds = kfold_splits(7, 3)
+    tests = [t for _, t in folds]
+    assert tests == [[0, 3, 6], [1, 4], [2, 5]]
+    for train, test in folds:
+        assert sorted(train + test) == list(range(7))
+    assert [t for _, t in kfold_splits(4, 4)] == [[0], [1], [2], [3]]  # leave-one-out
+    for n, k in ((3, 1), (3, 4)):
+        with pytest.raises(ValueError, match="2 <= k <= runs"):
+            kfold_splits(n, k)
