@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 from pathlib import Path
 
 from fusion.cli import CommandError
@@ -108,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
     print(job.tuned_section(result))
     if args.output is not None:
         write_robot_toml(args.output, result.robot)
-        print(f"wrote {args.output} ({robot_path} with the chosen values)", file=sys.stderr)
+        print(f"wrote {args.output} ({robot_path} with the chosen values)")
     return 0
 
 
