@@ -118,3 +118,32 @@ def test_kfold_splits_partition_the_runs():
     for n, k in ((3, 1), (3, 4)):
         with pytest.raises(ValueError, match="2 <= k <= runs"):
             kfold_splits(n, k)
+
+
+def test_attitude_target_on_broad_trials():
+    """Two bundled BROAD trials, two folds, three evaluations each: Keel's defaults are the
+    first evaluation (their held-out score is the published recipe's inclination RMSE of
+    the default Keel), and the printed [attitude] table names the filter."""
+    from pathlib import Path
+
+    from fusion.attitude.keel import Keel
+    from fusion.evaluation.orientation import orientation_rmse
+    from fusion.io.broad import read_broad
+
+    broad = Path(__file__).resolve().parent.parent / "datasets" / "broad"
+    trials = [broad / "14_undisturbed_slow_translation_with_breaks_B.mat",
+              broad / "28_disturbed_stationary_magnet_A.mat"]
+    result = job.tune("attitude", trials, folds=2, budget=3)
+    assert result.final.evaluations == 3
+    assert result.final.train_score <= result.final.default_train_score
+    tr = read_broad(trials[0])
+    q = Keel(axes=6).update_batch(tr.gyro, tr.accel, dt=1 / tr.rate)
+    default = orientation_rmse(q, tr.quat_ref, tr.movement).inclination_deg
+    assert result.folds[0][1].default_test_scores == [pytest.approx(default, rel=1e-12)]
+    assert job.tuned_section(result).startswith('[attitude]\nfilter = "keel"\n')
+
+
+def test_attitude_refuses_a_robot_toml_output(tmp_path, capsys):
+    assert main(["tune", "attitude", "datasets/broad", "-o", str(tmp_path / "r.toml")]) == 2
+    assert "-o is for the odometry and ekf targets" in capsys.readouterr().err
+    assert not (tmp_path / "r.toml").exists()

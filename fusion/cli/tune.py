@@ -18,7 +18,7 @@ from fusion.cli import CommandError
 
 __all__ = ["register"]
 
-_TARGETS = ("odometry", "ekf")
+_TARGETS = ("odometry", "ekf", "attitude")
 
 
 def register(subparsers) -> None:
@@ -26,18 +26,22 @@ def register(subparsers) -> None:
         "tune",
         help="choose robot.toml parameters from logs with truth (k-fold cross-validation)",
         description=(
-            "Tune a robot's parameters on log directories with truth.csv, by k-fold "
-            "cross-validation across the logs. Targets: odometry ([chassis] wheel_distance, "
+            "Tune a robot's parameters on runs with ground truth, by k-fold "
+            "cross-validation across the runs. Targets: odometry ([chassis] wheel_distance, "
             "scored by the wheel-only yaw RMSE) and ekf ([ekf] gyro_std, bias_psd, "
-            "scale_std, scored by the fused position RMSE). Prints the cross-validated, "
-            "in-sample and defaults' scores per fold, and the chosen values as a robot.toml "
-            "section."),
+            "scale_std, scored by the fused position RMSE) on log directories with "
+            "truth.csv; attitude (Keel's accel_time_constant, motion_bias_sigma, "
+            "rest_bias_sigma, bias_drift, scored by the 6-axis inclination RMSE) on BROAD "
+            "trials (.mat, .h5). Prints the cross-validated, in-sample and defaults' scores "
+            "per fold, and the chosen values as a robot.toml section."),
     )
     p.add_argument("target", choices=_TARGETS, help="what to tune")
     p.add_argument("logs", type=Path, nargs="+",
-                   help="log directories with truth.csv, or folders of them")
+                   help="log directories with truth.csv (BROAD trial files for attitude), "
+                        "or folders of them")
     p.add_argument("--robot", type=Path,
-                   help="base robot.toml, used for every log (default: the first log's)")
+                   help="base robot.toml, used for every log (default: the first log's; "
+                        "not for attitude)")
     p.add_argument("-k", "--folds", type=int, default=None,
                    help="folds of the cross-validation (default: 5, or the number of logs "
                         "if fewer: leave-one-out)")
@@ -45,7 +49,8 @@ def register(subparsers) -> None:
                    help="evaluations per search (one: the mean score over the training "
                         "logs; default 30)")
     p.add_argument("-o", "--output", type=Path,
-                   help="write the base robot.toml with the chosen values here")
+                   help="write the base robot.toml with the chosen values here (odometry "
+                        "and ekf)")
     p.add_argument("-j", "--jobs", type=int, default=None,
                    help="worker processes (one fold each; default 1)")
     p.add_argument("--cluster", nargs="?", const="", default=None, metavar="SPEC",
@@ -63,18 +68,27 @@ def run(args: argparse.Namespace) -> int:
     jobs = 1 if args.jobs is None else args.jobs
     if jobs < 1:
         raise CommandError(f"--jobs must be >= 1, got {jobs}")
+    target = job.TARGETS[args.target]
+    if not target.uses_robot:
+        for given, option in ((args.robot, "--robot"), (args.output, "-o")):
+            if given is not None:
+                raise CommandError(f"{option} is for the odometry and ekf targets; attitude "
+                                   "prints its [attitude] table (Keel's parameters) to copy "
+                                   "into robot.toml")
     if args.output is not None:
         from fusion.io.atomic import check_target
 
         check_target(args.output)
-    paths = job.find_tuning_logs(args.logs)
-    robot_path = args.robot or Path(paths[0]) / "robot.toml"
-    robot = read_robot_toml(robot_path)
+    paths = job.find_tuning_runs(args.target, args.logs)
+    robot = robot_path = None
+    if target.uses_robot:
+        robot_path = args.robot or Path(paths[0]) / "robot.toml"
+        robot = read_robot_toml(robot_path)
     folds = args.folds if args.folds is not None else min(5, len(paths))
-    target = job.TARGETS[args.target]
-    print(f"fusion tune {args.target}: {len(paths)} logs, {folds} folds, budget "
-          f"{args.budget} evaluations per search; base {robot_path}")
-    print(f"score: {target.score_name} (lower is better), mean over logs")
+    base = f"base {robot_path}" if robot_path else "from Keel's defaults"
+    print(f"fusion tune {args.target}: {len(paths)} runs, {folds} folds, budget "
+          f"{args.budget} evaluations per search; {base}")
+    print(f"score: {target.score_name} (lower is better), mean over runs")
     names = [p.name for p in target.parameters]
 
     def on_fold(i: int, r) -> None:
@@ -100,10 +114,10 @@ def run(args: argparse.Namespace) -> int:
             result = go(client)
     final = result.final
     print(f"cross-validated {result.cv_score:.4f}, defaults {result.default_score:.4f} "
-          f"(every log scored by values chosen without it)")
-    print(f"all logs: in-sample {final.train_score:.4f} (defaults "
+          f"(every run scored by values chosen without it)")
+    print(f"all runs: in-sample {final.train_score:.4f} (defaults "
           f"{final.default_train_score:.4f}); {final.evaluations} evaluations")
-    print("chosen (on every log):")
+    print("chosen (on every run):")
     print(job.tuned_section(result))
     if args.output is not None:
         write_robot_toml(args.output, result.robot)

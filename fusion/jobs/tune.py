@@ -1,15 +1,20 @@
 """Choose a robot's parameters from logs with ground truth, by k-fold cross-validation.
 
-``fusion tune TARGET LOGS/``: every log directory of ``LOGS/`` with a ``truth.csv``
-(``datasets/LOGDIR.md``; UMBmark squares from ``fusion synth --scenario square`` are such logs
-too) is scored with candidate parameters; :data:`TARGETS` says which parameters and which
-score:
+``fusion tune TARGET LOGS/``: every run in ``LOGS/`` is scored with candidate parameters;
+:data:`TARGETS` says which runs, which parameters and which score:
 
-- ``odometry``: ``[chassis] wheel_distance`` (m), scored by the yaw RMSE (deg) of the
-  wheel-only dead reckoning against the truth: the separation sets how far the wheels' yaw
-  drifts on every turn.
-- ``ekf``: ``[ekf] gyro_std``, ``bias_psd``, ``scale_std``, scored by the position RMSE (m) of
-  the fused odometry (the replay's pipeline, :func:`fusion.jobs.replay.fuse_streams`).
+- ``odometry``: log directories with a ``truth.csv`` (``datasets/LOGDIR.md``; UMBmark squares
+  from ``fusion synth --scenario square`` are such logs too); ``[chassis] wheel_distance``
+  (m), scored by the yaw RMSE (deg) of the wheel-only dead reckoning against the truth: the
+  separation sets how far the wheels' yaw drifts on every turn.
+- ``ekf``: the same logs (with imu.csv); ``[ekf] gyro_std``, ``bias_psd``, ``scale_std``,
+  scored by the position RMSE (m) of the fused odometry (the replay's pipeline,
+  :func:`fusion.jobs.replay.fuse_streams`).
+- ``attitude``: BROAD-format trials (``.mat`` or HDF5, :func:`fusion.io.broad.read_broad`);
+  Keel's 6-axis ``accel_time_constant``, ``motion_bias_sigma``, ``rest_bias_sigma`` and
+  ``bias_drift`` (:class:`fusion.attitude.keel.KeelParams`), scored by the inclination RMSE
+  (deg) over the trial's movement phases, as the BROAD paper scores; printed as an
+  ``[attitude]`` table.
 
 The logs are split into k folds (:func:`fusion.evaluation.crossval.kfold_splits`). For each
 fold, parameters are searched on the other folds' logs (in-sample score) and then scored on
@@ -47,6 +52,7 @@ from fusion.planar.odometry import WheelOdometry
 from fusion.planar.robot import RobotConfig
 
 __all__ = [
+    "BROAD_SUFFIXES",
     "TARGETS",
     "FoldResult",
     "FoldTask",
@@ -54,8 +60,10 @@ __all__ = [
     "Target",
     "TuneResult",
     "apply_parameters",
-    "find_tuning_logs",
-    "load_tuning_log",
+    "find_tuning_runs",
+    "fused_position_rmse",
+    "keel_inclination_rmse",
+    "odometry_yaw_rmse",
     "run_fold",
     "search",
     "tune",
@@ -66,33 +74,36 @@ __all__ = [
 @dataclass(frozen=True)
 class Parameter:
     """A tuned value: ``[table] name`` of robot.toml, searched in log space between
-    ``low`` and ``high`` times the base robot's value."""
+    ``low`` and ``high`` times its base value (the base robot's, or the filter's default)."""
 
     table: str
     name: str
     low: float
     high: float
 
-    def base_value(self, robot: RobotConfig) -> float:
-        return float(getattr(_table(robot, self.table), self.name))
-
-
-def _table(robot: RobotConfig, table: str) -> Any:
-    if table == "chassis":
-        return robot.chassis
-    if table == "ekf":
-        return robot.ekf
-    raise ValueError(f"unknown robot.toml table {table!r}")
-
 
 @dataclass(frozen=True)
 class Target:
-    """What ``fusion tune TARGET`` tunes, and the score (lower is better) it minimises."""
+    """What ``fusion tune TARGET`` tunes: its runs (``load(path)``, found in folders by
+    ``find``), parameters, and the score (lower is better) of ``values`` (by parameter name)
+    on one run of a robot (``score(robot, values, run)``)."""
 
     name: str
     parameters: tuple[Parameter, ...]
     score_name: str
-    score: Callable[[RobotConfig, LogDir], float]
+    score: Callable[[RobotConfig | None, dict[str, float], Any], float]
+    load: Callable[[str], Any]
+    find: Callable[[Path], list[Path]]
+    uses_robot: bool = True
+
+    def base_values(self, robot: RobotConfig | None) -> dict[str, float]:
+        """The parameters' values in ``robot`` (or the filter's defaults)."""
+        from fusion.attitude.keel import KeelParams
+
+        tables = {"attitude": KeelParams()}
+        if robot is not None:
+            tables |= {"chassis": robot.chassis, "ekf": robot.ekf}
+        return {p.name: float(getattr(tables[p.table], p.name)) for p in self.parameters}
 
 
 def _truth_at(log: LogDir, t: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -126,20 +137,88 @@ def fused_position_rmse(robot: RobotConfig, log: LogDir) -> float:
     return position_rmse(table[inside, 1:3], truth[:, :2])
 
 
+def keel_inclination_rmse(values: dict[str, float], trial: Any) -> float:
+    """Inclination RMSE (deg) of 6-axis Keel with ``values`` (KeelParams fields) on a BROAD
+    trial, over its movement phases."""
+    from fusion.attitude.keel import Keel, KeelParams
+    from fusion.evaluation.orientation import orientation_rmse
+
+    f = Keel(axes=6, params=KeelParams(**values))
+    q = f.update_batch(trial.gyro, trial.accel, dt=1 / trial.rate)
+    return orientation_rmse(q, trial.quat_ref, trial.movement).inclination_deg
+
+
+def _load_log(target: str) -> Callable[[str], LogDir]:
+    def load(path: str) -> LogDir:
+        """A log directory with what the target needs (truth; wheels; IMU for ``ekf``)."""
+        log = read_logdir(path, imu_frame="imu")
+        if log.truth_t is None or log.truth_t.size < 2:
+            raise ValueError(f"{path}: no truth.csv (tuning needs ground truth)")
+        if log.wheel_t is None or log.wheel_t.size == 0:
+            raise ValueError(f"{path}: wheels.csv is missing or empty")
+        if target == "ekf" and (log.imu_t is None or log.imu_t.size == 0):
+            raise ValueError(f"{path}: imu.csv is missing or empty (the ekf target fuses the "
+                             "gyro)")
+        return log
+
+    return load
+
+
+def _load_trial(path: str) -> Any:
+    from fusion.io.broad import read_broad
+
+    return read_broad(path)
+
+
+def _find_log_dirs_with_truth(folder: Path) -> list[Path]:
+    found = find_log_dirs(folder)
+    for p in found:  # refuse a log without truth before any search starts
+        if not (p / "truth.csv").is_file():
+            raise ValueError(f"{p}: no truth.csv (tuning needs ground truth)")
+    return found
+
+
+#: File suffixes of BROAD trials.
+BROAD_SUFFIXES = (".mat", ".h5", ".hdf5")
+
+
+def _find_trials(folder: Path) -> list[Path]:
+    return sorted(p for p in folder.iterdir()
+                  if p.is_file() and p.suffix.lower() in BROAD_SUFFIXES)
+
+
+def _on_robot(score: Callable[[RobotConfig, LogDir], float], target: str):
+    def scored(robot, values, log) -> float:
+        return score(apply_parameters(robot, values, TARGETS[target]), log)
+
+    return scored
+
+
+_DEG = math.pi / 180
+
 #: The targets of ``fusion tune``.
 TARGETS: dict[str, Target] = {
     "odometry": Target("odometry", (Parameter("chassis", "wheel_distance", 0.8, 1.25),),
-                       "wheel-only yaw RMSE, deg", odometry_yaw_rmse),
+                       "wheel-only yaw RMSE, deg", _on_robot(odometry_yaw_rmse, "odometry"),
+                       _load_log("odometry"), _find_log_dirs_with_truth),
     "ekf": Target("ekf", (Parameter("ekf", "gyro_std", 0.1, 10.0),
                           Parameter("ekf", "bias_psd", 0.01, 100.0),
                           Parameter("ekf", "scale_std", 0.1, 10.0)),
-                  "fused position RMSE, m", fused_position_rmse),
+                  "fused position RMSE, m", _on_robot(fused_position_rmse, "ekf"),
+                  _load_log("ekf"), _find_log_dirs_with_truth),
+    "attitude": Target("attitude", (Parameter("attitude", "accel_time_constant", 0.25, 4.0),
+                                    Parameter("attitude", "motion_bias_sigma", 0.1, 10.0),
+                                    Parameter("attitude", "rest_bias_sigma", 0.1, 10.0),
+                                    Parameter("attitude", "bias_drift", 0.1, 10.0)),
+                       "6-axis Keel inclination RMSE, deg",
+                       lambda robot, values, trial: keel_inclination_rmse(values, trial),
+                       _load_trial, _find_trials, uses_robot=False),
 }
 
 
 def apply_parameters(robot: RobotConfig, values: dict[str, float], target: Target
                      ) -> RobotConfig:
-    """``robot`` with ``values`` (by parameter name) in their tables."""
+    """``robot`` with ``values`` (by parameter name) in their [chassis] and [ekf] tables."""
     changes: dict[str, dict[str, float]] = {}
     for p in target.parameters:
         if p.name in values:
@@ -151,22 +230,6 @@ def apply_parameters(robot: RobotConfig, values: dict[str, float], target: Targe
     if "ekf" in changes:
         out = dataclasses.replace(out, ekf=dataclasses.replace(out.ekf, **changes["ekf"]))
     return out
-
-
-def load_tuning_log(path: str | Path, target: Target) -> LogDir:
-    """A log directory with what ``target`` needs (truth; wheels; IMU for ``ekf``).
-
-    Raises:
-        ValueError: naming the log and the missing file.
-    """
-    log = read_logdir(path, imu_frame="imu")
-    if log.truth_t is None or log.truth_t.size < 2:
-        raise ValueError(f"{path}: no truth.csv (tuning needs ground truth)")
-    if log.wheel_t is None or log.wheel_t.size == 0:
-        raise ValueError(f"{path}: wheels.csv is missing or empty")
-    if target.name == "ekf" and (log.imu_t is None or log.imu_t.size == 0):
-        raise ValueError(f"{path}: imu.csv is missing or empty (the ekf target fuses the gyro)")
-    return log
 
 
 class _BudgetSpent(Exception):
@@ -221,11 +284,13 @@ def search(objective: Callable[[NDArray[np.float64]], float], bounds: Sequence[t
 
 @dataclass(frozen=True)
 class FoldTask:
-    """One search: tune ``target`` on ``train`` (log paths) with ``budget`` evaluations,
-    then score the result and the base robot's defaults on ``test``."""
+    """One search: tune ``target`` on ``train`` (run paths) with ``budget`` evaluations,
+    starting from ``base`` (parameter values; the robot's for robot targets), then score the
+    result and ``base`` on ``test``."""
 
     target: str
-    robot: RobotConfig
+    robot: RobotConfig | None
+    base: dict[str, float]
     train: tuple[str, ...]
     test: tuple[str, ...]
     budget: int
@@ -234,8 +299,8 @@ class FoldTask:
 @dataclass
 class FoldResult:
     """What :func:`run_fold` found: the chosen values (by parameter name), the mean score on
-    the training logs (in-sample), per-log scores of the chosen values and of the defaults
-    on the test logs, the defaults' mean on the training logs, and evaluations used."""
+    the training runs (in-sample), per-run scores of the chosen values and of the defaults
+    on the test runs, the defaults' mean on the training runs, and evaluations used."""
 
     values: dict[str, float]
     train_score: float
@@ -246,27 +311,24 @@ class FoldResult:
 
 
 def run_fold(task: FoldTask) -> FoldResult:
-    """Search on the training logs, score on the test logs (a worker runs this)."""
+    """Search on the training runs, score on the test runs (a worker runs this)."""
     target = TARGETS[task.target]
-    train = [load_tuning_log(p, target) for p in task.train]
-    test = [load_tuning_log(p, target) for p in task.test]
-    base = {p.name: p.base_value(task.robot) for p in target.parameters}
+    train = [target.load(p) for p in task.train]
+    test = [target.load(p) for p in task.test]
 
     def values_of(u) -> dict[str, float]:
-        return {p.name: base[p.name] * math.exp(x) for p, x in zip(target.parameters, u)}
+        return {p.name: task.base[p.name] * math.exp(x) for p, x in zip(target.parameters, u)}
 
     def mean_score(u) -> float:
-        robot = apply_parameters(task.robot, values_of(u), target)
-        return float(np.mean([target.score(robot, log) for log in train]))
+        values = values_of(u)
+        return float(np.mean([target.score(task.robot, values, run) for run in train]))
 
     bounds = [(math.log(p.low), math.log(p.high)) for p in target.parameters]
     u, value, n = search(mean_score, bounds, task.budget)
     values = values_of(u)
-    default_train = mean_score(np.zeros(len(bounds)))
-    tuned = apply_parameters(task.robot, values, target)
-    return FoldResult(values, value, default_train,
-                      [target.score(tuned, log) for log in test],
-                      [target.score(task.robot, log) for log in test], n)
+    return FoldResult(values, value, mean_score(np.zeros(len(bounds))),
+                      [target.score(task.robot, values, run) for run in test],
+                      [target.score(task.robot, task.base, run) for run in test], n)
 
 
 @dataclass
@@ -275,97 +337,111 @@ class TuneResult:
 
     Attributes:
         target: the :class:`Target`.
-        logs: the log paths, in fold order of ``folds``.
-        folds: per fold, ``(test log indices, FoldResult)``.
-        final: the search on every log (its values are the ones to use; its train score is
+        runs: the run paths (log directories or trial files); ``folds`` index them.
+        folds: per fold, ``(test run indices, FoldResult)``.
+        final: the search on every run (its values are the ones to use; its train score is
             in-sample).
-        robot: the base robot with the final values.
+        robot: the base robot with the final values (None for the attitude target).
     """
 
     target: Target
-    logs: list[str]
+    runs: list[str]
     folds: list[tuple[list[int], FoldResult]]
     final: FoldResult
-    robot: RobotConfig
+    robot: RobotConfig | None
 
     @property
     def cv_score(self) -> float:
-        """Mean over every log of its score with the values chosen without it."""
+        """Mean over every run of its score with the values chosen without it."""
         return float(np.mean([s for _, f in self.folds for s in f.test_scores]))
 
     @property
     def default_score(self) -> float:
-        """Mean over every log of the defaults' score."""
+        """Mean over every run of the defaults' score."""
         return float(np.mean([s for _, f in self.folds for s in f.default_test_scores]))
 
 
-def tune(target: str, logs: Sequence[str | Path], robot: RobotConfig, *, folds: int = 5,
-         budget: int = 30, jobs: int = 1, client: Any = None,
+def tune(target: str, runs: Sequence[str | Path], robot: RobotConfig | None = None, *,
+         folds: int = 5, budget: int = 30, jobs: int = 1, client: Any = None,
          on_fold: Callable[[int, FoldResult], None] | None = None) -> TuneResult:
-    """Tune ``target``'s parameters of ``robot`` on ``logs`` by ``folds``-fold CV.
+    """Tune ``target``'s parameters on ``runs`` by ``folds``-fold cross-validation.
 
-    ``logs``: log directories, or one folder of them. Each fold and the final search on all
-    logs is one task on the engine (``jobs`` processes, or the Dask ``client``).
-    ``on_fold(i, result)`` is called as each fold ends (the final search: ``i = -1``).
+    ``runs``: log directories (BROAD trial files for ``attitude``), or folders of them;
+    ``robot``: the base robot.toml (the search starts from, and bounds around, its values;
+    required but for ``attitude``, which starts from Keel's defaults). Each fold and the final
+    search on all runs is one task on the engine (``jobs`` processes, or the Dask
+    ``client``). ``on_fold(i, result)`` is called as each fold ends (the final search:
+    ``i = -1``).
 
     Raises:
-        ValueError: unknown target, fewer than 2 logs, a bad ``folds`` or ``budget``, or a
-            log without what the target needs (named); a failed fold names its logs.
+        ValueError: unknown target, fewer than 2 runs, a bad ``folds`` or ``budget``, or a
+            run without what the target needs (named); a failed fold names its error.
     """
     if target not in TARGETS:
         raise ValueError(f"unknown tuning target {target!r}; known: {', '.join(TARGETS)}")
-    paths = find_tuning_logs(logs)
+    spec = TARGETS[target]
+    if spec.uses_robot and robot is None:
+        raise ValueError(f"the {target} target needs a base robot.toml")
+    paths = find_tuning_runs(target, runs)
     if len(paths) < 2:
-        raise ValueError(f"cross-validation needs at least 2 logs with truth, got {len(paths)}")
+        raise ValueError(f"cross-validation needs at least 2 runs, got {len(paths)}")
     if budget < 1:
         raise ValueError(f"--budget must be >= 1 evaluation, got {budget}")
-    for p in paths:  # refuse a log without truth before any search starts
-        if not (Path(p) / "truth.csv").is_file():
-            raise ValueError(f"{p}: no truth.csv (tuning needs ground truth)")
+    base = spec.base_values(robot)
     splits = kfold_splits(len(paths), folds)
-    tasks = [FoldTask(target, robot, tuple(paths[i] for i in train),
+    tasks = [FoldTask(target, robot, base, tuple(paths[i] for i in train),
                       tuple(paths[i] for i in test), budget) for train, test in splits]
-    tasks.append(FoldTask(target, robot, tuple(paths), (), budget))
+    tasks.append(FoldTask(target, robot, base, tuple(paths), (), budget))
     results: dict[int, FoldResult] = {}
     for i, ok, value in run_tasks(run_fold, tasks, jobs=jobs, client=client):
         if not ok:
-            what = "the search on all logs" if i == len(splits) else f"fold {i + 1}"
+            what = "the search on all runs" if i == len(splits) else f"fold {i + 1}"
             raise ValueError(f"{what} failed: {value}")
         results[i] = value
         if on_fold is not None:
             on_fold(-1 if i == len(splits) else i, value)
     final = results[len(splits)]
-    return TuneResult(TARGETS[target], paths,
-                      [(test, results[i]) for i, (_, test) in enumerate(splits)], final,
-                      apply_parameters(robot, final.values, TARGETS[target]))
+    return TuneResult(spec, paths, [(test, results[i]) for i, (_, test) in enumerate(splits)],
+                      final, None if robot is None
+                      else apply_parameters(robot, final.values, spec))
 
 
-def find_tuning_logs(logs: Sequence[str | Path]) -> list[str]:
-    """Log directories given as such or found in folders (:func:`find_log_dirs`), in order.
+def find_tuning_runs(target: str, runs: Sequence[str | Path]) -> list[str]:
+    """The target's runs given as such or found in folders, in order: log directories
+    (with robot.toml and truth.csv), or BROAD trial files for ``attitude``.
 
     Raises:
-        ValueError: a path that is neither, or a folder without any.
+        ValueError: a path that is neither, a folder without any, or a log without truth.
     """
-    paths: list[str] = []
-    for p in map(Path, logs):
-        if p.is_dir() and not (p / "robot.toml").is_file():
-            found = find_log_dirs(p)
+    spec = TARGETS[target]
+    paths: list[Path] = []
+    for p in map(Path, runs):
+        if spec.uses_robot and (p / "robot.toml").is_file():
+            if not (p / "truth.csv").is_file():
+                raise ValueError(f"{p}: no truth.csv (tuning needs ground truth)")
+            paths.append(p)
+        elif not spec.uses_robot and p.is_file():
+            paths.append(p)
+        elif p.is_dir():
+            found = spec.find(p)
             if not found:
-                raise ValueError(f"{p}: no log directory (with robot.toml) in it")
-            paths += [str(q) for q in found]
-        elif (p / "robot.toml").is_file():
-            paths.append(str(p))
+                what = ("log directory (with robot.toml)" if spec.uses_robot
+                        else f"BROAD trial ({', '.join(BROAD_SUFFIXES)})")
+                raise ValueError(f"{p}: no {what} in it")
+            paths += found
         else:
-            raise ValueError(f"{p}: not a log directory (robot.toml, wheels.csv, truth.csv) "
-                             "or a folder of them")
-    return paths
+            raise ValueError(f"{p}: no such log directory, trial or folder")
+    return [str(p) for p in paths]
 
 
 def tuned_section(result: TuneResult) -> str:
-    """The chosen values as robot.toml table(s), e.g. ``[chassis]\\nwheel_distance = ...``."""
+    """The chosen values as robot.toml table(s), e.g. ``[chassis]\nwheel_distance = ...``
+    (the attitude target's ``[attitude]`` table names its filter, ``filter = "keel"``)."""
     lines: list[str] = []
     for table in dict.fromkeys(p.table for p in result.target.parameters):
         lines.append(f"[{table}]")
+        if table == "attitude":
+            lines.append('filter = "keel"')
         for p in result.target.parameters:
             if p.table == table:
                 lines.append(f"{p.name} = {result.final.values[p.name]!r}")
