@@ -48,6 +48,7 @@ from fusion.evaluation.trajectory import position_rmse, yaw_rmse
 from fusion.io.logdir import LogDir, read_logdir
 from fusion.jobs.engine import run_tasks
 from fusion.jobs.replay import Streams, find_log_dirs, fuse_streams
+from fusion.jobs.replay import _truth_at as truth_at  # the replay's truth interpolation
 from fusion.planar.odometry import WheelOdometry
 from fusion.planar.robot import RobotConfig
 
@@ -107,10 +108,7 @@ class Target:
 
 
 def _truth_at(log: LogDir, t: NDArray[np.float64]) -> NDArray[np.float64]:
-    yaw = np.unwrap(log.truth[:, 2])
-    return np.column_stack([np.interp(t, log.truth_t, log.truth[:, 0]),
-                            np.interp(t, log.truth_t, log.truth[:, 1]),
-                            np.interp(t, log.truth_t, yaw)])
+    return truth_at(log.truth_t, log.truth, t)
 
 
 def _inside(log: LogDir, t: NDArray[np.float64]) -> NDArray[np.bool_]:
