@@ -88,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
     base = f"base {robot_path}" if robot_path else "from Keel's defaults"
     print(f"fusion tune {args.target}: {len(paths)} runs, {folds} folds, budget "
           f"{args.budget} evaluations per search; {base}")
+    if args.cluster is None:
+        print("folds run " + (f"on {jobs} worker processes" if jobs > 1 else "in this process"))
     print(f"score: {target.score_name} (lower is better), mean over runs")
     names = [p.name for p in target.parameters]
 
@@ -109,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         from fusion.jobs import cluster as dask_jobs
 
         spec = dask_jobs.parse_cluster(args.cluster)
-        print(f"on the {spec.describe()}")
+        print(f"folds run on the {spec.describe()}")
         with dask_jobs.dask_client(spec) as client:
             result = go(client)
     final = result.final
