@@ -27,10 +27,10 @@ def register(subparsers) -> None:
         help="choose robot.toml parameters from logs with truth (k-fold cross-validation)",
         description=(
             "Tune a robot's parameters on runs with ground truth, by k-fold "
-            "cross-validation across the runs. Targets: odometry ([chassis] wheel_distance, "
-            "scored by the wheel-only yaw RMSE) and ekf ([ekf] gyro_std, bias_psd, "
-            "scale_std, scored by the fused position RMSE) on log directories with "
-            "truth.csv; attitude (Keel's accel_time_constant, motion_bias_sigma, "
+            "cross-validation across the runs. Targets: odometry ([chassis] wheel_distance "
+            "and the wheel radius ratio, scored by the wheel-only yaw RMSE) and ekf ([ekf] "
+            "gyro_std, bias_psd, scale_std, scored by the fused position RMSE) on log "
+            "directories with truth.csv; attitude (Keel's accel_time_constant, motion_bias_sigma, "
             "rest_bias_sigma, bias_drift, scored by the 6-axis inclination RMSE) on BROAD "
             "trials (.mat, .h5). Prints the cross-validated, in-sample and defaults' scores "
             "per fold, and the chosen values as a robot.toml section."),
@@ -45,9 +45,9 @@ def register(subparsers) -> None:
     p.add_argument("-k", "--folds", type=int, default=None,
                    help="folds of the cross-validation (default: 5, or the number of logs "
                         "if fewer: leave-one-out)")
-    p.add_argument("--budget", type=int, default=30,
+    p.add_argument("--budget", type=int, default=60,
                    help="evaluations per search (one: the mean score over the training "
-                        "logs; default 30)")
+                        "logs; default 60)")
     p.add_argument("-o", "--output", type=Path,
                    help="write the base robot.toml with the chosen values here (odometry "
                         "and ekf)")
