@@ -131,15 +131,16 @@ def _client(address: str):
 
 
 def test_dask_scheduler_and_two_workers_match_serial_byte_for_byte(fleet, dask_processes,
-                                                                   tmp_path):
+                                                                   tmp_path, capsys):
+    """``fusion replay LOGS/ -o out/ --cluster tcp://...`` (the command, in this process)."""
     logs, serial = fleet
     out = tmp_path / "out"
-    proc = subprocess.run(
-        [sys.executable, "-m", "fusion", "replay", str(logs), "-o", str(out), "--cluster",
-         dask_processes.address], capture_output=True, text=True, env=_env(), timeout=120)
-    assert proc.returncode == 0, proc.stderr
+    assert main(["replay", str(logs), "-o", str(out), "--cluster",
+                 dask_processes.address]) == 0
+    printed = capsys.readouterr().out
     assert (f"{N_LOGS} of {N_LOGS} logs replayed (Dask cluster at "
-            f"{dask_processes.address}); 0 failed") in proc.stdout
+            f"{dask_processes.address}); 0 failed") in printed
+    assert printed.count(" ok ") == N_LOGS
     _assert_same_as_serial(out, serial)
 
 

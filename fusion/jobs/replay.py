@@ -31,6 +31,7 @@ from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
 from fusion.io.logdir import read_logdir
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
+from fusion.jobs.engine import run_tasks
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.odometry import WheelOdometry
 from fusion.planar.robot import RobotConfig
@@ -427,25 +428,13 @@ def replay_logs(jobs: list[LogJob], workers: int,
                 ) -> dict[str, tuple[str, Any]]:
     """Replay many logs in ``workers`` processes (1: in this process); returns each job's
     :func:`run_log_job` result by source path. A worker that dies fails its log only."""
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
     results: dict[str, tuple[str, Any]] = {}
-    if workers == 1:
-        for job in jobs:
-            results[job.source] = run_log_job(job)
-            if on_done is not None:
-                on_done(job, results[job.source])
-        return results
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(run_log_job, job): job for job in jobs}
-        for fut in as_completed(futures):
-            job = futures[fut]
-            try:
-                results[job.source] = fut.result()
-            except Exception as exc:  # a worker died (killed, out of memory)
-                results[job.source] = ("error", f"{job.source}: worker failed: {exc!r}")
-            if on_done is not None:
-                on_done(job, results[job.source])
+    for i, ok, value in run_tasks(run_log_job, jobs, jobs=workers):
+        job = jobs[i]  # (a worker died, killed or out of memory, when not ok)
+        results[job.source] = value if ok else ("error", f"{job.source}: worker failed: "
+                                                         f"{value}")
+        if on_done is not None:
+            on_done(job, results[job.source])
     return results
 
 
