@@ -262,8 +262,10 @@ class FusionPipeline(Lifecycle):
             par = self.attitude.params
             self._quiet = (par.bias_clip + par.rest_gyro_threshold, par.gravity,
                            par.rest_accel_threshold)
-        # the newest motion known from the wheels (or twists): stamp s, v m/s, w rad/s
-        self._known_motion = (-math.inf, math.nan, math.nan)
+        # the newest motion known from the wheels (or twists): stamp s, v m/s, w rad/s,
+        # forward acceleration m/s^2; and each source's last (stamp, v) for the acceleration
+        self._known_motion = (-math.inf, math.nan, math.nan, math.nan)
+        self._last_speed = {"wheels": (-math.inf, 0.0), "twist": (-math.inf, 0.0)}
         self._mount = _matrix_or_none(robot.imu_to_base())
         self._sched = ev_core.new_sched(*(name in sources for name in _SOURCES))
         self._heap_f = np.empty((256, 4))
@@ -494,8 +496,7 @@ class FusionPipeline(Lifecycle):
                 parts.append((imu_t, _EV_GYRO, imu_t, rate, np.zeros(imu_t.size),
                               np.arange(ref0, ref0 + imu_t.size)))
         if motion is not None and motion[0].size:
-            self._known_motion = (float(motion[0][-1]), float(motion[1][-1]),
-                                  float(motion[2][-1]))
+            self._known_motion = tuple(float(m[-1]) for m in motion)
         if wheel_t is not None and wheel_t.size:
             self._note_gaps(wheel_t)
             self._last_wheel_t = float(wheel_t[-1])
@@ -530,23 +531,39 @@ class FusionPipeline(Lifecycle):
                   stamp[order], np.concatenate([p[5] for p in parts])[order], flush=flush)
 
     def _motion(self, wheel_t, ticks, twist_t, twist_v, twist_w):
-        """``(stamp, v, w)`` arrays of the accepted wheel frames and twists of one call in
+        """``(stamp, v, w, a)`` arrays of the accepted wheel frames and twists of one call in
         arrival order (at equal stamps wheels first), None when the attitude filter takes no
         wheel knowledge. A frame's v (m/s) and w (rad/s) are its ticks over its period with
-        the nominal geometry."""
+        the nominal geometry; ``a`` (m/s^2) is the change of v from the source's previous
+        event over the wheel period (a twist: over the stamp difference), 0 after a gap
+        longer than ``gap_periods`` periods or for the first event."""
         if not self._knows_wheels:
             return None
         streams = []
         if wheel_t is not None and wheel_t.size:
             v, w = ticks_to_twist(ticks[:, 0], ticks[:, 1], self.robot.chassis)
-            streams.append((wheel_t, v, w))
+            streams.append((wheel_t, v, w, self._forward_accel("wheels", wheel_t, v)))
         if twist_t is not None and twist_t.size:
-            streams.append((twist_t, twist_v, twist_w))
+            streams.append((twist_t, twist_v, twist_w,
+                            self._forward_accel("twist", twist_t, twist_v)))
         if len(streams) < 2:
-            return streams[0] if streams else (np.zeros(0), np.zeros(0), np.zeros(0))
+            return streams[0] if streams else tuple(np.zeros(0) for _ in range(4))
         stamp = np.concatenate([streams[0][0], streams[1][0]])
         order = np.argsort(stamp, kind="stable")
-        return tuple(np.concatenate([streams[0][i], streams[1][i]])[order] for i in range(3))
+        return tuple(np.concatenate([streams[0][i], streams[1][i]])[order] for i in range(4))
+
+    def _forward_accel(self, source: str, t: NDArray[np.float64],
+                       v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """dv/dt (m/s^2) of one source's accepted events (see :meth:`_motion`); remembers
+        the last (stamp, v)."""
+        t_prev, v_prev = self._last_speed[source]
+        self._last_speed[source] = (float(t[-1]), float(v[-1]))
+        tp = np.concatenate([[t_prev], t[:-1]])
+        dv = v - np.concatenate([[v_prev], v[:-1]])
+        dt = t - tp
+        a = dv / self.period if source == "wheels" else dv / dt
+        a[~(dt <= self._gap_periods * self.period)] = 0.0
+        return a
 
     def _wheel_knowledge(self, t, gyro, accel, motion):
         """What the wheels tell the attitude filter at each IMU sample (stamps ``t`` s,
@@ -554,25 +571,24 @@ class FusionPipeline(Lifecycle):
         that arrived before it (an IMU sample arrives before a wheel frame of the same stamp),
         if not older than ``gap_periods`` wheel periods:
 
-        - known acceleration (N, 3), m/s^2, base frame: the centripetal ``v*w`` along +y (to
-          the left when turning left while driving forward), forward acceleration and the IMU's
-          lever arm left out; NaN rows where nothing is known;
+        - known acceleration (N, 3), m/s^2, base frame: the forward acceleration dv/dt along x
+          and the centripetal ``v*w`` along +y (to the left when turning left while driving
+          forward); the IMU's lever arm is left out (an IMU off the axle centre feels
+          ``w^2 r`` more); NaN rows where nothing is known;
         - stillness (N,): 0 moving (v or w not zero), 1 known still (v = w = 0 and the IMU
           quiet: ``|gyro|`` below Keel's ``bias_clip + rest_gyro_threshold`` and ``|accel|``
           within ``rest_accel_threshold`` of gravity), NaN unknown (the filter's own rest
           detector decides).
         """
-        k_t, k_v, k_w = motion
-        idx = np.searchsorted(k_t, t, side="left") - 1
-        last_t, last_v, last_w = self._known_motion
+        idx = np.searchsorted(motion[0], t, side="left") - 1
         inside = idx >= 0
-        src_t = np.where(inside, k_t[idx] if k_t.size else last_t, last_t)
-        v = np.where(inside, k_v[idx] if k_t.size else last_v, last_v)
-        w = np.where(inside, k_w[idx] if k_t.size else last_w, last_w)
+        src_t, v, w, a = (np.where(inside, m[idx], last) if m.size else np.full(t.size, last)
+                          for m, last in zip(motion, self._known_motion))
         fresh = t - src_t <= self._gap_periods * self.period
         v = np.where(fresh, v, math.nan)
         w = np.where(fresh, w, math.nan)
         known = np.zeros((t.size, 3))
+        known[:, 0] = a
         known[:, 1] = v * w
         known[~fresh] = math.nan
         gyro_max, gravity, accel_tol = self._quiet
