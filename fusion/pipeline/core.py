@@ -547,7 +547,7 @@ class FusionPipeline(Lifecycle):
             streams.append((twist_t, twist_v, twist_w,
                             self._forward_accel("twist", twist_t, twist_v)))
         if len(streams) < 2:
-            return streams[0] if streams else tuple(np.zeros(0) for _ in range(4))
+            return streams[0] if streams else _NO_MOTION
         stamp = np.concatenate([streams[0][0], streams[1][0]])
         order = np.argsort(stamp, kind="stable")
         return tuple(np.concatenate([streams[0][i], streams[1][i]])[order] for i in range(4))
@@ -585,6 +585,7 @@ class FusionPipeline(Lifecycle):
         src_t, v, w, a = (np.where(inside, m[idx], last) if m.size else np.full(t.size, last)
                           for m, last in zip(motion, self._known_motion))
         fresh = t - src_t <= self._gap_periods * self.period
+        # the same operations as _knowledge_now, so one sample gets the same bits either way
         v = np.where(fresh, v, math.nan)
         w = np.where(fresh, w, math.nan)
         known = np.zeros((t.size, 3))
@@ -592,14 +593,32 @@ class FusionPipeline(Lifecycle):
         known[:, 1] = v * w
         known[~fresh] = math.nan
         gyro_max, gravity, accel_tol = self._quiet
-        # elementwise sums (the same bits for one row and for many)
-        g2 = gyro[:, 0] ** 2 + gyro[:, 1] ** 2 + gyro[:, 2] ** 2
-        a2 = accel[:, 0] ** 2 + accel[:, 1] ** 2 + accel[:, 2] ** 2
-        quiet = (g2 < gyro_max * gyro_max) & (np.abs(np.sqrt(a2) - gravity) < accel_tol)
+        gx, gy, gz = gyro[:, 0], gyro[:, 1], gyro[:, 2]
+        ax, ay, az = accel[:, 0], accel[:, 1], accel[:, 2]
+        quiet = ((gx * gx + gy * gy + gz * gz < gyro_max * gyro_max)
+                 & (np.abs(np.sqrt(ax * ax + ay * ay + az * az) - gravity) < accel_tol))
         moving = (v != 0.0) | (w != 0.0)
         still = np.where(moving, 0.0, np.where(quiet, 1.0, math.nan))
         still[~fresh] = math.nan
         return still, known
+
+    def _knowledge_now(self, t: float, gyro: NDArray[np.float64], accel: NDArray[np.float64]):
+        """:meth:`_wheel_knowledge` of one IMU sample with no wheel frame or twist in the same
+        call (the streaming case), in scalars: ``(still, known_accel)`` as
+        :meth:`fusion.attitude.keel.Keel.update` takes them."""
+        src_t, v, w, a = self._known_motion
+        if not t - src_t <= self._gap_periods * self.period:
+            return None, None
+        if v != 0.0 or w != 0.0:
+            still = False
+        else:
+            gyro_max, gravity, accel_tol = self._quiet
+            gx, gy, gz = gyro.tolist()
+            ax, ay, az = accel.tolist()
+            still = ((gx * gx + gy * gy + gz * gz < gyro_max * gyro_max)
+                     and abs(math.sqrt(ax * ax + ay * ay + az * az) - gravity) < accel_tol)
+            still = True if still else None
+        return still, np.array([a, v * w, 0.0])
 
     def _attitude(self, t: NDArray[np.float64], gyro: NDArray[np.float64],
                   accel: NDArray[np.float64], motion) -> NDArray[np.float64]:
@@ -613,6 +632,10 @@ class FusionPipeline(Lifecycle):
             if t.size == 1:
                 return f.update(gyro[0], accel[0], timestamp=float(t[0]))[None, :]
             return f.update_batch(gyro, accel, timestamps=t)
+        if t.size == 1 and not motion[0].size:
+            still, known = self._knowledge_now(float(t[0]), gyro[0], accel[0])
+            return f.update(gyro[0], accel[0], timestamp=float(t[0]), still=still,
+                            known_accel=known)[None, :]
         still, known = self._wheel_knowledge(t, gyro, accel, motion)
         if t.size == 1:
             s = still[0]
@@ -760,6 +783,7 @@ class FusionPipeline(Lifecycle):
         return [float(v) for v in np.percentile(a, qs)]
 
 
+_NO_MOTION = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
 _NO_EVENTS = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
               np.zeros(0, dtype=np.int64))
 
