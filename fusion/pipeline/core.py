@@ -4,8 +4,8 @@ Data flow (one :class:`FusionPipeline` object; only the sources differ between l
 replay)::
 
     ImuSample (IMU frame) --mount rotation--> Keel (attitude) --vertical rate---\
-                                                ^ v*w, stillness                  ReorderBuffer
-    WheelTicks (DATA-uart2 frame, ticks per period) --+-------------------------/      |
+                wheels: v*w, dv/dt, stillness --^                                 ReorderBuffer
+    WheelTicks (DATA-uart2 frame, ticks per period) ----------------------------/      |
                                                            PlanarEKF <-----------------+
                                                                |
                                       FusedOdometry records -> sinks (fusion.sinks)
@@ -13,9 +13,10 @@ replay)::
 The attitude filter is Keel (:class:`fusion.attitude.keel.Keel`) unless ``robot.toml``'s
 ``[attitude]`` table (:class:`fusion.planar.robot.AttitudeConfig`) chooses the Mahony port or
 the constructor is given a configured filter (``attitude=``). Keel is told what the wheels
-know (:meth:`FusionPipeline._wheel_knowledge`): the centripetal acceleration ``v*w`` of the
-newest wheel frame (or twist) that arrived before the IMU sample, removed from the
-accelerometer (without it Keel leans into sustained turns), and stillness (wheels stopped and
+know (:meth:`FusionPipeline._wheel_knowledge`): the centripetal acceleration ``v*w`` and the
+forward acceleration dv/dt of the newest wheel frame (or twist) that arrived before the IMU
+sample, removed from the accelerometer (without them Keel leans into sustained turns and
+after starts and stops), and stillness (wheels stopped and
 the IMU quiet: the gyro bias is refined; wheels turning: no rest, even in a slow steady turn
 that an IMU alone cannot tell from bias).
 
