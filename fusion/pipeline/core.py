@@ -16,9 +16,9 @@ the constructor is given a configured filter (``attitude=``). Keel is told what 
 know (:meth:`FusionPipeline._wheel_knowledge`): the centripetal acceleration ``v*w`` and the
 forward acceleration dv/dt of the newest wheel frame (or twist) that arrived before the IMU
 sample, removed from the accelerometer (without them Keel leans into sustained turns and
-after starts and stops), and stillness (wheels stopped and
-the IMU quiet: the gyro bias is refined; wheels turning: no rest, even in a slow steady turn
-that an IMU alone cannot tell from bias).
+after starts and stops), and stillness (wheels stopped and the IMU quiet: the gyro bias is
+refined; wheels turning: no rest, even in a slow steady turn that an IMU alone cannot tell
+from bias). A wheel frame or twist older than ``gap_periods`` wheel periods tells nothing.
 
 Event-time model, stated once:
 
