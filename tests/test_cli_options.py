@@ -68,7 +68,7 @@ BASE = {
               "square": ["synth", "out", "--scenario", "square"],
               "figure8": ["synth", "out", "--scenario", "figure8"]},
     "tune": {"logs": ["tune", "odometry", "run1", "cw", "ccw", "--budget", "4"],
-             "broad": ["tune", "attitude", "trial.mat", "trial.mat"]},
+             "broad": ["tune", "attitude", "trial.mat", "trial.mat", "--budget", "2"]},
     "run": {"sim": ["run", "--imu", "sim", "--chassis", "sim", "--duration", "1"],
             "no imu": ["run", "--imu", "none", "--chassis", "sim", "--duration", "1"]},
 }
@@ -196,13 +196,13 @@ TABLE: dict[str, dict[str, list[Row]]] = {
     },
     "tune": {
         "--robot": [changes("logs", "--robot", "robot-wide.toml"),
-                    refused("broad", "--robot is for the odometry and ekf targets", "--robot",
-                            "robot-wide.toml")],
+                    changes("broad", "--robot", "robot-wide.toml")],
         "--folds": [changes("logs", "--folds", "2")],
         "--budget": [changes("logs", "--budget", "6")],
         "--output": [changes("logs", "-o", "tuned.toml"),
-                     refused("broad", "-o is for the odometry and ekf targets", "-o",
-                             "tuned.toml")],
+                     refused("broad", "-o for the attitude target needs --robot", "-o",
+                             "tuned.toml"),
+                     changes("broad", "-o", "tuned.toml", both=("--robot", "robot-wide.toml"))],
         "--jobs": [changes("logs", "--jobs", "2")],
         # (a local cluster's start-up costs seconds: tests/test_cluster_replay.py runs tune
         # on Dask workers)

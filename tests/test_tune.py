@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import re
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -146,8 +147,6 @@ def test_attitude_target_on_broad_trials():
     """Two bundled BROAD trials, two folds, three evaluations each: Keel's defaults are the
     first evaluation (their held-out score is the published recipe's inclination RMSE of
     the default Keel), and the printed [attitude] table names the filter."""
-    from pathlib import Path
-
     from fusion.attitude.keel import Keel
     from fusion.evaluation.orientation import orientation_rmse
     from fusion.io.broad import read_broad
@@ -165,7 +164,29 @@ def test_attitude_target_on_broad_trials():
     assert job.tuned_section(result).startswith('[attitude]\nfilter = "keel"\n')
 
 
-def test_attitude_refuses_a_robot_toml_output(tmp_path, capsys):
-    assert main(["tune", "attitude", "datasets/broad", "-o", str(tmp_path / "r.toml")]) == 2
-    assert "-o is for the odometry and ekf targets" in capsys.readouterr().err
-    assert not (tmp_path / "r.toml").exists()
+def test_attitude_into_a_robot_toml(tmp_path, capsys):
+    """-o needs the robot whose [attitude] table gets the values; the file written reads
+    back with them (the other tables as they were)."""
+    broad = Path(__file__).resolve().parent.parent / "datasets" / "broad"
+    trials = [str(broad / "14_undisturbed_slow_translation_with_breaks_B.mat"),
+              str(broad / "28_disturbed_stationary_magnet_A.mat")]
+    out = tmp_path / "r.toml"
+    assert main(["tune", "attitude", *trials, "-o", str(out), "--budget", "2"]) == 2
+    assert "-o for the attitude target needs --robot" in capsys.readouterr().err
+    assert not out.exists()
+    from fusion.evaluation.synthetic import EXAMPLE_ROBOT
+    from fusion.io.robot_toml import write_robot_toml
+
+    base = tmp_path / "base.toml"
+    write_robot_toml(base, EXAMPLE_ROBOT)
+    assert main(["tune", "attitude", *trials, "--robot", str(base), "-o", str(out), "--folds",
+                 "2", "--budget", "2"]) == 0
+    printed = capsys.readouterr().out
+    written = read_robot_toml(out)
+    assert written.attitude.filter == "keel"
+    values = dict(written.attitude.params)
+    assert set(values) == {"accel_time_constant", "motion_bias_sigma", "rest_bias_sigma",
+                           "bias_drift"}
+    for name, value in values.items():
+        assert f"{name} = {value!r}" in printed
+    assert written.chassis == read_robot_toml(base).chassis

@@ -41,7 +41,7 @@ def register(subparsers) -> None:
                         "or folders of them")
     p.add_argument("--robot", type=Path,
                    help="base robot.toml, used for every log (default: the first log's; "
-                        "not for attitude)")
+                        "attitude: its [attitude] Keel settings, default Keel's defaults)")
     p.add_argument("-k", "--folds", type=int, default=None,
                    help="folds of the cross-validation (default: 5, or the number of logs "
                         "if fewer: leave-one-out)")
@@ -49,8 +49,8 @@ def register(subparsers) -> None:
                    help="evaluations per search (one: the mean score over the training "
                         "logs; default 60)")
     p.add_argument("-o", "--output", type=Path,
-                   help="write the base robot.toml with the chosen values here (odometry "
-                        "and ekf)")
+                   help="write the base robot.toml with the chosen values here (attitude: "
+                        "needs --robot)")
     p.add_argument("-j", "--jobs", type=int, default=None,
                    help="worker processes (one fold each; default 1)")
     p.add_argument("--cluster", nargs="?", const="", default=None, metavar="SPEC",
@@ -69,19 +69,16 @@ def run(args: argparse.Namespace) -> int:
     if jobs < 1:
         raise CommandError(f"--jobs must be >= 1, got {jobs}")
     target = job.TARGETS[args.target]
-    if not target.uses_robot:
-        for given, option in ((args.robot, "--robot"), (args.output, "-o")):
-            if given is not None:
-                raise CommandError(f"{option} is for the odometry and ekf targets; attitude "
-                                   "prints its [attitude] table (Keel's parameters) to copy "
-                                   "into robot.toml")
+    if not target.needs_robot and args.output is not None and args.robot is None:
+        raise CommandError("-o for the attitude target needs --robot robot.toml: the robot "
+                           "whose [attitude] table gets the chosen values")
     if args.output is not None:
         from fusion.io.atomic import check_target
 
         check_target(args.output)
     paths = job.find_tuning_runs(args.target, args.logs)
     robot = robot_path = None
-    if target.uses_robot:
+    if target.needs_robot or args.robot is not None:
         robot_path = args.robot or Path(paths[0]) / "robot.toml"
         robot = read_robot_toml(robot_path)
     folds = args.folds if args.folds is not None else min(5, len(paths))
@@ -121,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
           f"{final.default_train_score:.4f}); {final.evaluations} evaluations")
     print("chosen (on every run):")
     print(job.tuned_section(result))
-    if args.output is not None:
+    if args.output is not None and result.robot is not None:
         write_robot_toml(args.output, result.robot)
         print(f"wrote {args.output} ({robot_path} with the chosen values)")
     return 0

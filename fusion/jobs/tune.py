@@ -14,8 +14,8 @@
 - ``attitude``: BROAD-format trials (``.mat`` or HDF5, :func:`fusion.io.broad.read_broad`);
   Keel's 6-axis ``accel_time_constant``, ``motion_bias_sigma``, ``rest_bias_sigma`` and
   ``bias_drift`` (:class:`fusion.attitude.keel.KeelParams`), scored by the inclination RMSE
-  (deg) over the trial's movement phases, as the BROAD paper scores; printed as an
-  ``[attitude]`` table.
+  (deg) over the trial's movement phases, as the BROAD paper scores; from the base
+  robot.toml's ``[attitude]`` Keel settings if one is given, else Keel's defaults.
 
 The logs are split into k folds (:func:`fusion.evaluation.crossval.kfold_splits`). For each
 fold, parameters are searched on the other folds' logs (in-sample score) and then scored on
@@ -52,7 +52,7 @@ from fusion.jobs.engine import run_tasks
 from fusion.jobs.replay import Streams, find_log_dirs, fuse_streams
 from fusion.jobs.replay import _truth_at as truth_at  # the replay's truth interpolation
 from fusion.planar.odometry import integrate_wheel_travel
-from fusion.planar.robot import RobotConfig
+from fusion.planar.robot import AttitudeConfig, RobotConfig
 
 __all__ = [
     "BROAD_SUFFIXES",
@@ -97,13 +97,13 @@ class Target:
     score: Callable[[RobotConfig | None, dict[str, float], Any], float]
     load: Callable[[str], Any]
     find: Callable[[Path], list[Path]]
-    uses_robot: bool = True
+    needs_robot: bool = True
 
     def base_values(self, robot: RobotConfig | None) -> dict[str, float]:
         """The parameters' values in ``robot`` (or the filter's defaults)."""
         from fusion.attitude.keel import KeelParams
 
-        tables: dict[str, Any] = {"attitude": KeelParams(),
+        tables: dict[str, Any] = {"attitude": KeelParams(**keel_settings(robot)),
                                   "wheels": SimpleNamespace(radius_ratio=1.0)}
         if robot is not None:
             tables |= {"chassis": robot.chassis, "ekf": robot.ekf}
@@ -143,6 +143,14 @@ def fused_position_rmse(robot: RobotConfig, log: LogDir) -> float:
     inside = _inside(log, t)
     truth = _truth_at(log, t[inside])
     return position_rmse(table[inside, 1:3], truth[:, :2])
+
+
+def keel_settings(robot: RobotConfig | None) -> dict[str, Any]:
+    """The KeelParams fields robot.toml's ``[attitude]`` table sets, when its filter is Keel
+    (else none: Keel's defaults)."""
+    if robot is None or robot.attitude.filter != "keel":
+        return {}
+    return dict(robot.attitude.params)
 
 
 def keel_inclination_rmse(values: dict[str, float], trial: Any) -> float:
@@ -224,14 +232,16 @@ TARGETS: dict[str, Target] = {
                                     Parameter("attitude", "rest_bias_sigma", 0.1, 10.0),
                                     Parameter("attitude", "bias_drift", 0.1, 10.0)),
                        "6-axis Keel inclination RMSE, deg",
-                       lambda robot, values, trial: keel_inclination_rmse(values, trial),
-                       _load_trial, _find_trials, uses_robot=False),
+                       lambda robot, values, trial: keel_inclination_rmse(
+                           {**keel_settings(robot), **values}, trial),
+                       _load_trial, _find_trials, needs_robot=False),
 }
 
 
 def apply_parameters(robot: RobotConfig, values: dict[str, float], target: Target
                      ) -> RobotConfig:
-    """``robot`` with ``values`` (by parameter name) in their [chassis] and [ekf] tables."""
+    """``robot`` with ``values`` (by parameter name) in their [chassis], [ekf] and [attitude]
+    tables (``[attitude]`` then runs Keel, keeping the Keel settings it had)."""
     changes: dict[str, dict[str, float]] = {}
     for p in target.parameters:
         if p.name in values:
@@ -242,6 +252,11 @@ def apply_parameters(robot: RobotConfig, values: dict[str, float], target: Targe
                                                                    **changes["chassis"]))
     if "ekf" in changes:
         out = dataclasses.replace(out, ekf=dataclasses.replace(out.ekf, **changes["ekf"]))
+    if "attitude" in changes:
+        keel = out.attitude.filter == "keel"
+        params = {**keel_settings(out), **changes["attitude"]}
+        out = dataclasses.replace(out, attitude=AttitudeConfig(
+            "keel", tuple(params.items()), out.attitude.wheel_knowledge if keel else None))
     return out
 
 
@@ -354,7 +369,8 @@ class TuneResult:
         folds: per fold, ``(test run indices, FoldResult)``.
         final: the search on every run (its values are the ones to use; its train score is
             in-sample).
-        robot: the base robot with the final values (None for the attitude target).
+        robot: the base robot with the final values (None: the attitude target without a
+            base robot).
     """
 
     target: Target
@@ -381,7 +397,7 @@ def tune(target: str, runs: Sequence[str | Path], robot: RobotConfig | None = No
 
     ``runs``: log directories (BROAD trial files for ``attitude``), or folders of them;
     ``robot``: the base robot.toml (the search starts from, and bounds around, its values;
-    required but for ``attitude``, which starts from Keel's defaults). Each fold and the final
+    optional for ``attitude``, which otherwise starts from Keel's defaults). Each fold and the final
     search on all runs is one task on the engine (``jobs`` processes, or the Dask
     ``client``). ``on_fold(i, result)`` is called as each fold ends (the final search:
     ``i = -1``).
@@ -393,7 +409,7 @@ def tune(target: str, runs: Sequence[str | Path], robot: RobotConfig | None = No
     if target not in TARGETS:
         raise ValueError(f"unknown tuning target {target!r}; known: {', '.join(TARGETS)}")
     spec = TARGETS[target]
-    if spec.uses_robot and robot is None:
+    if spec.needs_robot and robot is None:
         raise ValueError(f"the {target} target needs a base robot.toml")
     paths = find_tuning_runs(target, runs)
     if len(paths) < 2:
@@ -429,16 +445,16 @@ def find_tuning_runs(target: str, runs: Sequence[str | Path]) -> list[str]:
     spec = TARGETS[target]
     paths: list[Path] = []
     for p in map(Path, runs):
-        if spec.uses_robot and (p / "robot.toml").is_file():
+        if spec.needs_robot and (p / "robot.toml").is_file():
             if not (p / "truth.csv").is_file():
                 raise ValueError(f"{p}: no truth.csv (tuning needs ground truth)")
             paths.append(p)
-        elif not spec.uses_robot and p.is_file():
+        elif not spec.needs_robot and p.is_file():
             paths.append(p)
         elif p.is_dir():
             found = spec.find(p)
             if not found:
-                what = ("log directory (with robot.toml)" if spec.uses_robot
+                what = ("log directory (with robot.toml)" if spec.needs_robot
                         else f"BROAD trial ({', '.join(BROAD_SUFFIXES)})")
                 raise ValueError(f"{p}: no {what} in it")
             paths += found
