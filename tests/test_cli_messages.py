@@ -91,6 +91,7 @@ def test_run_on_a_real_chassis_without_imu_fuses_the_wheels_and_says_so(tmp_path
     assert "--imu sim needs --chassis sim" not in r.stderr
     assert f"no --imu given: fusing the wheel odometry of {board.data_port} alone" in r.stderr
     recs = [json.loads(line) for line in (tmp_path / "fused.jsonl").read_text().splitlines()]
+    assert "status" in recs.pop()  # the status record after the records
     assert len(recs) > 10 and all(r["orientation"] is None for r in recs)  # no IMU
 
 

@@ -74,6 +74,11 @@ def register(subparsers) -> None:
     p.add_argument("--robot", type=Path,
                    help="robot.toml for a capture (required), a bag (wheel_distance and "
                         "[ekf] tuning; optional) or a log directory (instead of its own)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit with status 3 when the inputs disagree beyond what the model "
+                        "explains (most frames slip, an implausible gyro bias, odometry and "
+                        "gyro headings diverging; printed as 'warning: inputs disagree' "
+                        "either way)")
     bag = p.add_argument_group("ROS bags")
     bag.add_argument("--imu-topic", help="sensor_msgs/Imu topic (bags only)")
     bag.add_argument("--odom-topic", help="nav_msgs/Odometry topic of the wheel odometry "
@@ -174,6 +179,7 @@ def _print_result(r, level_note: bool = True) -> None:
           f"({s['frames_missing']} frames missing)")
     for note in r.notes:
         print(f"warning: {note}")
+    _print_warnings(r.warnings)
     if r.n_imu:
         print(f"wheel yaw-rate calibration seen by the gyro: k {r.k:+.4f} "
               f"(wheel_distance ~ {r.wheel_distance * (1 + r.k):.4f} m), "
@@ -187,6 +193,24 @@ def _print_result(r, level_note: bool = True) -> None:
               f"yaw RMSE {tr['fused_yaw_deg']:.3f} deg")
         print(f"  wheel only: final position error {tr['wheel_pct']:.3f} % of distance, "
               f"yaw RMSE {tr['wheel_yaw_deg']:.3f} deg")
+
+
+def _print_warnings(warnings) -> None:
+    """The trust warnings (:mod:`fusion.evaluation.trust`) of one replay."""
+    for w in warnings:
+        print(f"warning: inputs disagree ({w.name}): {w.message}")
+    if warnings:
+        print("warning: the fused odometry above should not be trusted")
+
+
+def _exit_status(args: argparse.Namespace, warnings) -> int:
+    from fusion.jobs.status import STRICT_EXIT_STATUS
+
+    if args.strict and warnings:
+        print(f"fusion replay: --strict: the inputs disagree (exit status {STRICT_EXIT_STATUS})",
+              file=sys.stderr)
+        return STRICT_EXIT_STATUS
+    return 0
 
 
 def _print_table(work, results, jobs: int) -> int:
@@ -219,6 +243,52 @@ def _print_table(work, results, jobs: int) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    """The command; Ctrl-C (SIGINT) stops it with status 130, saying what was written."""
+    outputs = [p for p in (args.output, args.plot) if p is not None]
+    before = {p: _file_state(p) for p in outputs}
+    started = time.time()
+    try:
+        return _run(args)
+    except KeyboardInterrupt:
+        for line in _interrupt_report(before, started):
+            print(f"fusion replay: interrupted: {line}", file=sys.stderr, flush=True)
+        return 130
+
+
+def _file_state(path: Path) -> tuple[int, int] | None:
+    """(mtime ns, size) of a file, None if there is none (a folder: None)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_mtime_ns, st.st_size) if path.is_file() else None
+
+
+def _interrupt_report(before: dict[Path, tuple[int, int] | None], started: float
+                      ) -> list[str]:
+    """What an interrupted replay left: each output written completely before the interrupt,
+    or left as it was (outputs are replaced only by complete files, never partly written)."""
+    lines = []
+    for path, old in before.items():
+        if path.is_dir():  # a folder of logs: the outputs finished before the interrupt
+            done = sorted(p.name for p in path.iterdir()
+                          if p.is_file() and p.stat().st_mtime >= started)
+            lines.append(f"{len(done)} output(s) in {path} complete"
+                         f"{': ' + ', '.join(done) if done else ''}; the other logs wrote "
+                         "nothing")
+            continue
+        now = _file_state(path)
+        if now is not None and now != old:
+            lines.append(f"{path} was written completely before the interrupt (kept)")
+        elif old is None:
+            lines.append(f"{path} not written (nothing partial left)")
+        else:
+            lines.append(f"{path} left as it was (an existing file is only replaced by a "
+                         "complete one)")
+    return lines
+
+
+def _run(args: argparse.Namespace) -> int:
     from fusion.jobs import replay as job
 
     path: Path = args.input
@@ -257,7 +327,7 @@ def run(args: argparse.Namespace) -> int:
                                    progress=bar.callback)
         _print_result(r, level_note=False)
         print("DATA-uart2 capture: wheel odometry only (no gyro to fuse)")
-        return 0
+        return _exit_status(args, r.warnings)
     if folder:
         logs = job.find_log_dirs(path)
         if logs:
@@ -280,18 +350,39 @@ def run(args: argparse.Namespace) -> int:
     with _BarContext(args.progress, path.name) as bar:
         r = job.replay_logdir(path, args.output, tilt=not args.level, plot=args.plot,
                               robot=robot, imu_mount_rpy=args.imu_mount_rpy,
-                              progress=bar.callback)
+                              progress=bar.callback, load_progress=bar.loading)
     _print_result(r)
-    return 0
+    return _exit_status(args, r.warnings)
+
+
+#: Without --progress/--no-progress, loading a file of at least this many bytes shows its
+#: progress when stderr is a terminal (a 100 Hz imu.csv of about 10 minutes).
+AUTO_LOAD_PROGRESS_MIN_BYTES = 8 << 20
 
 
 class _BarContext:
-    """A progress bar made on the first callback of a job, when the log's span is known."""
+    """A progress bar made on the first callback of a job, when the log's span is known;
+    before it, one per file being loaded (:meth:`loading`)."""
 
     def __init__(self, flag: bool | None, desc: str) -> None:
         self.flag = flag
         self.desc = desc
         self.bar: _Progress | None = None
+        self._loads: dict[str, _Progress] = {}
+
+    def loading(self, name: str, done: int, total: int) -> None:
+        """``done`` of ``total`` bytes of the file ``name`` parsed."""
+        bar = self._loads.get(name)
+        if bar is None:
+            enabled = (self.flag if self.flag is not None
+                       else total >= AUTO_LOAD_PROGRESS_MIN_BYTES and _stderr_is_tty())
+            bar = self._loads[name] = _Progress(total / 1e6, f"{self.desc}: loading {name}",
+                                                "MB", bool(enabled))
+        if bar.enabled:
+            bar.update_to(done / 1e6)
+            if done >= total:
+                bar.close()
+                bar.enabled = False  # closed: later calls are no-ops
 
     def callback(self, done: float, total: float) -> None:
         if self.bar is None:
@@ -302,6 +393,9 @@ class _BarContext:
         return self
 
     def __exit__(self, *exc) -> None:
+        for bar in self._loads.values():  # an interrupt while loading
+            if bar.enabled and bar._bar is not None:
+                bar._bar.close()
         if self.bar is not None:
             self.bar.close()
 
@@ -344,7 +438,17 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
     finally:
         bar.close()
     failed = _print_table(work, results, workers)
-    return 1 if failed else 0
+    warned = []
+    for w in work:
+        status, value = results[w.source]
+        if status == "ok" and value.warnings:
+            warned.extend(value.warnings)
+            for tw in value.warnings:
+                print(f"warning: {Path(w.source).name}: inputs disagree ({tw.name}): "
+                      f"{tw.message}")
+    if failed:
+        return 1
+    return _exit_status(args, warned)
 
 
 def run_bag(args: argparse.Namespace) -> int:
@@ -378,4 +482,5 @@ def run_bag(args: argparse.Namespace) -> int:
           f"(twist/gyro disagreement) {stats.slips}, invalid {ekf.stats['invalid']}")
     print(f"the bag's own odometry ({args.odom_topic}) final pose from its start: x "
           f"{own[-1, 0]:.3f} m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")
-    return 0
+    _print_warnings(r.warnings)
+    return _exit_status(args, r.warnings)
