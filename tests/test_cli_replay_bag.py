@@ -81,7 +81,7 @@ def test_jsonl_equals_the_pipeline_fed_by_hand_from_read_bag(bag, msgs, tmp_path
     assert _replay(bag, out) == 0
     text = capsys.readouterr().out
     assert f"{N_IMU} IMU messages (base_link), {N_ODOM} odometry messages" in text
-    assert f"({N_IMU} rows, {N_ODOM} records)" in text
+    assert f"-> {out} ({N_ODOM} records)" in text  # a .jsonl has records, not rows
     buf = io.StringIO()
     pipe = _by_hand(msgs, NEUTRAL, [JsonLinesSink(buf, flush=False)])
     lines = out.read_text().splitlines(keepends=True)

@@ -168,8 +168,10 @@ def _progress_for(flag: bool | None, span: float) -> bool:
 
 def _print_result(r, level_note: bool = True) -> None:
     s = r.stats
+    written = (f"{r.rows} rows" if OUTPUT_FORMATS.get(Path(r.output).suffix.lower()) == "csv"
+               else f"{r.records} records")
     print(f"{r.source}: {r.span:.1f} s, {r.n_imu} IMU samples, {r.n_wheels} wheel frames "
-          f"-> {r.output} ({r.rows} rows, {r.records} records)")
+          f"-> {r.output} ({written})")
     x, y, yaw = r.final
     print(f"final pose: x {x:.3f} m, y {y:.3f} m, yaw {math.degrees(yaw):.2f} deg; path "
           f"{r.distance:.2f} m")
@@ -294,12 +296,11 @@ def _run(args: argparse.Namespace) -> int:
     path: Path = args.input
     if not path.exists():
         raise CommandError(f"{path}: no such log directory or bag")
-    if job.is_bag(path):
-        return run_bag(args)
-    if args.imu_topic or args.odom_topic:
+    bag = job.is_bag(path)
+    if not bag and (args.imu_topic or args.odom_topic):
         raise CommandError(f"{path}: --imu-topic/--odom-topic are for ROS bags; this is not "
                            "a .bag, .mcap or ROS 2 bag folder")
-    folder = path.is_dir() and not (path / "robot.toml").is_file()
+    folder = not bag and path.is_dir() and not (path / "robot.toml").is_file()
     if args.format is not None and not folder:
         fmt = OUTPUT_FORMATS.get(args.output.suffix.lower())
         if fmt != args.format:
@@ -307,6 +308,8 @@ def _run(args: argparse.Namespace) -> int:
                                f"{args.output} is {fmt or 'of no known type'} by its suffix")
     if args.jobs is not None and not folder:
         raise CommandError("--jobs applies to a folder of logs only")
+    if bag:
+        return run_bag(args)
     if path.is_file():
         for given, option in ((args.level, "--level"),
                               (args.imu_mount_rpy is not None, "--imu-mount-rpy")):
@@ -459,8 +462,13 @@ def run_bag(args: argparse.Namespace) -> int:
 
     path: Path = args.input
     if not (args.imu_topic and args.odom_topic):
+        from fusion.io.bags import bag_topics
+
+        topics = bag_topics(path)
+        present = ", ".join(f"{t} ({typ})" for t, (typ, _n) in sorted(topics.items()))
         raise CommandError(f"{path}: a bag needs --imu-topic (sensor_msgs/Imu) and "
-                           "--odom-topic (nav_msgs/Odometry)")
+                           "--odom-topic (nav_msgs/Odometry); its topics: "
+                           f"{present or 'none'}")
     robot = read_robot_toml(args.robot) if args.robot is not None else None
     with _BarContext(args.progress, path.name) as bar:
         r = job.replay_bag(path, args.output, imu_topic=args.imu_topic,
@@ -468,9 +476,11 @@ def run_bag(args: argparse.Namespace) -> int:
                            imu_mount_rpy=args.imu_mount_rpy, tilt=not args.level,
                            plot=args.plot, progress=bar.callback)
     imu, odom, table, stats, own = r.imu, r.odom, r.table, r.stats, r.own
+    written = (f"{table.shape[0]} rows" if args.output.suffix.lower() == ".csv"
+               else f"{stats.records} records")
     print(f"{path}: {len(imu)} IMU messages ({imu.frame_id or 'no frame_id'}), {len(odom)} "
           f"odometry messages ({odom.frame_id} -> {odom.child_frame_id}) -> {args.output} "
-          f"({table.shape[0]} rows, {stats.records} records)")
+          f"({written})")
     if imu.out_of_order or odom.out_of_order:
         print(f"warning: messages out of order in the bag (sorted): IMU {imu.out_of_order}, "
               f"odometry {odom.out_of_order}")

@@ -31,7 +31,7 @@ from fusion.io.errors import LogFormatError
 from fusion.io.read_progress import LineProgress, ReadProgress
 
 __all__ = ["ATTITUDE_CSV_COLUMNS", "IMU_CSV_COLUMNS", "IMU_RECORD_COLUMNS", "ImuLog",
-           "imu_csv_line", "read_imu_csv", "write_attitude_csv"]
+           "imu_csv_line", "imu_csv_lines", "read_imu_csv", "write_attitude_csv"]
 
 #: The columns every IMU CSV has (s, rad/s, m/s^2).
 IMU_CSV_COLUMNS = ("t", "gx", "gy", "gz", "ax", "ay", "az")
@@ -133,6 +133,12 @@ def _data_lines(path: Path) -> list[int]:
     """Line numbers (1-based) of the data rows: the non-blank lines after the header."""
     with path.open(newline="") as fh:
         return [n for n, line in enumerate(fh, start=1) if n > 1 and line.strip()]
+
+
+def imu_csv_lines(path: str | Path, indices: list[int]) -> list[int]:
+    """The lines of the IMU CSV ``path`` holding samples ``indices`` (0-based data rows)."""
+    lines = _data_lines(Path(path))
+    return [lines[i] for i in indices]
 
 
 def imu_csv_line(log: ImuLog, index: int) -> int:

@@ -29,6 +29,7 @@ from fusion.evaluation.trajectory import final_position_error_percent, path_leng
 from fusion.evaluation.trust import TrustWarning
 from fusion.geometry.angles import wrap_angle
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
+from fusion.io.imu_csv import imu_csv_lines
 from fusion.io.logdir import read_logdir
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
@@ -261,9 +262,30 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
     if log.wheel_t is None or log.wheel_t.size == 0:
         raise ValueError(f"{path}: wheels.csv is missing or empty; the fused odometry needs "
                          "the wheel encoder frames")
-    streams = Streams(log.imu_t, log.gyro, log.accel, log.wheel_t, log.ticks)
-    return _finish(path, output, robot, streams, log.truth_t, log.truth,
-                   tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats)
+    imu_t, gyro, accel, note = _finite_imu_rows(path / "imu.csv", log.imu_t, log.gyro,
+                                                log.accel)
+    streams = Streams(imu_t, gyro, accel, log.wheel_t, log.ticks)
+    result = _finish(path, output, robot, streams, log.truth_t, log.truth,
+                     tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats)
+    if note:
+        result.notes.append(note)
+    return result
+
+
+def _finite_imu_rows(csv: Path, t, gyro, accel):
+    """``(t, gyro, accel, note)``: the IMU rows without a NaN or infinity, and a note naming
+    the lines of the rows left out (None when none was)."""
+    if t is None or not t.size:
+        return t, gyro, accel, None
+    ok = np.isfinite(np.hstack([gyro, accel])).all(axis=1)
+    if ok.all():
+        return t, gyro, accel, None
+    bad = np.flatnonzero(~ok)
+    lines = imu_csv_lines(csv, bad[:5].tolist())
+    more = f" and {bad.size - 5} more" if bad.size > 5 else ""
+    note = (f"{csv}: {bad.size} sample(s) with a NaN or infinite value skipped: line(s) "
+            f"{', '.join(map(str, lines))}{more}")
+    return t[ok], gyro[ok], accel[ok], note
 
 
 def replay_capture(path: str | Path, output: str | Path, robot: RobotConfig | str | Path, *,
