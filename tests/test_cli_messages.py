@@ -174,6 +174,18 @@ def test_a_bag_without_topics_lists_its_topics(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
+def test_output_into_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
+    # `fusion run | head -c 100`: the reader goes away while records are still written
+    proc = subprocess.Popen([sys.executable, "-m", "fusion", "run", "--duration", "3",
+                             "--status", "0"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.stdout.read(100).startswith(b'{"t":')
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 1
+    assert "Traceback" not in err and "Broken pipe" not in err, err
+
+
 def test_version(tmp_path: Path) -> None:
     from importlib.metadata import version
 
