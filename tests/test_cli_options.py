@@ -7,6 +7,10 @@ each :func:`changes` (the output differs from the same command without the optio
 :func:`refused` (exit status 2 and the message). ``test_every_option_is_in_the_table`` fails
 for an option of the parser that has no row, so a new option needs its row.
 
+Live commands (``run``, ``demo``: their output differs from run to run) also have rows in
+``LIVE``: each an :class:`Effect`, a check on the output that must hold with the option and fail
+without it (both runs are made), so the option's effect is stated, not just "different".
+
 Adding a command (e.g. ``replay``): remove it from ``NOT_YET`` and add its rows to ``TABLE``
 (and its input kinds to ``inputs``).
 """
@@ -14,7 +18,9 @@ Adding a command (e.g. ``replay``): remove it from ``NOT_YET`` and add its rows 
 from __future__ import annotations
 
 import argparse
+import json
 import shutil
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -27,8 +33,6 @@ ROOT = Path(__file__).resolve().parents[1]
 
 #: Commands whose rows are still to be written, with the reason (each is a gap, not a pass).
 NOT_YET = {
-    "run": "live, seconds per run: only its refusals are rows so far",
-    "demo": "about 10 s per run",
     "chassis monitor": "live on a pty: rows to be written",
     "chassis pid": "live on a pty: rows to be written",
     "chassis step": "live on a pty: rows to be written",
@@ -58,6 +62,9 @@ def exits(kind: str, status: int, *argv: str) -> Row:
     return Row(kind, argv, status=status)
 
 
+RUN_FILE = ("run", "--imu", "sim", "--chassis", "sim", "--duration", "1", "--status", "0",
+            "--publish", "jsonl:f.jsonl")
+
 BAG_TOPICS = ("--imu-topic", "/imu/data", "--odom-topic", "/jackal_velocity_controller/odom")
 
 
@@ -81,7 +88,13 @@ BASE = {
                            "run1/robot.toml"],
                "bag": ["replay", "first8s.bag", *BAG_TOPICS, "-o", "f.csv"],
                "folder": ["replay", "logs", "-o", "out", "--jobs", "1"]},
+    "demo": {"demo": ["demo", "--out", "d", "--speed", "20"]},
     "run": {"sim": ["run", "--imu", "sim", "--chassis", "sim", "--duration", "1"],
+            "sim file": [*RUN_FILE],
+            # the IMU's mount configured upside down without tilt compensation: the gyro
+            # turns the other way than the wheels (tests/test_trust.py's case, live)
+            "flipped": [*RUN_FILE, "--duration", "2", "--speed", "8", "--config",
+                        "flipped.toml"],
             "no imu": ["run", "--imu", "none", "--chassis", "sim", "--duration", "1"]},
 }
 
@@ -278,10 +291,11 @@ COMMANDS = _commands(build_parser())
 
 def test_every_option_is_in_the_table() -> None:
     missing = [f"{cmd} {opt}" for cmd, opts in COMMANDS.items() for opt in opts
-               if cmd not in NOT_YET and opt not in TABLE.get(cmd, {})]
+               if cmd not in NOT_YET and opt not in TABLE.get(cmd, {})
+               and opt not in LIVE.get(cmd, {})]
     assert missing == [], "options without a row in TABLE: " + ", ".join(missing)
-    unknown = [f"{cmd} {opt}" for cmd, rows in TABLE.items() for opt in rows
-               if opt not in COMMANDS.get(cmd, [])]
+    unknown = [f"{cmd} {opt}" for table in (TABLE, LIVE) for cmd, rows in table.items()
+               for opt in rows if opt not in COMMANDS.get(cmd, [])]
     assert unknown == [], "rows for options the parser does not have: " + ", ".join(unknown)
     for cmd in COMMANDS:
         if cmd not in NOT_YET:
@@ -352,6 +366,14 @@ def inputs(tmp_path_factory) -> Path:
     assert "wheel_distance = 0.3 " in text and "imu_mount_rpy = [0.0, 0.0, 0.0]" in text
     (d / "other.toml").write_text(text.replace("wheel_distance = 0.3 ", "wheel_distance = 0.33 ")
                                   .replace("[0.0, 0.0, 0.0]", "[0.0, 0.0, 0.3]"))
+    (d / "rate5.toml").write_text("[publish]\nrate_hz = 5.0\n")
+    (d / "board.toml").write_text("[chassis]\nwheel_distance = 0.3\nspeed_ratio = 5e-5\n"
+                                  "encode_sampling_time = 0.04\n")
+    (d / "flipped.toml").write_text((d / "board.toml").read_text()
+                                    + "[imu]\ntilt = false\n[frames]\n"
+                                      "imu_mount_rpy = [3.14159, 0.0, 0.0]\n")
+    save_imu_calibration(ImuCalibration(gyro_bias=np.array([0.1, 0.0, 0.0])),
+                         d / "cal_x.json")
     try:
         _first_seconds(ROOT / "datasets" / "rosbag" / "jackal_sim_test2.bag",
                        d / "first8s.bag", 8.0)
@@ -418,3 +440,128 @@ def test_option(cmd, option, row, inputs, capsys, monkeypatch) -> None:
 
 #: Output of each base command line (the option-free run), by its arguments.
 _BASE_RUNS: dict[tuple[str, ...], tuple[int, str, dict[str, bytes]]] = {}
+
+
+# -- live commands: an effect each option must have -----------------------------------------
+
+
+@dataclass(frozen=True)
+class Effect:
+    kind: str  # the input kind (a key of BASE[command])
+    argv: tuple[str, ...]  # the option and its value(s)
+    check: Callable[[int, str, dict[str, bytes]], bool]  # (status, output, files) -> holds
+    what: str  # the effect, in words
+
+
+def _records(files: dict[str, bytes], name: str = "f.jsonl") -> tuple[list[dict], dict]:
+    """The records and the status record of a JSON lines output."""
+    lines = [json.loads(x) for x in files.get(name, b"").decode().splitlines()]
+    status = lines.pop()["status"] if lines and "status" in lines[-1] else {}
+    return lines, status
+
+
+def _median_dt(files: dict[str, bytes]) -> float:
+    recs, _ = _records(files)
+    return float(np.median(np.diff([r["t"] for r in recs]))) if len(recs) > 2 else 0.0
+
+
+def _span(files: dict[str, bytes]) -> float:
+    recs, _ = _records(files)
+    return recs[-1]["t"] - recs[0]["t"] if recs else 0.0
+
+
+def _imu_rate(files: dict[str, bytes]) -> float:
+    c = _records(files)[1].get("counters", {})
+    return c["imu_samples"] / c["gyro_time"] if c.get("gyro_time") else 0.0
+
+
+def _mean_gyro_x(files: dict[str, bytes]) -> float:
+    recs, _ = _records(files)
+    return float(np.mean([r["angular_velocity"][0] for r in recs])) if recs else 0.0
+
+
+LIVE: dict[str, dict[str, list[Effect]]] = {
+    "run": {  # the sim's robot time runs at --speed times the wall clock
+        "--config": [Effect("sim file", ("--config", "rate5.toml"),
+                            lambda rc, out, f: rc == 0 and 0.15 < _median_dt(f) < 0.25,
+                            "[publish] rate_hz = 5 from the file: records 0.2 s apart")],
+        "--imu": [Effect("sim file", ("--imu", "none"),
+                         lambda rc, out, f: rc == 0 and _records(f)[0] != []
+                         and all(r["orientation"] is None for r in _records(f)[0]),
+                         "no IMU: records without an attitude")],
+        "--rate": [Effect("sim file", ("--rate", "50"),
+                          lambda rc, out, f: rc == 0 and 40 < _imu_rate(f) < 60,
+                          "the IMU samples at 50 Hz")],
+        "--calibration": [Effect("sim file", ("--calibration", "cal_x.json"),
+                                 lambda rc, out, f: rc == 0 and _mean_gyro_x(f) < -0.05,
+                                 "a 0.1 rad/s x bias taken off the gyro")],
+        "--chassis": [Effect("sim file", ("--chassis", "data", "--imu", "none", "--config",
+                                          "board.toml"),
+                             lambda rc, out, f: rc == 0 and "chassis port data open" in out
+                             and len(_records(f)[0]) > 5,
+                             "the wheel frames of a (simulated) board on a real pty")],
+        "--publish": [Effect("sim file", ("--publish", "csv:g.csv"),
+                             lambda rc, out, f: rc == 0 and "g.csv" in f and "f.jsonl" not in f,
+                             "a CSV file instead of the JSON lines")],
+        "--publish-rate": [Effect("sim file", ("--publish-rate", "5"),
+                                  lambda rc, out, f: rc == 0 and 0.15 < _median_dt(f) < 0.25,
+                                  "records 0.2 s apart")],
+        "--duration": [Effect("sim file", ("--duration", "2.5"),
+                              lambda rc, out, f: rc == 0 and _span(f) > 1.6,
+                              "runs 2.5 s instead of 1 s")],
+        "--speed": [Effect("sim file", ("--speed", "4"),
+                           lambda rc, out, f: rc == 0 and _span(f) > 2.0,
+                           "4 s of robot time per wall second")],
+        "--status": [Effect("sim file", ("--status", "0.3"),
+                            lambda rc, out, f: rc == 0
+                            and out.count(" IMU samples, ") >= 2,
+                            "status lines every 0.3 s, then the final one")],
+        "--strict": [Effect("flipped", ("--strict",),
+                            lambda rc, out, f: rc == 3 and "heading_divergence" in out,
+                            "exit status 3: the gyro turns against the wheels")],
+    },
+    "demo": {
+        "--out": [Effect("demo", ("--out", "e"),
+                         lambda rc, out, f: rc == 0 and any(k.startswith("e/") for k in f)
+                         and not any(k.startswith("d/") for k in f),
+                         "the outputs in e/")],
+        "--speed": [Effect("demo", ("--speed", "10"),
+                           lambda rc, out, f: rc == 0 and "at 10x real time" in out,
+                           "the mission runs at 10x")],
+        "--no-plot": [Effect("demo", ("--no-plot",),
+                             lambda rc, out, f: rc == 0 and "d/demo.mcap" in f
+                             and "d/demo.png" not in f,
+                             "no demo.png")],
+    },
+}
+
+LIVE_CASES = [(cmd, opt, e) for cmd, rows in LIVE.items() for opt, es in rows.items()
+              for e in es]
+
+
+@pytest.fixture(scope="module")
+def board(inputs):
+    """The simulated STM32 firmware on a real pseudo-terminal, its data port linked at
+    ``inputs/data`` (a path as a user gives it)."""
+    from drivers.sim.stm32 import PtyStm32
+
+    sim = PtyStm32(data_link=str(inputs / "data"), debug_link=str(inputs / "debug")).start()
+    yield sim
+    sim.close()
+
+
+@pytest.mark.parametrize(("cmd", "option", "effect"), LIVE_CASES,
+                         ids=[f"{c} {o} [{e.kind}]" for c, o, e in LIVE_CASES])
+def test_live_option(cmd, option, effect, inputs, board, capsys, monkeypatch) -> None:
+    if cmd == "demo":
+        pytest.importorskip("matplotlib")  # the base run's demo.png
+    base = BASE[cmd][effect.kind]
+    rc, out, files = _run([*base, *effect.argv], inputs, capsys, monkeypatch)
+    assert effect.check(rc, out, files), f"{effect.what}: not seen in\n{out}"
+    key = tuple(base)
+    if key not in _BASE_RUNS:
+        _BASE_RUNS[key] = _run(list(base), inputs, capsys, monkeypatch)
+    rc0, out0, files0 = _BASE_RUNS[key]
+    assert rc0 == 0, out0
+    assert not effect.check(rc0, out0, files0), \
+        f"{effect.what}: holds without {option} too, so it shows nothing"
