@@ -174,3 +174,37 @@ def test_run_writes_the_status_record_last(tmp_path, capsys, monkeypatch) -> Non
     assert all("status" not in json.loads(x) for x in lines[:-1])
     assert status["warnings"] == [] and status["counters"]["records"] == len(lines) - 1
     assert status["counters"]["imu_samples"] > 0 and status["counters"]["wheel_frames"] > 0
+
+
+def test_the_plot_names_each_trace_and_unwraps_yaw(tmp_path, monkeypatch) -> None:
+    """The yaw panel without truth: each trace's label says what it is, and a robot turning
+    three times shows a line climbing to 1080 deg, not walls at +-180 deg."""
+    pytest.importorskip("matplotlib")
+    from matplotlib.figure import Figure
+
+    from fusion.jobs.plots import FUSED_LABEL, WHEEL_LABEL, plot_replay
+
+    figures = []
+    real_savefig = Figure.savefig
+
+    def keep(self, *args, **kwargs):
+        figures.append(self)
+        return real_savefig(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    t = np.linspace(0.0, 60.0, 601)
+    yaw = np.angle(np.exp(1j * t * (6 * np.pi / 60)))  # three turns, wrapped
+    pose = np.column_stack([np.cos(yaw), np.sin(yaw), yaw])
+    imu_yaw = yaw.copy()
+    imu_yaw[5] = np.nan  # a message without orientation
+    plot_replay(tmp_path / "p.png", "three turns", t, pose, t, pose, None, None,
+                more_yaw=[("the bag's own IMU orientation (/imu)", t, imu_yaw)])
+    assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+    (fig,) = figures
+    _, ax2 = fig.axes
+    lines = {ln.get_label(): ln.get_ydata() for ln in ax2.get_lines()}
+    assert set(lines) == {WHEEL_LABEL, FUSED_LABEL, "the bag's own IMU orientation (/imu)"}
+    assert WHEEL_LABEL == "wheel odometry alone (dead reckoning)"
+    for y in lines.values():
+        assert np.max(np.abs(np.diff(y))) < 10  # degrees per 0.1 s: no wrap jumps
+        assert y[-1] == pytest.approx(1080, abs=1)
