@@ -92,13 +92,15 @@ BASE = {
     # the simulated board (fixture ``board``) at inputs/data and inputs/debug, its wheels at
     # 400 and 0 ticks per 0.04 s period while the monitor runs (a tight left turn)
     "chassis monitor": {"board": [*MONITOR, "--port", "data", "--duration", "0.6"],
-                        "no port": [*MONITOR, "--port", "nope", "--duration", "0.3"]},
+                        "no port": [*MONITOR, "--port", "nope", "--duration", "0.3",
+                                    "--open-timeout", "1"]},
     "chassis pid": {"board": ["chassis", "pid", "get", "--port", "debug"],
-                    "no reply": ["chassis", "pid", "get", "--port", "data"]},
+                    "no reply": ["chassis", "pid", "get", "--port", "data", "--timeout",
+                                 "1"]},
     "chassis step": {"board": ["chassis", "step", "--port", "data", "--ticks", "300",
                                "--duration", "1", "--csv", "s.csv"],
                      "no port": ["chassis", "step", "--port", "nope", "--ticks", "300",
-                                 "--duration", "0.5"]},
+                                 "--duration", "0.5", "--open-timeout", "1"]},
     "run": {"sim": ["run", "--imu", "sim", "--chassis", "sim", "--duration", "1"],
             "sim file": [*RUN_FILE],
             # the IMU's mount configured upside down without tilt compensation: the gyro
