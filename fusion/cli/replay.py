@@ -137,6 +137,12 @@ class _Progress:
         print(f"{self.desc}: {pct:3.0f}% ({self._done:.1f}/{self.total:.1f} {self.unit})",
               file=sys.stderr, flush=True)
 
+    def discard(self) -> None:
+        """Stop showing an unfinished bar (an interrupt): no final line."""
+        if self.enabled and self._bar is not None:
+            self._bar.close()
+        self.enabled = False
+
     def close(self) -> None:
         if not self.enabled:
             return
@@ -397,8 +403,7 @@ class _BarContext:
 
     def __exit__(self, *exc) -> None:
         for bar in self._loads.values():  # an interrupt while loading
-            if bar.enabled and bar._bar is not None:
-                bar._bar.close()
+            bar.discard()
         if self.bar is not None:
             self.bar.close()
 
