@@ -81,10 +81,13 @@ def test_jsonl_equals_the_pipeline_fed_by_hand_from_read_bag(bag, msgs, tmp_path
     assert _replay(bag, out) == 0
     text = capsys.readouterr().out
     assert f"{N_IMU} IMU messages (base_link), {N_ODOM} odometry messages" in text
-    assert f"({N_IMU} rows, {N_ODOM} records)" in text
+    assert f"-> {out} ({N_ODOM} records)" in text  # a .jsonl has records, not rows
     buf = io.StringIO()
     pipe = _by_hand(msgs, NEUTRAL, [JsonLinesSink(buf, flush=False)])
-    assert out.read_text() == buf.getvalue()  # byte for byte
+    lines = out.read_text().splitlines(keepends=True)
+    assert "".join(lines[:-1]) == buf.getvalue()  # byte for byte, then the status record
+    assert [w["name"] for w in json.loads(lines[-1])["status"]["warnings"]] == [
+        "slip", "heading_divergence"]  # tests/test_trust.py
     recs = [json.loads(x) for x in buf.getvalue().splitlines()]
     assert len(recs) == N_ODOM == pipe.stats.twist_messages  # one record per odometry msg
     # each record is stamped with its odometry message's header stamp
@@ -95,7 +98,7 @@ def test_jsonl_equals_the_pipeline_fed_by_hand_from_read_bag(bag, msgs, tmp_path
     buf = io.StringIO()
     _by_hand(msgs, RobotConfig(NEUTRAL.chassis, imu_mount_rpy=rpy),
              [JsonLinesSink(buf, flush=False)])
-    assert out.read_text() == buf.getvalue()
+    assert "".join(out.read_text().splitlines(keepends=True)[:-1]) == buf.getvalue()
 
 
 def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
@@ -140,7 +143,7 @@ def test_mcap_output_reads_back(bag, tmp_path):
     from rosbags.highlevel import AnyReader
 
     assert _replay(bag, tmp_path / "f.jsonl") == 0
-    last = json.loads((tmp_path / "f.jsonl").read_text().splitlines()[-1])
+    last = json.loads((tmp_path / "f.jsonl").read_text().splitlines()[-2])  # [-1]: status
     with AnyReader([out]) as reader:
         conns = [c for c in reader.connections if c.topic == "/odom"]
         *_, (conn, _t, raw) = reader.messages(connections=conns)
@@ -179,6 +182,6 @@ def test_the_mount_comes_from_robot_toml_unless_given(bag, tmp_path):
     assert outs["toml"] == outs["flag"]
     assert outs["override"] == outs["none"]
     assert outs["toml"] != outs["none"]  # the records carry the mounted IMU's vectors
-    a = json.loads(outs["toml"].splitlines()[-1])
-    b = json.loads(outs["none"].splitlines()[-1])
+    a = json.loads(outs["toml"].splitlines()[-2])  # the last records ([-1]: the status)
+    b = json.loads(outs["none"].splitlines()[-2])
     assert a["linear_acceleration"] != b["linear_acceleration"]

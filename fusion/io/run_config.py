@@ -51,6 +51,7 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
     duration = 0                  # s, 0 = until Ctrl-C
     speed = 1.0                   # robot time per wall second, simulated chassis only
     status = 10.0                 # s between status lines on stderr, 0 = none
+    strict = false                # exit status 3 when the inputs disagree (fusion.jobs.status)
 
     [topics]                      # ROS topic names (fusion.sinks.Topics); "" leaves one out
     odom = "/odom"
@@ -123,7 +124,8 @@ class RunConfig:
         topics: topic names (odom, tf, imu, wheel_left, wheel_right; None leaves one out).
         cmd_vel_topic: velocity command topic of the ROS 1, ROS 2 and Foxglove sinks, or None.
         duration: s to run, None until stopped; speed: robot time per wall second
-            (simulated chassis); status: s between status lines, 0 none.
+            (simulated chassis); status: s between status lines, 0 none; strict: exit
+            with an error status when the trust checks fail (:mod:`fusion.evaluation.trust`).
         source: the file this came from, or None.
     """
 
@@ -151,6 +153,7 @@ class RunConfig:
     duration: float | None = None
     speed: float = 1.0
     status: float = 10.0
+    strict: bool = False
     source: Path | None = None
 
     def with_overrides(self, **changes: Any) -> RunConfig:
@@ -260,6 +263,7 @@ SCHEMA: dict[str, dict[str, tuple[str, Check]]] = {
         "duration": ("duration", _rate),
         "speed": ("speed", _number(0.1, 20.0)),
         "status": ("status", _number(0.0)),
+        "strict": ("strict", _boolean),
     },
     "topics": {
         "odom": ("topics.odom", _topic),
@@ -284,6 +288,7 @@ RUN_OPTIONS: dict[str, tuple[str, str]] = {
     "duration": ("run", "duration"),
     "speed": ("run", "speed"),
     "status": ("run", "status"),
+    "strict": ("run", "strict"),
 }
 
 

@@ -57,11 +57,15 @@ def _run_pool(fn, items, jobs: int) -> Iterator[TaskOutcome]:
 
     with ProcessPoolExecutor(max_workers=min(jobs, max(len(items), 1))) as pool:
         futures = {pool.submit(fn, item): i for i, item in enumerate(items)}
-        for fut in as_completed(futures):
-            try:
-                yield futures[fut], True, fut.result()
-            except Exception as exc:  # the task raised, or its worker process died
-                yield futures[fut], False, _message(exc)
+        try:
+            for fut in as_completed(futures):
+                try:
+                    yield futures[fut], True, fut.result()
+                except Exception as exc:  # the task raised, or its worker process died
+                    yield futures[fut], False, _message(exc)
+        except (KeyboardInterrupt, GeneratorExit):  # Ctrl-C or the caller stopped early:
+            pool.shutdown(wait=False, cancel_futures=True)  # start no other task
+            raise
 
 
 def _run_dask(fn, items, client) -> Iterator[TaskOutcome]:

@@ -131,6 +131,11 @@ class PipelineStats:
         slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
         gap_count: gaps seen in total; frames_missing: frames missing in them.
+        gyro_turn: rad, the gyro's yaw rate about the vertical (as fused, bias included)
+            integrated over the accepted IMU samples; gyro_time: s it spans.
+        wheel_turn: rad, the heading change of the wheel frames ((right - left) travel /
+            wheel_distance); twist_turn: rad, the twists' yaw rate integrated.
+        (The two turns let :mod:`fusion.jobs.trust` see the sources disagree.)
     """
 
     imu_samples: int = 0
@@ -146,6 +151,10 @@ class PipelineStats:
     zupts: int = 0
     gap_count: int = 0
     frames_missing: int = 0
+    gyro_turn: float = 0.0
+    gyro_time: float = 0.0
+    wheel_turn: float = 0.0
+    twist_turn: float = 0.0
     gaps: collections.deque = field(default_factory=lambda: collections.deque(maxlen=100))
 
     def as_dict(self) -> dict[str, Any]:
@@ -292,6 +301,7 @@ class FusionPipeline(Lifecycle):
         self._n_twists = 0
         self._state = "new"
         self._m_per_s = chassis.speed_ratio / self.period
+        self._m_per_turn = chassis.speed_ratio / chassis.wheel_distance  # rad per tick
         self._wheel_shift = 0.5 * self.period  # a frame's effective time: stamp - this - latency
 
     @staticmethod
@@ -491,6 +501,9 @@ class FusionPipeline(Lifecycle):
                     gyro, accel = imu_to_base(R, gyro), imu_to_base(R, accel)
                 q = self._attitude(imu_t, gyro, accel, motion)
                 rate = vertical_rate(gyro, q) if self.tilt else gyro[:, 2].copy()
+                dt = _steps(imu_t, self._last_imu_t)
+                stats.gyro_turn = _add_up(stats.gyro_turn, rate * dt)
+                stats.gyro_time = _add_up(stats.gyro_time, dt)
                 self._last_imu_t = float(imu_t[-1])
                 stats.imu_samples += imu_t.size
                 ref0 = self._imu_rows.append(q, gyro, accel)
@@ -502,12 +515,16 @@ class FusionPipeline(Lifecycle):
             self._note_gaps(wheel_t)
             self._last_wheel_t = float(wheel_t[-1])
             stats.wheel_frames += wheel_t.size
+            stats.wheel_turn = _add_up(stats.wheel_turn,
+                                       (ticks[:, 1] - ticks[:, 0]) * self._m_per_turn)
             ref0 = self._wheel_rows.append(ticks)
             t_eff = wheel_t - self._wheel_shift - self.ekf.noise.wheel_latency
             parts.append((wheel_t, _EV_WHEELS, t_eff, ticks[:, 0].astype(np.float64),
                           ticks[:, 1].astype(np.float64),
                           np.arange(ref0, ref0 + wheel_t.size)))
         if twist_t is not None and twist_t.size:
+            stats.twist_turn = _add_up(stats.twist_turn,
+                                       twist_w * _steps(twist_t, self._last_twist_t))
             self._last_twist_t = float(twist_t[-1])
             stats.twist_messages += twist_t.size
             ref0 = self._n_twists
@@ -820,6 +837,18 @@ class _RowStore:
 def _floats(values) -> NDArray[np.float64]:
     """``values`` as a 1-D float64 array (None: empty)."""
     return np.zeros(0) if values is None else np.asarray(values, dtype=np.float64).reshape(-1)
+
+
+def _steps(t: NDArray[np.float64], last: float) -> NDArray[np.float64]:
+    """Intervals before each stamp of ``t`` (s), the first from ``last`` (0 when ``last`` is
+    -inf: the first event of a source has no interval)."""
+    return np.diff(t, prepend=last if math.isfinite(last) else t[0])
+
+
+def _add_up(total: float, values: NDArray[np.float64]) -> float:
+    """``total`` plus ``values`` added one at a time, left to right (a cumulative sum, not
+    numpy's pairwise one): the same bits whether the events come one by one or in a batch."""
+    return float(np.cumsum(np.concatenate(([total], values)))[-1])
 
 
 def _in_order(t: NDArray[np.float64], last: float, *cols: NDArray) -> tuple[int, NDArray, tuple]:
