@@ -115,6 +115,11 @@ class PipelineStats:
         slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
         gap_count: gaps seen in total; frames_missing: frames missing in them.
+        attitude_gaps: IMU periods longer than the attitude filter's ``max_gap`` (integrated
+            over one regular period, inclination re-initialised from the accelerometer).
+        speed_resets: the EKF's speeds forgotten after ``max_extrapolation`` s without a
+            measurement (its gap policy: the pose stops extrapolating).
+        invalid: inputs the EKF refused as non-finite or implausible (a corrupt value).
     """
 
     imu_samples: int = 0
@@ -130,6 +135,9 @@ class PipelineStats:
     zupts: int = 0
     gap_count: int = 0
     frames_missing: int = 0
+    attitude_gaps: int = 0
+    speed_resets: int = 0
+    invalid: int = 0
     gaps: collections.deque = field(default_factory=lambda: collections.deque(maxlen=100))
 
     def as_dict(self) -> dict[str, Any]:
@@ -600,12 +608,16 @@ class FusionPipeline(Lifecycle):
         return self._trace_chunks[0]
 
     def finish_stats(self) -> PipelineStats:
-        """The counters, with the EKF's late/slip/ZUPT counters copied in."""
+        """The counters, with the EKF's (late, slip, ZUPT, speed reset, invalid) and the
+        attitude filter's (gaps) counters copied in."""
         s = self.ekf.stats
         self.stats.late_dropped = s["late_dropped"]
         self.stats.late_applied = s["late_applied"]
         self.stats.slips = s["slips"]
         self.stats.zupts = s["zupts"]
+        self.stats.speed_resets = s["speed_resets"]
+        self.stats.invalid = s["invalid"]
+        self.stats.attitude_gaps = self.mahony.counters.gaps
         return self.stats
 
     def latency_percentiles(self, *qs: float) -> list[float]:
