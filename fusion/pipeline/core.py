@@ -80,6 +80,10 @@ _EV_TWIST = core.EV_TWIST
 _SOURCES = ("imu", "wheels", "twist")
 #: Kinds whose state rows :attr:`FusionPipeline.state_rows` can keep.
 TRACE_KINDS = {"imu": _EV_GYRO, "wheels": _EV_WHEELS, "twist": _EV_TWIST}
+#: Range of a plausible nominal IMU rate, Hz (its period must stay below the attitude
+#: filter's ``max_gap``, 0.25 s; the MPU6050 samples at 1 kHz at most).
+MIN_IMU_RATE_HZ = 4.0
+MAX_IMU_RATE_HZ = 10_000.0
 #: Events per call of the compiled core in :meth:`FusionPipeline.push_arrays` (bounds the
 #: memory of its outputs and sets how often ``on_progress`` is called).
 BATCH_CHUNK = 1 << 16
@@ -170,7 +174,7 @@ class FusionPipeline(Lifecycle):
             ``"wheels"``, ``"twist"`` (default ``("imu", "wheels")``; give only the ones
             that will deliver, e.g. ``("wheels",)`` without an IMU or ``("imu", "twist")``
             for a ROS bag's odometry, else only the window releases).
-        imu_rate_hz: nominal IMU rate, Hz (the Mahony filter's first step).
+        imu_rate_hz: nominal IMU rate, Hz (the Mahony filter's first step), 4 .. 10,000.
         tilt: tilt-compensate the gyro with the Mahony attitude (False: the gyro's z axis is
             the yaw rate, a level robot).
         mahony: a configured :class:`fusion.attitude.mahony.Mahony` (default: the 6-axis preset).
@@ -217,10 +221,19 @@ class FusionPipeline(Lifecycle):
             math.isfinite(publish_rate_hz) and publish_rate_hz > 0
         ):
             raise ValueError(f"publish_rate_hz must be > 0 Hz or None, got {publish_rate_hz!r}")
-        if not (math.isfinite(imu_rate_hz) and imu_rate_hz > 0):
-            raise ValueError(f"imu_rate_hz must be > 0 Hz, got {imu_rate_hz!r}")
-        if not gap_periods > 1:
-            raise ValueError(f"gap_periods must be > 1, got {gap_periods!r}")
+        if not (math.isfinite(imu_rate_hz) and MIN_IMU_RATE_HZ <= imu_rate_hz <= MAX_IMU_RATE_HZ):
+            raise ValueError(f"imu_rate_hz must be {MIN_IMU_RATE_HZ} .. {MAX_IMU_RATE_HZ} Hz, "
+                             f"got {imu_rate_hz!r}")
+        if not (math.isfinite(gap_periods) and gap_periods > 1):
+            raise ValueError(f"gap_periods must be finite and > 1, got {gap_periods!r}")
+        if isinstance(latency_window, bool) or not (isinstance(latency_window, int)
+                                                    and latency_window >= 1):
+            raise ValueError(f"latency_window must be a whole number >= 1, got "
+                             f"{latency_window!r}")
+        if not isinstance(robot, RobotConfig):
+            raise ValueError(f"robot must be a RobotConfig, got {type(robot).__name__}")
+        if mahony is not None and not isinstance(mahony, Mahony):
+            raise ValueError(f"mahony must be a Mahony filter, got {type(mahony).__name__}")
         self.robot = robot
         chassis = robot.chassis
         self.period = chassis.encode_sampling_time

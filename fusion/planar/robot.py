@@ -5,6 +5,7 @@ IMU mount and EKF tuning (the content of ``robot.toml``; read and written by
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,6 +27,10 @@ class RobotConfig:
         odom_frame, base_frame: REP-105 frame names of the published odometry.
         imu_mount_rpy: URDF roll, pitch, yaw (rad) of the IMU in the base frame.
         ekf: filter tuning (defaults where ``[ekf]`` is absent).
+
+    Raises:
+        ValueError: a chassis or tuning of the wrong type, an empty or blank frame name, or a
+            mount angle that is not a finite number; the message names the field and value.
     """
 
     chassis: DiffDriveParams
@@ -33,6 +38,24 @@ class RobotConfig:
     base_frame: str = "base_footprint"
     imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ekf: EkfNoise = field(default_factory=EkfNoise)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.chassis, DiffDriveParams):
+            raise ValueError(f"RobotConfig.chassis must be a DiffDriveParams, got "
+                             f"{self.chassis!r}")
+        if not isinstance(self.ekf, EkfNoise):
+            raise ValueError(f"RobotConfig.ekf must be an EkfNoise, got {self.ekf!r}")
+        for name in ("odom_frame", "base_frame"):
+            value = getattr(self, name)
+            if not (isinstance(value, str) and value.strip() and value == value.strip()):
+                raise ValueError(f"RobotConfig.{name} must be a frame name without spaces "
+                                 f"around it, got {value!r}")
+        rpy = self.imu_mount_rpy
+        if not (isinstance(rpy, (tuple, list)) and len(rpy) == 3 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                for v in rpy)):
+            raise ValueError(f"RobotConfig.imu_mount_rpy must be 3 finite angles (roll, pitch, "
+                             f"yaw) in rad, got {rpy!r}")
 
     def imu_to_base(self) -> NDArray[np.float64]:
         """Quaternion ``[w, x, y, z]`` taking IMU-frame vectors into the base frame."""
