@@ -45,6 +45,7 @@ class FilterpyReference:
                                     "predictions"), 0)
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
+        self.forgotten: dict[int, tuple[float, float]] = {}  # i -> (time, second moment)
 
     # -- time ------------------------------------------------------------------------------------
     def _predict(self, dt: float, still: bool) -> None:
@@ -56,7 +57,7 @@ class FilterpyReference:
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
 
-    def _forget(self, i: int) -> None:
+    def _forget(self, i: int, now: float) -> None:
         """Speed state i unknown: mean 0, variance max(x_i^2 + P_ii, prior), uncorrelated."""
         kf = self.kf
         var = max(kf.x[i] ** 2 + kf.P[i, i], self.noise.initial_speed_std ** 2)
@@ -66,16 +67,31 @@ class FilterpyReference:
         kf.x[i] = 0.0
         self.zero_count = 0
         self.measured[i] = None
+        self.forgotten[i] = (now, var)
         self.stats["speed_resets"] += 1
 
-    def _predict_span(self, span: float, one_step: bool) -> None:
+    def _predict_span(self, start: float, span: float, one_step: bool) -> None:
         steps = [span] if one_step else []
         while not one_step and span > 0:
             steps.append(min(span, self.noise.max_dt))
             span -= steps[-1]
+        now = start
         for h in steps:
+            lost = [i for i in (3, 4) if self.measured[i] is None]
+            P = self.kf.P
+            kept = {i: P[i, i] for i in lost}
+            for i in lost:  # a forgotten speed takes no part in the propagation
+                P[i, i] = 0.0
             self._predict(h, self.zero_count >= self.noise.zupt_frames)
+            P = self.kf.P
+            for i in lost:  # ... the pose gets the envelope r * s^2 of an unknown motion
+                P[i, i] += kept[i]
+                t_forgot, r = self.forgotten[i]
+                grow = r * ((now + h - t_forgot) ** 2 - (now - t_forgot) ** 2)
+                for j in ((0, 1) if i == 3 else (2,)):
+                    P[j, j] += grow
             self.stats["predictions"] += 1
+            now += h
 
     def _advance(self, t: float) -> bool:
         n = self.noise
@@ -98,12 +114,12 @@ class FilterpyReference:
             span = min([dt] + [max(d, 0.0) for d in due.values()])
             both_forgotten = not due
             if span > 0:
-                self._predict_span(span, one_step=both_forgotten)
+                self._predict_span(now, span, one_step=both_forgotten)
             dt -= span
             now += span
             for i in (3, 4):
                 if i in due and due[i] <= span:
-                    self._forget(i)
+                    self._forget(i, now)
         self.t = t
         return True
 

@@ -79,6 +79,35 @@ def test_wheels_lost_while_the_gyro_flows_stop_the_pose_after_the_horizon():
     assert math.sqrt(ekf.P[0, 0]) >= V * (100.0 - 0.01 - last_eff - NOISE.max_extrapolation)
 
 
+def test_the_covariance_after_a_gap_does_not_depend_on_how_the_gap_is_split():
+    whole, split = moving_filter(), moving_filter()
+    whole.predict_to(100.0)
+    for t in (0.3, 0.7, 3.0, 50.0, 99.99, 100.0):
+        split.predict_to(t)
+    np.testing.assert_allclose(split.P, whole.P, rtol=1e-9, atol=1e-15)
+    np.testing.assert_allclose(split.x, whole.x, rtol=0, atol=1e-15)  # steps split differently
+
+
+def test_wheels_back_after_an_outage_do_not_move_the_pose_by_the_outage_distance():
+    # a robot stopped during the outage and one that kept going look alike afterwards: the
+    # returning speed measurement must not be read back into the outage (the random-walk
+    # correlation of a plain EKF would add most of V * outage here)
+    T, sr = ROBOT.encode_sampling_time, ROBOT.speed_ratio
+    ticks = V * T / sr
+    ekf = PlanarEKF(ROBOT, NOISE)
+    frame_t = [k * T for k in range(1, 26)] + [60.0 + k * T for k in range(1, 26)]
+    for t in np.arange(0.0, 61.0, 0.01):
+        ekf.update_gyro(t, 0.0)
+        while frame_t and frame_t[0] - 0.5 * T <= t:
+            ekf.update_wheels(frame_t.pop(0), ticks, ticks)
+        if abs(t - 59.99) < 1e-6:
+            x_before = ekf.x[0]
+    assert x_before <= V * (25 * T - 0.5 * T + NOISE.max_extrapolation) + 1e-3
+    # after the outage: about V * (1 s of frames), not V * 59 s more
+    assert ekf.x[0] - x_before == pytest.approx(V * 1.0, abs=0.1)
+    assert math.sqrt(ekf.P[0, 0]) >= V * 50.0  # the outage's uncertainty stays
+
+
 def test_a_measurement_after_a_gap_resumes_normal_extrapolation():
     ekf = moving_filter()
     ekf.update_gyro(50.0, 0.0)

@@ -605,7 +605,9 @@ class Mahony:
     def _check_rate(self, name: str, value: ArrayLike) -> NDArray[np.float64]:
         """A finite (3,) rate, rad/s, no faster than ``max_gyro``; ``ValueError`` else."""
         v = finite_vec3(name, value)
-        if np.linalg.norm(v) > self._params.max_gyro:
+        with np.errstate(over="ignore"):  # 1e200: inf, refused below
+            rate = float(np.linalg.norm(v))
+        if rate > self._params.max_gyro:
             raise ValueError(f"{name} = {v.tolist()} rad/s is faster than max_gyro "
                              f"({self._params.max_gyro!r} rad/s)")
         return v

@@ -85,11 +85,16 @@ A_LAST_D2 = 6
 A_UPDATES = 7
 A_ERROR = 8
 A_SATURATED = 9
-A_V_T = 10  # filter time of the last measurement of v (NaN: forgotten, see _advance)
+# gap policy (see _advance), per speed state v (+0) and w (+1):
+A_V_T = 10  # filter time of the last measurement of v (NaN: forgotten)
 A_W_T = 11  # the same for w
-A_SPEED_RESETS = 12  # v or w forgotten after max_extrapolation without a measurement
-A_PREDICTIONS = 13  # predict_core calls
-AUX_SIZE = 14
+A_V_FORGOT = 12  # filter time at which v was forgotten
+A_W_FORGOT = 13
+A_V_RMS2 = 14  # second moment of v when forgotten, (m/s)^2
+A_W_RMS2 = 15  # the same for w, (rad/s)^2
+A_SPEED_RESETS = 16  # v or w forgotten after max_extrapolation without a measurement
+A_PREDICTIONS = 17  # predict_core calls
+AUX_SIZE = 18
 # event kinds
 EV_GYRO = 0
 EV_WHEELS = 1
@@ -277,9 +282,10 @@ def update_core(x, P, y, H, R, gate_index, gate, inflation):
 
 
 @njit
-def _forget_speed(x, P, aux, i, var0):
-    """State ``i`` (3 = v, 4 = w) becomes unknown: mean 0, variance its second moment
-    ``x_i^2 + P_ii`` (at least the prior ``var0``), uncorrelated with the rest."""
+def _forget_speed(x, P, aux, i, t, var0):
+    """Speed state ``i`` (3 = v, 4 = w) becomes unknown at filter time ``t``: mean 0, variance
+    its second moment ``x_i^2 + P_ii`` (at least the prior ``var0``), uncorrelated with the
+    rest (and kept so while forgotten, see :func:`_predict_step`)."""
     var = x[i] * x[i] + P[i, i]
     if not var >= var0:
         var = var0
@@ -288,8 +294,44 @@ def _forget_speed(x, P, aux, i, var0):
         P[j, i] = 0.0
     P[i, i] = var
     x[i] = 0.0
+    aux[A_V_T + i - 3] = math.nan
+    aux[A_V_FORGOT + i - 3] = t
+    aux[A_V_RMS2 + i - 3] = var
     aux[A_ZERO_COUNT] = 0.0  # standing still is no longer known either
     aux[A_SPEED_RESETS] += 1.0
+
+
+@njit
+def _predict_step(x, P, aux, par, t, h, q_v, q_w):
+    """One prediction over ``h`` s from filter time ``t``.
+
+    A forgotten speed (mean 0, uncorrelated) takes no part in the motion's covariance
+    propagation; instead the pose gets the envelope of an unknown motion at that speed's
+    second moment ``r``: ``r * s^2`` on the variance of x and y (v) or of yaw (w), ``s`` the
+    time since it was forgotten (added as ``r * ((s + h)^2 - s^2)``, so any split of an
+    interval into steps gives the same covariance). Nothing correlates the pose with it, so
+    a speed measured after a gap does not move the pose by the distance of the gap.
+    """
+    v_lost = math.isnan(aux[A_V_T])
+    w_lost = math.isnan(aux[A_W_T])
+    p_vv = P[3, 3]
+    p_ww = P[4, 4]
+    if v_lost:
+        P[3, 3] = 0.0
+    if w_lost:
+        P[4, 4] = 0.0
+    predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C])
+    aux[A_PREDICTIONS] += 1.0
+    if v_lost:
+        P[3, 3] += p_vv
+        s = t - aux[A_V_FORGOT]
+        grow = aux[A_V_RMS2] * (h * (2.0 * s + h))
+        P[0, 0] += grow
+        P[1, 1] += grow
+    if w_lost:
+        P[4, 4] += p_ww
+        s = t - aux[A_W_FORGOT]
+        P[2, 2] += aux[A_W_RMS2] * (h * (2.0 * s + h))
 
 
 @njit
@@ -298,9 +340,10 @@ def _advance(x, P, aux, par, t):
 
     Gap policy (cost bounded for any interval): v and w are extrapolated at most
     ``par[P_HORIZON]`` s past their last measurement (in steps of at most ``max_dt``); then
-    each is forgotten (:func:`_forget_speed`), so the pose stops moving and its covariance
-    grows with the speed's variance instead. Once both are forgotten the rest of the interval
-    is one prediction step (the mean no longer moves; the random walks are linear in time).
+    each is forgotten (:func:`_forget_speed`) until it is measured again: the pose stops
+    moving with it and its covariance grows by the envelope of :func:`_predict_step`.
+    While both are forgotten nothing moves and the covariance growth is in closed form, so
+    the rest of the interval is one step.
     """
     t_now = aux[A_T]
     if math.isnan(t_now):
@@ -336,23 +379,21 @@ def _advance(x, P, aux, par, t):
         forget_w = to_w <= span
         if math.isnan(aux[A_V_T]) and math.isnan(aux[A_W_T]):
             if span > 0.0:  # nothing moves the mean any more: one step
-                predict_core(x, P, span, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C])
-                aux[A_PREDICTIONS] += 1.0
+                _predict_step(x, P, aux, par, t_now, span, q_v, q_w)
         else:
             left = span
+            t_step = t_now
             while left > 0.0:
                 h = left if left <= max_dt else max_dt
-                predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C])
-                aux[A_PREDICTIONS] += 1.0
+                _predict_step(x, P, aux, par, t_step, h, q_v, q_w)
                 left -= h
+                t_step += h
         dt -= span
         t_now += span
         if forget_v:
-            _forget_speed(x, P, aux, 3, par[P_SPEED_VAR0])
-            aux[A_V_T] = math.nan
+            _forget_speed(x, P, aux, 3, t_now, par[P_SPEED_VAR0])
         if forget_w:
-            _forget_speed(x, P, aux, 4, par[P_SPEED_VAR0])
-            aux[A_W_T] = math.nan
+            _forget_speed(x, P, aux, 4, t_now, par[P_SPEED_VAR0])
     aux[A_T] = t
     return True
 

@@ -30,15 +30,20 @@ Model:
 - Gap policy (bounded cost and bounded extrapolation for any interval without inputs): v and
   w are extrapolated at most ``max_extrapolation`` s (default 0.5) past their last
   measurement (v: a wheel frame, twist or ZUPT; w: those or a gyro sample). Then each is
-  *forgotten*: its mean becomes 0 and its variance its second moment ``x_i^2 + P_ii`` (at
-  least ``initial_speed_std^2``), uncorrelated with the rest, and the ZUPT's standing-still
-  state ends. So after a gap of any length the pose has moved at most
-  ``|v| * max_extrapolation`` (the yaw ``|w| * max_extrapolation``) while its covariance grows
-  with the forgotten speed's variance; once both are forgotten the rest of the interval is a
-  single prediction step. One input therefore costs at most about
-  ``2 * max_extrapolation / max_dt + 1`` steps (a 1e5 s gap: 21 steps, not 2 million);
-  forgetting is counted in ``stats["speed_resets"]``, steps in ``stats["predictions"]``.
-  The speeds of ``x0`` count as measured at the first input.
+  *forgotten* until it is measured again: its mean becomes 0 and its variance its second
+  moment ``r = x_i^2 + P_ii`` (at least ``initial_speed_std^2``), it stays uncorrelated with
+  the rest, and the ZUPT's standing-still state ends. While forgotten it does not move the
+  pose; the pose's covariance grows instead by the envelope of an unknown motion at that
+  speed, ``r * s^2`` on the variances of x and y (v) or of yaw (w), ``s`` the time since it
+  was forgotten, whatever the steps. So after a gap of any length the pose has moved at most
+  ``|v| * max_extrapolation`` (the yaw ``|w| * max_extrapolation``), its standard deviation
+  covers the distance the last speed would have carried the robot, and a speed measured after
+  the gap does not move the pose by the gap's distance (nothing correlates them). Once both
+  are forgotten nothing moves and the growth is in closed form: the rest of the interval is a
+  single step. One input therefore costs at most about ``2 * max_extrapolation / max_dt + 1``
+  steps (a 1e5 s gap: 11, not 2 million); forgetting is counted in
+  ``stats["speed_resets"]``, steps in ``stats["predictions"]``. The speeds of ``x0`` count
+  as measured at the first input.
 - Implausible inputs (a rate above ``max_rate``, a speed above ``max_speed``: a corrupt
   value, not a measurement) and non-finite ones are counted in ``stats["invalid"]`` and
   never fused.
