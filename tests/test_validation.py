@@ -327,3 +327,50 @@ def test_chassis_link_refuses_bad_settings_naming_the_port(kw, words):
 )
 def test_mpu6050_refuses_bad_settings(kw, words):
     raises_naming(lambda: MPU6050(SimulatedMPU6050(), **kw), *words)
+
+
+def _ekf_with_state() -> PlanarEKF:
+    ekf = PlanarEKF(EXAMPLE_ROBOT)
+    ekf.update_gyro(0.0, 0.1)
+    return ekf
+
+
+def _bad_state(key: str, value) -> dict:
+    state = _ekf_with_state().get_state()
+    state[key] = value
+    return state
+
+
+@pytest.mark.parametrize(
+    ("call", "words"),
+    [
+        (lambda e: PlanarEKF(EXAMPLE_ROBOT, x0=[0, 0, 0, NAN, 0, 0, 0, 0]), ["x0", "nan"]),
+        (lambda e: PlanarEKF(EXAMPLE_ROBOT, P0=np.full((8, 8), INF)), ["P0", "finite"]),
+        (lambda e: PlanarEKF(EXAMPLE_ROBOT, P0=np.triu(np.ones((8, 8)))), ["P0", "symmetric"]),
+        (lambda e: PlanarEKF(EXAMPLE_ROBOT, P0=-np.eye(8)), ["P0", "non-negative"]),
+        (lambda e: PlanarEKF(EXAMPLE_ROBOT, noise={"gyro_std": 1.0}), ["noise", "EkfNoise"]),
+        (lambda e: e.set_state(_bad_state("x", np.full(8, NAN))), ["state['x']", "nan"]),
+        (lambda e: e.set_state(_bad_state("P", np.eye(8) * NAN)), ["state['P']"]),
+        (lambda e: e.set_state(_bad_state("aux", np.zeros(3))), ["state['aux']"]),
+        (lambda e: e.update_yaw(0.1, 0.0, INF), ["yaw std", "inf"]),
+        (lambda e: e.update_yaw(0.1, 0.0, 0.0), ["yaw std", "0.0"]),
+        (lambda e: e.predict_to(NAN), ["predict_to", "nan"]),
+        (lambda e: e.predict(dt=INF), ["dt", "inf"]),
+    ],
+)
+def test_planar_ekf_setters_refuse_bad_values_and_keep_the_state(call, words):
+    ekf = _ekf_with_state()
+    before = ekf.get_state()
+    raises_naming(lambda: call(ekf), *words)
+    after = ekf.get_state()
+    np.testing.assert_array_equal(after["x"], before["x"])
+    np.testing.assert_array_equal(after["P"], before["P"])
+    np.testing.assert_array_equal(after["aux"], before["aux"])
+
+
+def test_reorder_buffer_refuses_a_nan_time():
+    from fusion.planar.ekf import ReorderBuffer
+
+    buf = ReorderBuffer(0.05)
+    raises_naming(lambda: buf.push(NAN, "event"), "ReorderBuffer.push", "nan")
+    assert len(buf) == 0

@@ -248,6 +248,26 @@ _POSITIVE = frozenset({
 MAX_STEPS_PER_INPUT = 10_000
 
 
+def _state_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """A finite (8,) state ``[x, y, yaw, v, w, b, k, c]``; ``ValueError`` naming ``name``."""
+    x = np.array(value, dtype=float).reshape(-1)
+    if x.shape != (8,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"{name} must be 8 finite values [x, y, yaw, v, w, b, k, c], got "
+                         f"{x.tolist()}")
+    return x
+
+
+def _covariance(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """A finite symmetric (8, 8) covariance with a non-negative diagonal; ``ValueError``."""
+    P = np.array(value, dtype=float)
+    if P.shape != (8, 8) or not np.all(np.isfinite(P)):
+        raise ValueError(f"{name} must be a finite 8 x 8 covariance, got shape {P.shape}")
+    if np.any(np.diag(P) < 0) or not np.allclose(P, P.T, rtol=1e-9, atol=1e-300):
+        raise ValueError(f"{name} must be symmetric with a non-negative diagonal, got "
+                         f"diagonal {np.diag(P).tolist()}")
+    return P
+
+
 def odometry_covariances(P: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """nav_msgs/Odometry covariances (36-element, row major) from the EKF covariance.
 
@@ -379,6 +399,9 @@ class ReorderBuffer:
         self._count = 0
 
     def push(self, t: float, event) -> None:
+        """Hold ``event`` with time ``t`` s (finite, else ``ValueError``)."""
+        if not math.isfinite(t):
+            raise ValueError(f"ReorderBuffer.push needs a finite time in s, got {t!r}")
         heapq.heappush(self._heap, (float(t), self._count, event))
         self._count += 1
         self._newest = max(self._newest, float(t))
@@ -449,17 +472,21 @@ class PlanarEKF(ExtendedKalmanFilter):
         super().__init__(dim_x=8, dim_z=2)
         if backend is not None:
             _check_backend(backend)
+        if not isinstance(robot, DiffDriveParams):
+            raise ValueError(f"robot must be a DiffDriveParams, got {type(robot).__name__}")
+        if noise is not None and not isinstance(noise, EkfNoise):
+            raise ValueError(f"noise must be an EkfNoise, got {type(noise).__name__}")
         self.robot = robot
         self.noise = noise if noise is not None else EkfNoise()
         n = self.noise
-        self.x = np.zeros(8) if x0 is None else np.array(x0, dtype=float).reshape(8)
+        self.x = np.zeros(8) if x0 is None else _state_vector("x0", x0)
         if P0 is None:
             s = n.initial_speed_std
             # the odom origin is the start pose; 1e-9 (m^2, rad^2) keeps P positive definite
             self.P = np.diag([1e-9, 1e-9, 1e-9, s * s, s * s, n.initial_bias_std ** 2,
                               n.calib_k_std ** 2, n.calib_c_std ** 2])
         else:
-            self.P = np.array(P0, dtype=float).reshape(8, 8)
+            self.P = _covariance("P0", P0)
         self._par = np.zeros(core.PAR_SIZE)
         par = self._par
         par[core.P_SPEED_RATIO] = robot.speed_ratio
@@ -531,9 +558,16 @@ class PlanarEKF(ExtendedKalmanFilter):
         return {"x": self.x.copy(), "P": self.P.copy(), "aux": self._aux.copy()}
 
     def set_state(self, state: dict) -> None:
-        self.x = np.array(state["x"], dtype=float).reshape(8)
-        self.P = np.array(state["P"], dtype=float).reshape(8, 8)
-        self._aux = np.array(state["aux"], dtype=float).reshape(core.AUX_SIZE)
+        """Restore a snapshot of :meth:`get_state`; ``ValueError`` (the filter unchanged) for
+        a non-finite state, a covariance that is not symmetric with a non-negative diagonal,
+        or bookkeeping of the wrong size."""
+        x = _state_vector("state['x']", state["x"])
+        P = _covariance("state['P']", state["P"])
+        aux = np.array(state["aux"], dtype=float).reshape(-1)
+        if aux.shape != (core.AUX_SIZE,) or np.any(np.isinf(aux)):
+            raise ValueError(f"state['aux'] must be {core.AUX_SIZE} values from get_state, got "
+                             f"{aux.tolist()}")
+        self.x, self.P, self._aux = x, P, aux
 
     def covariances_ros(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(pose_covariance, twist_covariance)`` in nav_msgs/Odometry layout."""
@@ -569,8 +603,8 @@ class PlanarEKF(ExtendedKalmanFilter):
 
     def update_yaw(self, t: float, yaw: float, std: float) -> int:
         """Fuse an absolute yaw (rad, in odom) with standard deviation ``std`` (rad)."""
-        if not std > 0:
-            raise ValueError(f"yaw std must be > 0 rad, got {std!r}")
+        if not (math.isfinite(std) and std > 0):
+            raise ValueError(f"yaw std must be finite and > 0 rad, got {std!r}")
         return self._step(core.EV_YAW, t, yaw, std)
 
     def predict(self, u=0, dt: float | None = None) -> None:
@@ -591,7 +625,11 @@ class PlanarEKF(ExtendedKalmanFilter):
         self.predict_to(t + dt)
 
     def predict_to(self, t: float) -> None:
-        """Propagate to time ``t`` s without a measurement (ignored if ``t`` is not newer)."""
+        """Propagate to time ``t`` s without a measurement (ignored if ``t`` is not newer).
+
+        The gap policy of the module docstring applies (bounded cost and extrapolation)."""
+        if not math.isfinite(t):
+            raise ValueError(f"predict_to needs a finite time in s, got {t!r}")
         if self.t is None or t <= self.t:
             return
         self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
