@@ -40,6 +40,15 @@ def raises_naming(call, *words):
     return info.value
 
 
+def assert_names_file_line(error, call, path, line, words):
+    """``call()`` raises ``error`` whose message starts with ``path:line:`` and names
+    ``words``."""
+    with pytest.raises(error) as info:
+        call()
+    msg = str(info.value)
+    assert msg.startswith(f"{path}:{line}:") and all(w in msg for w in words), (words, msg)
+
+
 # -- EkfNoise ---------------------------------------------------------------------------------
 
 EKF_BAD = [
@@ -204,12 +213,7 @@ CHASSIS = "[chassis]\nwheel_distance = 0.3\nspeed_ratio = 5e-5\nencode_sampling_
 def test_robot_toml_names_file_line_and_key(tmp_path, text, line, words):
     path = tmp_path / "robot.toml"
     path.write_text(textwrap.dedent(text))
-    with pytest.raises(LogFormatError) as info:
-        read_robot_toml(path)
-    msg = str(info.value)
-    assert msg.startswith(f"{path}:{line}:"), msg
-    for w in words:
-        assert w in msg, (w, msg)
+    assert_names_file_line(LogFormatError, lambda: read_robot_toml(path), path, line, words)
 
 
 @pytest.mark.parametrize(
@@ -226,12 +230,7 @@ def test_robot_toml_names_file_line_and_key(tmp_path, text, line, words):
 def test_run_config_file_names_file_line_and_key(tmp_path, text, line, words):
     path = tmp_path / "run.toml"
     path.write_text(text)
-    with pytest.raises(ConfigError) as info:
-        load_config(path)
-    msg = str(info.value)
-    assert msg.startswith(f"{path}:{line}:"), msg
-    for w in words:
-        assert w in msg, (w, msg)
+    assert_names_file_line(ConfigError, lambda: load_config(path), path, line, words)
 
 
 @pytest.mark.parametrize(
