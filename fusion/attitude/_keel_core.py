@@ -324,8 +324,9 @@ def step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, still, kx, ky, kz
     period). ``still``: 1 known still, 0 known moving, -1 unknown. ``k*``: known kinematic
     acceleration in the body frame, m/s^2, subtracted from the accelerometer.
     """
-    rate2 = gx * gx + gy * gy + gz * gz  # inf for 1e200, NaN for a NaN component
-    if not rate2 <= P[P_MAX_GYRO] * P[P_MAX_GYRO]:  # non-finite or corrupt
+    mg = P[P_MAX_GYRO]  # components first (false for NaN), so 1e200 never overflows
+    if not (abs(gx) <= mg and abs(gy) <= mg and abs(gz) <= mg
+            and gx * gx + gy * gy + gz * gz <= mg * mg):  # non-finite or corrupt
         C[C_GYRO_SKIP] += 1
         S[PENDING_DT] += dt  # the next sample integrates over the skipped interval too
         return
@@ -369,8 +370,11 @@ def step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, still, kx, ky, kz
     S[COV + 3] += grow
     S[COV + 5] += grow
 
-    anorm = math.sqrt(ax * ax + ay * ay + az * az)
-    acc_ok = math.isfinite(anorm) and 0.0 < anorm <= P[P_MAX_ACCEL]
+    ma = P[P_MAX_ACCEL]
+    anorm = 0.0
+    if abs(ax) <= ma and abs(ay) <= ma and abs(az) <= ma:  # false for NaN and inf
+        anorm = math.sqrt(ax * ax + ay * ay + az * az)
+    acc_ok = 0.0 < anorm <= ma
     if not acc_ok:
         C[C_ACC_SKIP] += 1
     if acc_ok and S[ACC_SEEN] == 0.0:

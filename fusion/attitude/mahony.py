@@ -274,8 +274,9 @@ class MahonyState:
 @njit
 def _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
     """Advance the packed state ``S`` by one sample. Returns nothing; mutates S and C."""
-    rate2 = gx * gx + gy * gy + gz * gz  # inf for 1e200, NaN for a NaN component
-    if not rate2 <= P[_P_MAX_GYRO] * P[_P_MAX_GYRO]:
+    mg = P[_P_MAX_GYRO]  # components first (false for NaN), so 1e200 never overflows
+    if not (abs(gx) <= mg and abs(gy) <= mg and abs(gz) <= mg
+            and gx * gx + gy * gy + gz * gz <= mg * mg):
         C[_C_GYRO_SKIP] += 1
         return
     q0, q1, q2, q3 = S[0], S[1], S[2], S[3]
@@ -294,8 +295,11 @@ def _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
     else:
         S[_S_LAST_DT] = dt
 
-    anorm = math.sqrt(ax * ax + ay * ay + az * az)
-    acc_ok = math.isfinite(anorm) and 0.0 < anorm <= P[_P_MAX_ACC]
+    ma = P[_P_MAX_ACC]
+    anorm = 0.0
+    if abs(ax) <= ma and abs(ay) <= ma and abs(az) <= ma:  # false for NaN and inf
+        anorm = math.sqrt(ax * ax + ay * ay + az * az)
+    acc_ok = 0.0 < anorm <= ma
     if not acc_ok:
         C[_C_ACC_SKIP] += 1
 

@@ -37,6 +37,12 @@ Event-time model, stated once:
   one record each time the filter time crosses a multiple of ``1/publish_rate_hz`` (seed
   000 publishes at 10 Hz).
 
+Gaps and bad values: a wheel-frame interval longer than ``gap_periods`` periods is recorded
+(:class:`WheelGap`, ``stats.gap_count``); the attitude filter's and the EKF's gap policies
+(their module docstrings) bound the cost of any silence and the pose's extrapolation, counted
+in ``stats.attitude_gaps`` and ``stats.speed_resets``; a non-finite or implausible value is
+skipped by the attitude filter (its counters) and refused by the EKF (``stats.invalid``).
+
 Determinism: nothing here reads a clock except to measure latency (``clock``), so replaying
 the same events gives the same records bit for bit (tests/test_pipeline_golden.py).
 
