@@ -271,7 +271,6 @@ ROBOT_CONFIG = RobotConfig(chassis=EXAMPLE_ROBOT)
         ({"latency_window": 0}, ["latency_window", "0"]),
         ({"sources": ("imu", "gps")}, ["sources", "gps"]),
         ({"state_rows": ("pose",)}, ["state_rows", "pose"]),
-        ({"mahony": "keel"}, ["mahony"]),
     ],
 )
 def test_pipeline_constructor_refuses_bad_arguments(kw, words):
@@ -290,7 +289,7 @@ def test_pipeline_counts_a_corrupt_gyro_sample_and_goes_on():
                 pipe.push(WheelTicks(t, 10, 10))
         stats = pipe.finish_stats()
     assert stats.invalid == 1  # the EKF refused the vertical rate of the corrupt sample
-    assert pipe.mahony.counters.gyro_skipped == 1
+    assert pipe.attitude.counters.gyro_skipped == 1
     assert all(math.isfinite(r.x) and math.isfinite(r.yaw) for r in records)
     assert len(records) == stats.wheel_frames and T > 0
 

@@ -56,23 +56,15 @@ The offline (forward-backward) mode for recorded data is :func:`fusion.attitude.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion._jit import compiled_entry_point
 from fusion.attitude import _keel_core as core
-from fusion.attitude._inputs import (
-    as_rows,
-    check_dt,
-    check_dts,
-    explicit_periods,
-    timestamps_array,
-    unit_quaternion,
-    vec3,
-)
-from fusion.geometry import quaternion as quat
+from fusion.attitude._base import AttitudeFilter
+from fusion.attitude._inputs import as_rows, check_dt, vec3
 from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = ["Keel", "KeelCounters", "KeelDiagnostics", "KeelParams", "KeelState"]
@@ -321,7 +313,7 @@ def _entry_points():
     return _fast6, _fast_full
 
 
-class Keel:
+class Keel(AttitudeFilter):
     """Keel attitude estimator, 6-axis (gyro + accelerometer) or 9-axis (+ magnetometer).
 
     Args:
@@ -351,47 +343,20 @@ class Keel:
         params: KeelParams | None = None,
         **options,
     ) -> None:
-        if axes not in (6, 9):
-            raise ValueError(f"axes must be 6 or 9, got {axes!r}")
         if params is None:
             params = KeelParams(sample_period=sample_period, **options)
         elif sample_period is not None or options:
             raise ValueError("give either params or individual settings, not both")
-        self.axes = axes
-        self._initial = None
-        if initial_quaternion is not None:
-            self._initial = unit_quaternion("initial_quaternion", initial_quaternion)
-        self.params = params
-        self.reset()
+        self._setup(axes, initial_quaternion, params)
 
-    # -- parameters and state -----------------------------------------------------------------
+    # -- parameters and state (params, with_params, quaternion, euler: AttitudeFilter) --------
 
-    @property
-    def params(self) -> KeelParams:
-        return self._params
+    _params_class = KeelParams
+    _layout = (core.B_P, core.B_C, core.B_LEN)
 
-    @params.setter
-    def params(self, params: KeelParams) -> None:
-        if not isinstance(params, KeelParams):
-            raise ValueError(f"params must be a KeelParams, got {type(params).__name__}")
-        self._params = params
-        self._default_dt = params.sample_period
+    def _params_changed(self) -> None:
         if hasattr(self, "_B"):
-            self._P[:] = params.packed()
             self._S[core.DT_CACHED] = -1.0  # coefficients depend on the time constants
-
-    def with_params(self, **changes) -> Keel:
-        """A fresh estimator with the same settings and some parameters changed."""
-        return Keel(axes=self.axes, initial_quaternion=self._initial,
-                    params=replace(self._params, **changes))
-
-    def _new_buffer(self) -> None:
-        self._B = np.zeros(core.B_LEN)
-        self._S = self._B[core.B_S:core.B_P]
-        self._P = self._B[core.B_P:core.B_C]
-        self._C = self._B[core.B_C:]
-        self._q = self._B[core.Q:core.Q + 4]
-        self._P[:] = self._params.packed()
 
     def reset(self) -> None:
         """Forget everything: back to the state before the first sample."""
@@ -433,16 +398,6 @@ class Keel:
         self._C[:] = [c.gyro_skipped, c.accel_skipped, c.mag_skipped, c.gaps, c.rest_samples,
                       c.mag_disturbed]
         self._last_t = state.last_timestamp
-
-    @property
-    def quaternion(self) -> NDArray[np.float64]:
-        """Current attitude ``[w, x, y, z]``, body -> world ENU."""
-        return self._q.copy()
-
-    @property
-    def euler(self) -> NDArray[np.float64]:
-        """Current roll, pitch, yaw in radians (ZYX)."""
-        return quat.to_euler(self.quaternion)
 
     @property
     def gyro_bias(self) -> NDArray[np.float64]:
@@ -591,11 +546,8 @@ class Keel:
             known_accel: (N, 3) known kinematic acceleration, m/s^2, body frame (NaN rows:
                 none known).
         """
-        g = as_rows("gyro", gyro)
+        g, a, m, use_mag = self._batch_rows(gyro, accel, mag)
         n = g.shape[0]
-        a = as_rows("accel", accel, n)
-        use_mag = self.axes == 9 and mag is not None
-        m = as_rows("mag", mag, n) if use_mag else np.zeros((0, 3))
         s = np.zeros(0)
         if still is not None:
             s = np.ascontiguousarray(still, dtype=np.float64).reshape(-1)
@@ -617,25 +569,7 @@ class Keel:
             return out, KeelDiagnostics.from_rows(diag)
         return out
 
-    def _batch_periods(self, n: int, dt, timestamps) -> NDArray[np.float64]:
-        if timestamps is not None:
-            t = timestamps_array(timestamps, n)
-            if n == 0:
-                return np.zeros(1)
-            if dt is None:
-                dts = np.empty(n)
-                dts[1:] = np.diff(t)
-                dts[0] = 1.0  # checked below with the others, then replaced
-                if self._last_t is not None:
-                    dts[0] = t[0] - self._last_t
-                check_dts(dts, "timestamps must increase strictly: at index")
-                if self._last_t is None:
-                    dts[0] = self._period(None, None)
-                self._last_t = float(t[-1])
-                return dts
-            self._last_t = float(t[-1])
-        if dt is None:
-            if self._params.sample_period is None:
-                raise ValueError("no dt: pass dt=, timestamps=, or set sample_period")
-            return np.array([self._params.sample_period])
-        return explicit_periods(dt, n)
+    def _first_period(self, t: NDArray[np.float64]) -> float:
+        """The first period of a batch with no earlier timestamp: ``sample_period``, else 0
+        for a first sample (it only initialises)."""
+        return self._period(None, None)

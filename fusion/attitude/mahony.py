@@ -56,19 +56,16 @@ is that of one sample for any gap; each gap is counted in ``counters.gaps``.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion._jit import compiled_entry_point, njit
+from fusion.attitude._base import AttitudeFilter, check_axes
 from fusion.attitude._inputs import (
-    as_rows,
     check_dt,
-    check_dts,
-    explicit_periods,
     finite_vec3,
-    timestamps_array,
     unit_quaternion,
     vec3,
 )
@@ -462,7 +459,7 @@ _NDARRAY = np.ndarray
 _SHAPE3 = (3,)
 
 
-class Mahony:
+class Mahony(AttitudeFilter):
     """Mahony attitude filter: 6-axis (gyro + accelerometer) or 9-axis (+ magnetometer).
 
     Args:
@@ -498,45 +495,26 @@ class Mahony:
         params: MahonyParams | None = None,
         **options,
     ) -> None:
-        if axes not in (6, 9):
-            raise ValueError(f"axes must be 6 or 9, got {axes!r}")
+        check_axes(axes)
         if params is None:
             given = {"kp": kp, "ki": ki, "sample_period": sample_period}
             settings = {**PRESETS[axes], **{k: v for k, v in given.items() if v is not None}}
             params = MahonyParams(**{**settings, **options})
         elif kp is not None or ki is not None or sample_period is not None or options:
             raise ValueError("give either params or individual settings, not both")
-        self.axes = axes
-        self._initial = None
-        if initial_quaternion is not None:
-            self._initial = unit_quaternion("initial_quaternion", initial_quaternion)
-        self.params = params
-        self.reset()
+        self._setup(axes, initial_quaternion, params)
 
-    # -- parameters and state -----------------------------------------------------------------
+    # -- parameters and state (params, with_params, euler: AttitudeFilter) --------------------
 
-    @property
-    def params(self) -> MahonyParams:
-        return self._params
+    _params_class = MahonyParams
+    _layout = (_B_P, _B_C, _B_LEN)
 
-    @params.setter
-    def params(self, params: MahonyParams) -> None:
-        if not isinstance(params, MahonyParams):
-            raise ValueError(f"params must be a MahonyParams, got {type(params).__name__}")
-        self._params = params
-        self._default_dt = params.sample_period
-        self._fast6 = None
-        if hasattr(self, "_B"):
-            self._P[:] = params.packed()
+    def _params_changed(self) -> None:
+        self._fast6 = None  # re-armed by the next general update
 
     def _new_buffer(self) -> None:
         self._fast6 = None  # re-armed by the next general update
-        self._B = np.zeros(_B_LEN)
-        self._S = self._B[_B_S:_B_P]
-        self._P = self._B[_B_P:_B_C]
-        self._C = self._B[_B_C:]
-        self._q = self._B[0:4]
-        self._P[:] = self._params.packed()
+        super()._new_buffer()
 
     def reset(self) -> None:
         """Forget everything: back to the state before the first sample."""
@@ -622,11 +600,6 @@ class Mahony:
         return self._S[:4].copy() if self._initialised else quat.IDENTITY.copy()
 
     @property
-    def euler(self) -> NDArray[np.float64]:
-        """Current roll, pitch, yaw in radians (ZYX)."""
-        return quat.to_euler(self.quaternion)
-
-    @property
     def gyro_bias(self) -> NDArray[np.float64]:
         """Gyro-bias estimate, rad/s, body frame (``-integral``): subtract it from the gyro."""
         return -self._S[4:7].copy()
@@ -641,14 +614,6 @@ class Mahony:
     def counters(self) -> MahonyCounters:
         """Documented skips since the last reset (see :class:`MahonyCounters`)."""
         return MahonyCounters(*(int(c) for c in self._C))
-
-    def with_params(self, **changes) -> Mahony:
-        """A fresh filter with the same settings and some parameters changed."""
-        return Mahony(
-            axes=self.axes,
-            initial_quaternion=self._initial,
-            params=replace(self._params, **changes),
-        )
 
     # -- initialisation ---------------------------------------------------------------------
 
@@ -772,12 +737,9 @@ class Mahony:
                 measured from the previous call's last timestamp when there was one, else it is
                 ``sample_period`` if set, else the first difference.
         """
-        g = as_rows("gyro", gyro)
+        g, a, m, use_mag = self._batch_rows(gyro, accel, mag)
         n = g.shape[0]
-        a = as_rows("accel", accel, n)
-        use_mag = self.axes == 9 and mag is not None
-        m = as_rows("mag", mag, n) if use_mag else np.zeros((0, 3))
-        dts = self._batch_dt(n, dt, timestamps)
+        dts = self._batch_periods(n, dt, timestamps)
         out = np.empty((n, 4))
         if n == 0:
             return out
@@ -797,29 +759,11 @@ class Mahony:
         )
         return out
 
-    def _batch_dt(self, n: int, dt, timestamps) -> NDArray[np.float64]:
-        if timestamps is not None:
-            t = timestamps_array(timestamps, n)
-            if n == 0:
-                return np.zeros(1)
-            if dt is None:
-                if self._last_t is not None:
-                    first = t[0] - self._last_t
-                elif self._params.sample_period is not None:
-                    first = self._params.sample_period
-                elif n > 1:
-                    first = t[1] - t[0]
-                else:
-                    raise ValueError("one timestamp alone gives no dt: pass dt= or sample_period")
-                dts = np.empty(n)
-                dts[0] = first
-                dts[1:] = np.diff(t)
-                check_dts(dts, "timestamps must increase strictly: at index")
-                self._last_t = float(t[-1])
-                return dts
-            self._last_t = float(t[-1])
-        if dt is None:
-            if self._params.sample_period is None:
-                raise ValueError("no dt: pass dt=, timestamps=, or set sample_period")
-            return np.array([self._params.sample_period])
-        return explicit_periods(dt, n)
+    def _first_period(self, t: NDArray[np.float64]) -> float:
+        """The first period of a batch with no earlier timestamp: ``sample_period``, else
+        the first stamp difference."""
+        if self._params.sample_period is not None:
+            return self._params.sample_period
+        if t.size > 1:
+            return float(t[1] - t[0])
+        raise ValueError("one timestamp alone gives no dt: pass dt= or sample_period")

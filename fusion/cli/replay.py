@@ -39,7 +39,7 @@ def register(subparsers) -> None:
         "replay",
         help="fused wheel + gyro odometry (EKF) of recorded logs",
         description=(
-            "Run the fusion pipeline (Mahony attitude + planar EKF: wheel odometry and the "
+            "Run the fusion pipeline (Keel attitude + planar EKF: wheel odometry and the "
             "gyro yaw rate with a gyro-bias state) over a log directory (robot.toml, imu.csv "
             "and/or wheels.csv or wheels.uart2, optional truth.csv; see datasets/LOGDIR.md), "
             "a folder of log directories (in parallel worker processes), a DATA-uart2 "
@@ -61,7 +61,7 @@ def register(subparsers) -> None:
                         "output's format comes from its suffix)")
     p.add_argument("--level", action="store_true",
                    help="take the robot as level: use the gyro's z axis as the yaw rate "
-                        "(default: tilt-compensate with the Mahony attitude)")
+                        "(default: tilt-compensate with the attitude filter's attitude)")
     p.add_argument("--plot", type=Path, metavar="PNG",
                    help="draw fused vs wheel-only (vs truth) trajectories and the yaw error to "
                         "this PNG (for a folder of logs: a folder, one PNG per log); needs "

@@ -50,7 +50,7 @@ def register(subparsers: Any) -> None:
         "run",
         help="live fused odometry from the IMU and the chassis, published to ROS 1, "
              "ROS 2, Foxglove, MCAP or JSON lines",
-        description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Mahony + EKF -> "
+        description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Keel + EKF -> "
                     "sinks. Every option can come from --config (TOML, see fusion.io.run_config); "
                     "the command line wins. Ctrl-C stops cleanly (files complete).",
     )

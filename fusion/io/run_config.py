@@ -18,6 +18,11 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
 
     [ekf]                         # any fusion.planar.ekf.EkfNoise field (fusion.io.logdir)
 
+    [attitude]                    # the pipeline's attitude filter (fusion.io.robot_toml)
+    filter = "keel"               # "keel" (default) or "mahony"
+    wheel_knowledge = true        # Keel: feed the wheels' v*w and stillness (default: on)
+    accel_time_constant = 3.0     # any other key: a KeelParams / MahonyParams field, SI
+
     [imu]
     source = "i2c:1"              # "i2c:N" (/dev/i2c-N), "sim" or "none"
     address = 0x68
@@ -27,7 +32,7 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
     dlpf = 3                      # DLPF_CFG 0..6
     fifo_interval = 0.02          # s between FIFO reads
     calibration = "imu_cal.json"  # from fusion imu-calibrate (optional; relative to this file)
-    tilt = true                   # tilt-compensate the gyro with the Mahony attitude
+    tilt = true                   # tilt-compensate the gyro with the attitude filter
 
     [link]                        # the chassis DATA-uart2 port
     port = "/dev/ttyUSB0"         # device, socket://host:port, loop://, or "sim"
@@ -65,13 +70,13 @@ import math
 import re
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.errors import ConfigError, LogFormatError
-from fusion.io.robot_toml import robot_config_from_tables, where
+from fusion.io.robot_toml import ROBOT_TABLES, robot_config_from_tables, where
 from fusion.io.sink_spec import parse_sink_spec
 from fusion.planar.robot import RobotConfig
 
@@ -103,13 +108,13 @@ class RunConfig:
     """Everything ``fusion run`` needs (units SI; see the module docstring for the file).
 
     Attributes:
-        robot: chassis, frames (IMU mount) and EKF tuning.
+        robot: chassis, frames (IMU mount), EKF tuning and attitude filter.
         imu: ``"i2c:N"``, ``"sim"`` or ``"none"``.
         imu_address, imu_rate_hz, gyro_range_dps, accel_range_g, dlpf: MPU6050 settings
             (I2C address, Hz, deg/s, g, DLPF_CFG).
         fifo_interval: s between FIFO reads.
         imu_calibration: calibration JSON path, or None.
-        tilt: tilt-compensate the gyro with the Mahony attitude.
+        tilt: tilt-compensate the gyro with the attitude filter's attitude.
         chassis: the DATA-uart2 port (device path or pyserial URL) or ``"sim"``.
         baudrate, command_timeout, silence_periods: serial link settings (bit/s, s, periods).
         publish: sink specs (:func:`fusion.io.sink_spec.parse_sink_spec`).
@@ -252,7 +257,8 @@ def _topic(v: Any) -> str | None:
     return s
 
 
-#: table -> key -> (RunConfig field, check). [chassis], [frames], [ekf] go to fusion.io.logdir.
+#: table -> key -> (RunConfig field, check). [chassis], [frames], [ekf], [attitude] go to
+#: fusion.io.robot_toml.
 SCHEMA: dict[str, dict[str, tuple[str, Check]]] = {
     "imu": {
         "source": ("imu", _imu_source),
@@ -290,7 +296,6 @@ SCHEMA: dict[str, dict[str, tuple[str, Check]]] = {
         "cmd_vel": ("cmd_vel_topic", _topic),
     },
 }
-_ROBOT_TABLES = ("chassis", "frames", "ekf")
 #: RunConfig field -> (table, key, check), from SCHEMA.
 _FIELD_CHECKS = {name: (table, key, check) for table, spec in SCHEMA.items()
                  for key, (name, check) in spec.items()}
@@ -306,6 +311,7 @@ def _check_field(name: str, value: Any, origin: str) -> None:
         check(value)
     except ValueError as exc:
         raise ConfigError(f"{origin} {exc} (in a file: [{table}] {key})") from None
+
 
 #: ``fusion run`` option (argparse dest) -> (table, key) in the file.
 RUN_OPTIONS: dict[str, tuple[str, str]] = {
@@ -333,19 +339,21 @@ def parse_config(doc: dict[str, Any], path: str | Path = "<config>", text: str =
         ConfigError: an unknown table or key, or a bad value, naming file, line and key.
     """
     path = Path(path)
-    known = set(SCHEMA) | set(_ROBOT_TABLES)
+    known = set(SCHEMA) | set(ROBOT_TABLES)
     for table in doc:
         if table not in known:
             raise ConfigError(f"{where(path, text, table)}: unknown table [{table}]; "
                               f"allowed: {', '.join(sorted(known))}")
         if not isinstance(doc[table], dict):
             raise ConfigError(f"{path}: {table} must be a table [{table}], got {doc[table]!r}")
-    robot_doc = {t: doc[t] for t in _ROBOT_TABLES if t in doc}
+    robot_doc = {t: doc[t] for t in ROBOT_TABLES if t in doc}
     if robot_doc:
         if "chassis" not in robot_doc:
-            raise ConfigError(f"{where(path, text, next(iter(robot_doc)))}: [frames]/[ekf] "
-                              "need a [chassis] table (wheel_distance, speed_ratio, "
-                              "encode_sampling_time)")
+            if set(robot_doc) != {"attitude"}:
+                raise ConfigError(f"{where(path, text, next(iter(robot_doc)))}: [frames]/[ekf] "
+                                  "need a [chassis] table (wheel_distance, speed_ratio, "
+                                  "encode_sampling_time)")
+            robot_doc["chassis"] = asdict(DEMO_ROBOT)  # [attitude] alone: the demo chassis
         try:
             robot = robot_config_from_tables(path, robot_doc, text)  # errors name the line
         except LogFormatError as exc:

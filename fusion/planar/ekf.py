@@ -49,7 +49,7 @@ Model:
   never fused.
 - Gyro update: ``z = w + b`` where z is the rate about the *world* vertical. On a level robot
   that is ``gyro[2]``; on a tilted one :func:`vertical_rate` projects the body rate with the
-  Mahony attitude quaternion.
+  attitude quaternion (the pipeline's: Keel's).
 - Wheel update: one DATA-uart2 frame's ticks give the period's mean speed ``v = (dl+dr)/(2T)``
   and yaw rate ``w = (dr-dl)/(L T)`` (seed 000's names: ``speed_ratio`` m/tick,
   ``wheel_distance`` L, ``encode_sampling_time`` T), modelled as ``v + c*w*L^2/4`` and
