@@ -127,3 +127,13 @@ def test_corrupt_samples_are_skipped_and_counted_never_poisoning_the_state(name,
     for _ in range(10):  # and it goes on (a zero quaternion used to raise ZeroDivisionError)
         q = f.update(np.zeros(3), UP)
     assert up_error(q, 0.0) < 1e-6
+
+
+def test_keel_ignores_a_corrupt_known_acceleration():
+    plain, told = Keel(sample_period=DT), Keel(sample_period=DT)
+    for k in range(200):
+        a = accel_at(k * DT)
+        q_plain = plain.update(np.array([RATE, 0.0, 0.0]), a)
+        bad = [1e200, 0.0, 0.0] if k == 100 else [0.0, 0.0, 0.0]
+        q_told = told.update(np.array([RATE, 0.0, 0.0]), a, known_accel=bad)
+    np.testing.assert_array_equal(q_told, q_plain)

@@ -426,6 +426,8 @@ def step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, still, kx, ky, kz
     moving_update = False
     ex = ey = 0.0
     if acc_ok:
+        if not (abs(kx) <= ma and abs(ky) <= ma and abs(kz) <= ma):
+            kx = ky = kz = 0.0  # a known acceleration no robot has (a corrupt input): unknown
         fx, fy, fz = ax - kx, ay - ky, az - kz
         ix, iy, iz = rotate(q0, q1, q2, q3, fx, fy, fz)
         # B -> E6 rotation matrix, low-passed alongside (the bias update's measurement model).

@@ -48,7 +48,8 @@ shapes raise ``ValueError``.
 External knowledge (``update(..., still=, known_accel=)``): ``known_accel`` is the body-frame
 kinematic acceleration, m/s^2, that the host knows (a wheeled robot turning at yaw rate w with
 forward speed v has a centripetal v*w towards the turn centre, plus dv/dt along its heading);
-it is subtracted from the accelerometer before the inclination update.
+it is subtracted from the accelerometer before the inclination update (one with a component
+above ``max_accel``, a corrupt input, is ignored).
 
 The offline (forward-backward) mode for recorded data is :func:`fusion.attitude.keel_offline`.
 """
