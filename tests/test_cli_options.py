@@ -67,6 +67,8 @@ BASE = {
     "synth": {"mission": ["synth", "out", "--duration", "12"],
               "square": ["synth", "out", "--scenario", "square"],
               "figure8": ["synth", "out", "--scenario", "figure8"]},
+    "tune": {"logs": ["tune", "odometry", "run1", "cw", "ccw", "--budget", "4"],
+             "broad": ["tune", "attitude", "trial.mat", "trial.mat", "--budget", "2"]},
     "run": {"sim": ["run", "--imu", "sim", "--chassis", "sim", "--duration", "1"],
             "no imu": ["run", "--imu", "none", "--chassis", "sim", "--duration", "1"]},
 }
@@ -192,6 +194,21 @@ TABLE: dict[str, dict[str, list[Row]]] = {
                                    "--slip-patches", "1")],
         "--no-truth": [changes(k, "--no-truth") for k in ("mission", "square", "figure8")],
     },
+    "tune": {
+        "--robot": [changes("logs", "--robot", "robot-wide.toml"),
+                    changes("broad", "--robot", "robot-wide.toml")],
+        "--folds": [changes("logs", "--folds", "2")],
+        "--budget": [changes("logs", "--budget", "6")],
+        "--output": [changes("logs", "-o", "tuned.toml"),
+                     refused("broad", "-o for the attitude target needs --robot", "-o",
+                             "tuned.toml"),
+                     changes("broad", "-o", "tuned.toml", both=("--robot", "robot-wide.toml"))],
+        "--jobs": [changes("logs", "--jobs", "2")],
+        # (a local cluster's start-up costs seconds: tests/test_cluster_replay.py runs tune
+        # on Dask workers)
+        "--cluster": [refused("logs", "--cluster and --jobs exclude each other", "--cluster",
+                              "local:1", "--jobs", "2")],
+    },
     "run": {  # its refusals (the rows that change the output are to come: NOT_YET)
         "--address": [refused("sim", "--address applies to --imu i2c:N only",
                               "--address", "0x69")],
@@ -276,6 +293,11 @@ def inputs(tmp_path_factory) -> Path:
         run_ = simulate(square(side=2.0, direction=direction), EXAMPLE_ROBOT,
                         ImuModel(), EncoderModel(separation_error=0.03), seed=1)
         write_synthetic_run(d / direction, run_)
+    from dataclasses import replace
+
+    from fusion.io.robot_toml import write_robot_toml
+
+    write_robot_toml(d / "robot-wide.toml", replace(EXAMPLE_ROBOT, wheel_distance=0.33))
     # frames with 250 ticks (above --max-ticks 200) and one whose left sign byte is 0x02
     # (only --loose-sign reads it as positive)
     from drivers.chassis import checksum, encode_wheel_frame

@@ -2,9 +2,10 @@
 the job itself is :mod:`fusion.jobs.replay`).
 
 Inputs: a log directory (``datasets/LOGDIR.md``), a folder whose subfolders are log directories
-(every log replayed in a worker process, ``--jobs``; one output per log in the ``-o`` folder and a
-summary table), a DATA-uart2 capture (``*.uart2``) with ``--robot robot.toml``, or a ROS 1
-``.bag``, a ROS 2 bag folder or an ``.mcap`` file with ``--imu-topic`` and ``--odom-topic``.
+(every log replayed in a worker process, ``--jobs``, or on Dask workers, ``--cluster``
+(:mod:`fusion.jobs.cluster`); one output per log in the ``-o`` folder and a summary table), a
+DATA-uart2 capture (``*.uart2``) with ``--robot robot.toml``, or a ROS 1 ``.bag``, a ROS 2 bag
+folder or an ``.mcap`` file with ``--imu-topic`` and ``--odom-topic``.
 
 Outputs (``-o``, by suffix): ``.csv`` the fused CSV (:mod:`fusion.io.fused_csv`, the state at
 every IMU sample), ``.mcap`` or ``.jsonl`` the pipeline's records. ``--plot out.png`` draws the
@@ -71,6 +72,11 @@ def register(subparsers) -> None:
                         "of 10 minutes or more and for folders of logs)")
     p.add_argument("-j", "--jobs", type=int, default=None,
                    help="worker processes for a folder of logs (default: the CPU count)")
+    p.add_argument("--cluster", nargs="?", const="", default=None, metavar="SPEC",
+                   help="replay a folder of logs on Dask (the 'cluster' extra): local[:N] "
+                        "starts a local cluster of N one-thread workers (default N: the CPU "
+                        "count), tcp://HOST:8786 joins a running scheduler, and --cluster "
+                        "alone joins the one in DASK_SCHEDULER_ADDRESS; not with --jobs")
     p.add_argument("--robot", type=Path,
                    help="robot.toml for a capture (required), a bag (wheel_distance and "
                         "[ekf] tuning; optional) or a log directory (instead of its own)")
@@ -190,7 +196,7 @@ def _print_result(r, level_note: bool = True) -> None:
               f"yaw RMSE {tr['wheel_yaw_deg']:.3f} deg")
 
 
-def _print_table(work, results, jobs: int) -> int:
+def _print_table(work, results, where: str) -> int:
     head = (f"{'log':<24} {'status':<6} {'time s':>8} {'IMU':>8} {'wheels':>7} "
             f"{'final x':>8} {'final y':>8} {'yaw deg':>8} {'fused %':>8} {'wheel %':>8}  output")
     print(head)
@@ -210,8 +216,7 @@ def _print_table(work, results, jobs: int) -> int:
         print(f"{name:<24} {'ok':<6} {r.span:>8.1f} {r.n_imu:>8} {r.n_wheels:>7} "
               f"{r.final[0]:>8.3f} {r.final[1]:>8.3f} {math.degrees(r.final[2]):>8.2f} "
               f"{fp:>8} {wp:>8}  {output}")
-    print(f"{len(work) - failed} of {len(work)} logs replayed ({jobs} worker process"
-          f"{'es' if jobs != 1 else ''}); {failed} failed")
+    print(f"{len(work) - failed} of {len(work)} logs replayed ({where}); {failed} failed")
     for w in work:
         status, value = results[w.source]
         if status != "ok":
@@ -238,6 +243,11 @@ def run(args: argparse.Namespace) -> int:
                                f"{args.output} is {fmt or 'of no known type'} by its suffix")
     if args.jobs is not None and not folder:
         raise CommandError("--jobs applies to a folder of logs only")
+    if args.cluster is not None and not folder:
+        raise CommandError("--cluster applies to a folder of logs only")
+    if args.cluster is not None and args.jobs is not None:
+        raise CommandError("--cluster and --jobs exclude each other: --jobs N runs worker "
+                           "processes on this machine, --cluster runs on Dask workers")
     if path.is_file():
         for given, option in ((args.level, "--level"),
                               (args.imu_mount_rpy is not None, "--imu-mount-rpy")):
@@ -324,6 +334,11 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
     if workers < 1:
         raise CommandError(f"--jobs must be >= 1, got {workers}")
     workers = min(workers, len(logs))
+    cluster = None
+    if args.cluster is not None:
+        from fusion.jobs import cluster as dask_jobs
+
+        cluster = dask_jobs.parse_cluster(args.cluster)
     out_dir.mkdir(parents=True, exist_ok=True)
     if args.plot is not None:
         args.plot.mkdir(parents=True, exist_ok=True)
@@ -340,11 +355,25 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
         done[0] += 1
         bar.update_to(done[0])
 
-    try:
-        results = job.replay_logs(work, workers, on_done)
-    finally:
-        bar.close()
-    failed = _print_table(work, results, workers)
+    if cluster is None:
+        where = f"{workers} worker process{'es' if workers != 1 else ''}"
+        try:
+            results = job.replay_logs(work, workers, on_done)
+        finally:
+            bar.close()
+    else:
+        where = cluster.describe()
+        try:
+            with dask_jobs.dask_client(cluster) as client:
+                n_workers, threads = dask_jobs.cluster_threads(client)
+                if threads > n_workers:
+                    print(f"warning: the cluster's {n_workers} workers run {threads} threads; "
+                          "replay tasks hold the GIL, start workers with --nthreads 1",
+                          file=sys.stderr)
+                results = dask_jobs.replay_logs_cluster(work, client, on_done)
+        finally:
+            bar.close()
+    failed = _print_table(work, results, where)
     return 1 if failed else 0
 
 

@@ -31,6 +31,7 @@ from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
 from fusion.io.logdir import read_logdir
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
+from fusion.jobs.engine import run_tasks
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.odometry import WheelOdometry
 from fusion.planar.robot import RobotConfig
@@ -181,20 +182,21 @@ def find_log_dirs(path: Path) -> list[Path]:
     return sorted(p for p in path.iterdir() if p.is_dir() and (p / "robot.toml").is_file())
 
 
-def fuse_streams(robot: RobotConfig, streams: Streams, output: Path, *, tilt: bool = True,
-                 progress: Progress | None = None
+def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
+                 tilt: bool = True, progress: Progress | None = None
                  ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats]:
-    """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl).
+    """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl;
+    None: no file, the table only).
 
     Returns ``(table, pipeline, stats)``: ``table`` (N, 19) in the fused CSV's columns
     (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state after every IMU sample (after
     every wheel frame or twist without an IMU).
     """
-    fmt = output_format(output)
+    fmt = None if output is None else output_format(output)
     t0, t1 = streams.span()
     sources = [name for name, on in (("imu", streams.has_imu), ("wheels", streams.has_wheels),
                                      ("twist", streams.has_twist)) if on]
-    sinks = [] if fmt == "csv" else [open_sink(f"{fmt}:{output}")]
+    sinks = [] if fmt in (None, "csv") else [open_sink(f"{fmt}:{output}")]
     pipe = FusionPipeline(
         robot, sinks, tilt=tilt, sources=sources, imu_rate_hz=streams.nominal_imu_rate(),
         state_rows=("imu",) if streams.has_imu else ("wheels", "twist"),
@@ -426,25 +428,13 @@ def replay_logs(jobs: list[LogJob], workers: int,
                 ) -> dict[str, tuple[str, Any]]:
     """Replay many logs in ``workers`` processes (1: in this process); returns each job's
     :func:`run_log_job` result by source path. A worker that dies fails its log only."""
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
     results: dict[str, tuple[str, Any]] = {}
-    if workers == 1:
-        for job in jobs:
-            results[job.source] = run_log_job(job)
-            if on_done is not None:
-                on_done(job, results[job.source])
-        return results
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(run_log_job, job): job for job in jobs}
-        for fut in as_completed(futures):
-            job = futures[fut]
-            try:
-                results[job.source] = fut.result()
-            except Exception as exc:  # a worker died (killed, out of memory)
-                results[job.source] = ("error", f"{job.source}: worker failed: {exc!r}")
-            if on_done is not None:
-                on_done(job, results[job.source])
+    for i, ok, value in run_tasks(run_log_job, jobs, jobs=workers):
+        job = jobs[i]  # (a worker died, killed or out of memory, when not ok)
+        results[job.source] = value if ok else ("error", f"{job.source}: worker failed: "
+                                                         f"{value}")
+        if on_done is not None:
+            on_done(job, results[job.source])
     return results
 
 
