@@ -302,7 +302,7 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         "--rate": [refused("no imu", "--rate sets the IMU sample rate", "--rate", "200")],
         "--calibration": [refused("no imu", "--calibration is an IMU calibration",
                                   "--calibration", "cal.json")],
-        "--speed": [refused("sim", "--speed must be within", "--speed", "50")],
+        "--speed": [refused("sim", "--speed must be >= 0.1 and <= 20.0", "--speed", "50")],
     },
 }
 

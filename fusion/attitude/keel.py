@@ -38,15 +38,18 @@ needs no special care. **Gap policy**: an interval longer than ``max_gap`` s (da
 host stalled) is not integrated as one step: the sample's rate is integrated over the last
 regular period, the bias covariance grows over the whole gap, and the accelerometer low-pass,
 the rest detector and the heading start-up gain restart (the attitude re-acquires inclination
-from the accelerometer at once, counted in ``counters.gaps``). Non-finite gyro rows are skipped
-(attitude held; the next sample integrates over their interval too); zero or non-finite
-accelerometer rows propagate the gyro only; zero or non-finite magnetometer rows leave the
-heading offset alone. Non-positive or non-finite periods and wrong shapes raise ``ValueError``.
+from the accelerometer at once, counted in ``counters.gaps``). The cost is that of one sample
+for any gap. Non-finite gyro rows and rows faster than ``max_gyro`` (corrupt values) are
+skipped (attitude held; the next sample integrates over their interval too); zero, non-finite
+or above-``max_accel`` accelerometer rows propagate the gyro only; zero or non-finite
+magnetometer rows leave the heading offset alone. Non-positive or non-finite periods and wrong
+shapes raise ``ValueError``.
 
 External knowledge (``update(..., still=, known_accel=)``): ``known_accel`` is the body-frame
 kinematic acceleration, m/s^2, that the host knows (a wheeled robot turning at yaw rate w with
 forward speed v has a centripetal v*w towards the turn centre, plus dv/dt along its heading);
-it is subtracted from the accelerometer before the inclination update.
+it is subtracted from the accelerometer before the inclination update (one with a component
+above ``max_accel``, a corrupt input, is ignored).
 
 The offline (forward-backward) mode for recorded data is :func:`fusion.attitude.keel_offline`.
 """
@@ -121,6 +124,15 @@ class KeelParams:
             ``mag_gate_scale`` times the angle turned since the field was last trusted, which
             covers gyro scale errors) marks the field as disturbed, rad.
         mag_gate_scale: see ``mag_heading_gate`` (dimensionless, rad per rad turned).
+        max_gyro: a gyro row faster than this (rad/s) is corrupt and skipped; above every
+            MEMS gyro's full scale (+-4000 deg/s = 70 rad/s).
+        max_accel: an accelerometer row above this (m/s^2, about 100 g) is corrupt: gyro
+            only.
+
+    Raises:
+        ValueError: a value that is not a finite number > 0 (``rest_min_duration``: >= 0;
+            the switches: True or False), or a ``sample_period`` longer than ``max_gap``;
+            the message names the field and the value.
     """
 
     sample_period: float | None = None
@@ -153,6 +165,8 @@ class KeelParams:
     mag_initial_time: float = 2.0
     mag_heading_gate: float = 5.0 * _DEG
     mag_gate_scale: float = 0.03
+    max_gyro: float = 100.0
+    max_accel: float = 1000.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -160,13 +174,19 @@ class KeelParams:
             if f.name == "sample_period":
                 if value is not None:
                     check_dt(value)
+            elif f.type in ("bool", bool):
+                if not isinstance(value, bool):
+                    raise ValueError(f"{f.name} must be True or False, got {value!r}")
             elif isinstance(value, bool):
-                continue
+                raise ValueError(f"{f.name} must be a number, got {value!r}")
             elif f.name == "rest_min_duration":
                 if not (math.isfinite(value) and value >= 0):
                     raise ValueError(f"{f.name} must be finite and >= 0, got {value!r}")
             elif not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{f.name} must be finite and > 0, got {value!r}")
+        if self.sample_period is not None and self.sample_period > self.max_gap:
+            raise ValueError(f"sample_period {self.sample_period!r} s is longer than max_gap "
+                             f"{self.max_gap!r} s: every sample would be a gap")
 
     def packed(self) -> NDArray[np.float64]:
         """The parameters as the flat float64 array the compiled core reads."""
@@ -189,6 +209,7 @@ class KeelParams:
             "mag_ref_tau": self.mag_reference_time_constant,
             "mag_init_time": self.mag_initial_time, "mag_gate": self.mag_heading_gate,
             "mag_gate_scale": self.mag_gate_scale,
+            "max_gyro": self.max_gyro, "max_accel": self.max_accel,
         }
         for name, value in values.items():
             p[core.P_INDEX[name]] = value

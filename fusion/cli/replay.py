@@ -190,7 +190,8 @@ def _print_result(r, level_note: bool = True) -> None:
     print(f"gyro bias {math.degrees(r.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, "
           f"slip frames {s['slips']}, late inputs fused {s['late_applied']}, dropped "
           f"{s['late_dropped']}, invalid {s['invalid']}; wheel gaps {s['gap_count']} "
-          f"({s['frames_missing']} frames missing)")
+          f"({s['frames_missing']} frames missing), IMU gaps {s['attitude_gaps']}, "
+          f"speeds forgotten after a gap {s['speed_resets']}")
     for note in r.notes:
         print(f"warning: {note}")
     _print_warnings(r.warnings)

@@ -147,6 +147,9 @@ def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
                              f"be [roll, pitch, yaw] in rad, got {rpy!r}")
     rpy_t = tuple(_number(at("frames", "imu_mount_rpy"), "frames", "imu_mount_rpy", v)
                   for v in rpy)
+    if not all(math.isfinite(v) for v in rpy_t):
+        raise LogFormatError(f"{at('frames', 'imu_mount_rpy')}: [frames] imu_mount_rpy must "
+                             f"be finite angles in rad, got {rpy!r}")
     for key in ("odom", "base"):
         if key in frames and not isinstance(frames[key], str):
             raise LogFormatError(f"{at('frames', key)}: [frames] {key} must be a string")
@@ -158,21 +161,26 @@ def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
         raise LogFormatError(f"{at('ekf', first)}: [ekf] unknown key(s) {bad}; allowed: "
                              f"{sorted(_EKF_KEYS)}")
     ekf_values = {k: _number(at("ekf", k), "ekf", k, v) for k, v in ekf_tab.items()}
-    if "zupt_frames" in ekf_values:
-        ekf_values["zupt_frames"] = int(ekf_values["zupt_frames"])
+    if "zupt_frames" in ekf_values and ekf_values["zupt_frames"].is_integer():
+        ekf_values["zupt_frames"] = int(ekf_values["zupt_frames"])  # else EkfNoise refuses it
     try:
         ekf = EkfNoise(**ekf_values)
     except ValueError as exc:
         named = next((k for k in ekf_tab if k in str(exc)), None)
         raise LogFormatError(f"{at('ekf', named)}: [ekf] {exc}") from exc
-    return RobotConfig(
-        chassis=params,
-        odom_frame=frames.get("odom", "odom"),
-        base_frame=frames.get("base", "base_footprint"),
-        imu_mount_rpy=rpy_t,  # type: ignore[arg-type]
-        ekf=ekf,
-        attitude=_attitude_config(doc.get("attitude", {}), at),
-    )
+    attitude = _attitude_config(doc.get("attitude", {}), at)
+    try:
+        return RobotConfig(
+            chassis=params,
+            odom_frame=frames.get("odom", "odom"),
+            base_frame=frames.get("base", "base_footprint"),
+            imu_mount_rpy=rpy_t,  # type: ignore[arg-type]
+            ekf=ekf,
+            attitude=attitude,
+        )
+    except ValueError as exc:  # a frame name: the only check left to RobotConfig
+        key = "base" if "base_frame" in str(exc) else "odom"
+        raise LogFormatError(f"{at('frames', key)}: [frames] {key}: {exc}") from exc
 
 
 def _attitude_config(table: Any, at: Any) -> AttitudeConfig:

@@ -127,6 +127,10 @@ class RunConfig:
             (simulated chassis); status: s between status lines, 0 none; strict: exit
             with an error status when the trust checks fail (:mod:`fusion.evaluation.trust`).
         source: the file this came from, or None.
+
+    Raises:
+        ConfigError: a field that the file's checks (:data:`SCHEMA`) refuse (NaN, infinite,
+            out of range, wrong type), naming the field, its table and key, and the value.
     """
 
     robot: RobotConfig = field(default_factory=lambda: RobotConfig(chassis=DEMO_ROBOT))
@@ -156,9 +160,31 @@ class RunConfig:
     strict: bool = False
     source: Path | None = None
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.robot, RobotConfig):
+            raise ConfigError(f"RunConfig.robot must be a RobotConfig, got {self.robot!r}")
+        for name in _FIELD_CHECKS:
+            _check_field(name, self._value(name), f"RunConfig.{name}")
+
+    def _value(self, name: str) -> Any:
+        if name.startswith("topics."):
+            return self.topics.get(name[7:])
+        value = getattr(self, name)
+        return list(value) if name == "publish" else value
+
     def with_overrides(self, **changes: Any) -> RunConfig:
-        """A copy with the given fields changed; None values are ignored (option not given)."""
-        return replace(self, **{k: v for k, v in changes.items() if v is not None})
+        """A copy with the given fields changed; None values are ignored (option not given).
+
+        Raises:
+            ConfigError: a value the file's checks refuse, naming the ``fusion run`` option
+                (or the field) and the value.
+        """
+        given = {k: v for k, v in changes.items() if v is not None}
+        for name, value in given.items():
+            if name in _FIELD_CHECKS:
+                _check_field(name, list(value) if name == "publish" else value,
+                             _OPTION_OF.get(name, f"RunConfig.{name}"))
+        return replace(self, **given)
 
 
 # -- value checks ------------------------------------------------------------------------------
@@ -274,6 +300,22 @@ SCHEMA: dict[str, dict[str, tuple[str, Check]]] = {
         "cmd_vel": ("cmd_vel_topic", _topic),
     },
 }
+#: RunConfig field -> (table, key, check), from SCHEMA.
+_FIELD_CHECKS = {name: (table, key, check) for table, spec in SCHEMA.items()
+                 for key, (name, check) in spec.items()}
+
+
+def _check_field(name: str, value: Any, origin: str) -> None:
+    """``ConfigError`` naming ``origin`` (a field or an option), the table and key, unless the
+    file's check of ``name`` accepts ``value`` (None: an optional field not set)."""
+    if value is None:
+        return
+    table, key, check = _FIELD_CHECKS[name]
+    try:
+        check(value)
+    except ValueError as exc:
+        raise ConfigError(f"{origin} {exc} (in a file: [{table}] {key})") from None
+
 
 #: ``fusion run`` option (argparse dest) -> (table, key) in the file.
 RUN_OPTIONS: dict[str, tuple[str, str]] = {
@@ -290,6 +332,9 @@ RUN_OPTIONS: dict[str, tuple[str, str]] = {
     "status": ("run", "status"),
     "strict": ("run", "strict"),
 }
+#: RunConfig field -> the ``fusion run`` option that sets it.
+_OPTION_OF = {SCHEMA[table][key][0]: "--" + dest.replace("_", "-")
+              for dest, (table, key) in RUN_OPTIONS.items()}
 
 
 def parse_config(doc: dict[str, Any], path: str | Path = "<config>", text: str = "") -> RunConfig:

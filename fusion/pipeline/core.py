@@ -49,6 +49,12 @@ Event-time model, stated once:
   one record each time the filter time crosses a multiple of ``1/publish_rate_hz`` (seed
   000 publishes at 10 Hz).
 
+Gaps and bad values: a wheel-frame interval longer than ``gap_periods`` periods is recorded
+(:class:`WheelGap`, ``stats.gap_count``); the attitude filter's and the EKF's gap policies
+(their module docstrings) bound the cost of any silence and the pose's extrapolation, counted
+in ``stats.attitude_gaps`` and ``stats.speed_resets``; a non-finite or implausible value is
+skipped by the attitude filter (its counters) and refused by the EKF (``stats.invalid``).
+
 Determinism: nothing here reads a clock except to measure latency (``clock``), so replaying
 the same events gives the same records bit for bit (tests/test_pipeline_golden.py).
 
@@ -96,6 +102,10 @@ _EV_TWIST = core.EV_TWIST
 _SOURCES = ("imu", "wheels", "twist")
 #: Kinds whose state rows :attr:`FusionPipeline.state_rows` can keep.
 TRACE_KINDS = {"imu": _EV_GYRO, "wheels": _EV_WHEELS, "twist": _EV_TWIST}
+#: Range of a plausible nominal IMU rate, Hz (its period must stay below the attitude
+#: filter's ``max_gap``, 0.25 s; the MPU6050 samples at 1 kHz at most).
+MIN_IMU_RATE_HZ = 4.0
+MAX_IMU_RATE_HZ = 10_000.0
 #: Events per call of the compiled core in :meth:`FusionPipeline.push_arrays` (bounds the
 #: memory of its outputs and sets how often ``on_progress`` is called).
 BATCH_CHUNK = 1 << 16
@@ -135,7 +145,12 @@ class PipelineStats:
             integrated over the accepted IMU samples; gyro_time: s it spans.
         wheel_turn: rad, the heading change of the wheel frames ((right - left) travel /
             wheel_distance); twist_turn: rad, the twists' yaw rate integrated.
-        (The two turns let :mod:`fusion.jobs.trust` see the sources disagree.)
+        (The two turns let :mod:`fusion.evaluation.trust` see the sources disagree.)
+        attitude_gaps: IMU periods longer than the attitude filter's ``max_gap`` (integrated
+            over one regular period, inclination re-initialised from the accelerometer).
+        speed_resets: the EKF's speeds forgotten after ``max_extrapolation`` s without a
+            measurement (its gap policy: the pose stops extrapolating).
+        invalid: inputs the EKF refused as non-finite or implausible (a corrupt value).
     """
 
     imu_samples: int = 0
@@ -155,6 +170,9 @@ class PipelineStats:
     gyro_time: float = 0.0
     wheel_turn: float = 0.0
     twist_turn: float = 0.0
+    attitude_gaps: int = 0
+    speed_resets: int = 0
+    invalid: int = 0
     gaps: collections.deque = field(default_factory=lambda: collections.deque(maxlen=100))
 
     def as_dict(self) -> dict[str, Any]:
@@ -188,7 +206,7 @@ class FusionPipeline(Lifecycle):
             ``"wheels"``, ``"twist"`` (default ``("imu", "wheels")``; give only the ones
             that will deliver, e.g. ``("wheels",)`` without an IMU or ``("imu", "twist")``
             for a ROS bag's odometry, else only the window releases).
-        imu_rate_hz: nominal IMU rate, Hz (the attitude filter's first step).
+        imu_rate_hz: nominal IMU rate, Hz (the attitude filter's first step), 4 .. 10,000.
         tilt: tilt-compensate the gyro with the filter's attitude (False: the gyro's z axis is
             the yaw rate, a level robot).
         attitude: a configured :class:`fusion.attitude.keel.Keel` or
@@ -242,10 +260,17 @@ class FusionPipeline(Lifecycle):
             math.isfinite(publish_rate_hz) and publish_rate_hz > 0
         ):
             raise ValueError(f"publish_rate_hz must be > 0 Hz or None, got {publish_rate_hz!r}")
-        if not (math.isfinite(imu_rate_hz) and imu_rate_hz > 0):
-            raise ValueError(f"imu_rate_hz must be > 0 Hz, got {imu_rate_hz!r}")
-        if not gap_periods > 1:
-            raise ValueError(f"gap_periods must be > 1, got {gap_periods!r}")
+        if not (math.isfinite(imu_rate_hz) and MIN_IMU_RATE_HZ <= imu_rate_hz <= MAX_IMU_RATE_HZ):
+            raise ValueError(f"imu_rate_hz must be {MIN_IMU_RATE_HZ} .. {MAX_IMU_RATE_HZ} Hz, "
+                             f"got {imu_rate_hz!r}")
+        if not (math.isfinite(gap_periods) and gap_periods > 1):
+            raise ValueError(f"gap_periods must be finite and > 1, got {gap_periods!r}")
+        if isinstance(latency_window, bool) or not (isinstance(latency_window, int)
+                                                    and latency_window >= 1):
+            raise ValueError(f"latency_window must be a whole number >= 1, got "
+                             f"{latency_window!r}")
+        if not isinstance(robot, RobotConfig):
+            raise ValueError(f"robot must be a RobotConfig, got {type(robot).__name__}")
         self.robot = robot
         chassis = robot.chassis
         self.period = chassis.encode_sampling_time
@@ -784,12 +809,16 @@ class FusionPipeline(Lifecycle):
         return self._trace_chunks[0]
 
     def finish_stats(self) -> PipelineStats:
-        """The counters, with the EKF's late/slip/ZUPT counters copied in."""
+        """The counters, with the EKF's (late, slip, ZUPT, speed reset, invalid) and the
+        attitude filter's (gaps) counters copied in."""
         s = self.ekf.stats
         self.stats.late_dropped = s["late_dropped"]
         self.stats.late_applied = s["late_applied"]
         self.stats.slips = s["slips"]
         self.stats.zupts = s["zupts"]
+        self.stats.speed_resets = s["speed_resets"]
+        self.stats.invalid = s["invalid"]
+        self.stats.attitude_gaps = self.attitude.counters.gaps
         return self.stats
 
     def latency_percentiles(self, *qs: float) -> list[float]:

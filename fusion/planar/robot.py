@@ -5,6 +5,7 @@ written by :mod:`fusion.io.robot_toml`).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -69,6 +70,11 @@ class RobotConfig:
         ekf: filter tuning (defaults where ``[ekf]`` is absent).
         attitude: the attitude filter of the pipeline (Keel with the wheels' knowledge where
             ``[attitude]`` is absent).
+
+    Raises:
+        ValueError: a chassis, tuning or attitude setting of the wrong type, an empty or blank
+            frame name, or a mount angle that is not a finite number; the message names the
+            field and the value.
     """
 
     chassis: DiffDriveParams
@@ -77,6 +83,27 @@ class RobotConfig:
     imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ekf: EkfNoise = field(default_factory=EkfNoise)
     attitude: AttitudeConfig = field(default_factory=AttitudeConfig)
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.chassis, DiffDriveParams):
+            raise ValueError(f"RobotConfig.chassis must be a DiffDriveParams, got "
+                             f"{self.chassis!r}")
+        if not isinstance(self.ekf, EkfNoise):
+            raise ValueError(f"RobotConfig.ekf must be an EkfNoise, got {self.ekf!r}")
+        if not isinstance(self.attitude, AttitudeConfig):
+            raise ValueError(f"RobotConfig.attitude must be an AttitudeConfig, got "
+                             f"{self.attitude!r}")
+        for name in ("odom_frame", "base_frame"):
+            value = getattr(self, name)
+            if not (isinstance(value, str) and value.strip() and value == value.strip()):
+                raise ValueError(f"RobotConfig.{name} must be a frame name without spaces "
+                                 f"around it, got {value!r}")
+        rpy = self.imu_mount_rpy
+        if not (isinstance(rpy, (tuple, list)) and len(rpy) == 3 and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+                for v in rpy)):
+            raise ValueError(f"RobotConfig.imu_mount_rpy must be 3 finite angles (roll, pitch, "
+                             f"yaw) in rad, got {rpy!r}")
 
     def imu_to_base(self) -> NDArray[np.float64]:
         """Quaternion ``[w, x, y, z]`` taking IMU-frame vectors into the base frame."""
