@@ -50,7 +50,7 @@ def register(subparsers: Any) -> None:
         "run",
         help="live fused odometry from the IMU and the chassis, published to ROS 1, "
              "ROS 2, Foxglove, MCAP or JSON lines",
-        description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Mahony + EKF -> "
+        description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Keel + EKF -> "
                     "sinks. Every option can come from --config (TOML, see fusion.io.run_config); "
                     "the command line wins. Ctrl-C stops cleanly (files complete).",
     )
@@ -77,6 +77,10 @@ def register(subparsers: Any) -> None:
                    help="with --chassis sim: robot time per wall second (default 1)")
     p.add_argument("--status", type=float, metavar="S",
                    help="seconds between status lines on stderr (0: none; default 10)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit with status 3 when the inputs disagree beyond what the model "
+                        "explains (most frames slip, an implausible gyro bias, odometry and "
+                        "gyro headings diverging); the final status says so either way")
     p.set_defaults(func=run)
 
 
@@ -98,7 +102,8 @@ def _config(args: argparse.Namespace):
     cfg = cfg.with_overrides(imu=args.imu, imu_address=args.address, imu_rate_hz=args.rate,
                              imu_calibration=args.calibration, chassis=args.chassis,
                              baudrate=args.baudrate, publish=publish, duration=args.duration,
-                             speed=args.speed, status=args.status)
+                             speed=args.speed, status=args.status,
+                             strict=True if args.strict else None)
     if rate is not None:
         from dataclasses import replace
 
@@ -204,6 +209,7 @@ def run(args: argparse.Namespace) -> int:
                                    if on])
     robot = link = imu = runner = None
     complete = False
+    warnings: list = []
     previous = signal.getsignal(signal.SIGTERM)
     if threading.current_thread() is threading.main_thread():
         def on_term(signum, frame):
@@ -279,7 +285,7 @@ def run(args: argparse.Namespace) -> int:
         if imu is not None:
             imu.close()
         if complete:
-            pipe.close()  # files complete
+            warnings = _close_with_status(pipe)  # files complete, the status record last
         else:
             pipe.abort()
         if threading.current_thread() is threading.main_thread():
@@ -289,7 +295,28 @@ def run(args: argparse.Namespace) -> int:
 
         gc.unfreeze()
     err(_status(pipe, runner) + f"; done after {time.monotonic() - wall0:.1f} s")
-    return 0
+    for w in warnings:
+        err(f"warning: inputs disagree ({w.name}): {w.message}")
+    from fusion.jobs.status import STRICT_EXIT_STATUS
+
+    return STRICT_EXIT_STATUS if cfg.strict and warnings else 0
+
+
+def _close_with_status(pipe) -> list:
+    """Fuse what the pipeline holds, write the status record (counters and trust warnings,
+    :mod:`fusion.jobs.status`) to the JSON lines sinks after the last record, close; the
+    warnings."""
+    from fusion.jobs.status import pipeline_warnings, status_record, write_status
+
+    try:
+        pipe.flush()
+        warnings = pipeline_warnings(pipe)
+        write_status(pipe, status_record(pipe, warnings))
+    except BaseException:
+        pipe.abort()
+        raise
+    pipe.close()
+    return warnings
 
 
 def _refuse_options_without_effect(args: argparse.Namespace, cfg) -> None:
@@ -327,10 +354,16 @@ def _status(pipe, runner) -> str:
     s = pipe.finish_stats()
     p50, p99 = pipe.latency_percentiles(50, 99)
     parts = [f"{s.wheel_frames} frames, {s.imu_samples} IMU samples, {s.records} records",
-             f"{s.gap_count} wheel gaps ({s.frames_missing} frames missing)",
+             f"{s.gap_count} wheel gaps ({s.frames_missing} frames missing), "
+             f"{s.attitude_gaps} IMU gaps, {s.speed_resets} speeds forgotten after a gap",
              f"{s.slips} slips, {s.zupts} ZUPTs"]
     if runner is not None and (runner.imu_errors or runner.imu_lost):
         parts.append(f"{runner.imu_errors} failed IMU reads, {runner.imu_lost} samples lost")
     if p50 == p50:
         parts.append(f"latency p50 {p50 * 1e3:.1f} ms p99 {p99 * 1e3:.1f} ms")
+    from fusion.jobs.status import pipeline_warnings
+
+    disagree = [w.name for w in pipeline_warnings(pipe)]
+    if disagree:
+        parts.append(f"inputs disagree: {', '.join(disagree)}")
     return "; ".join(parts)

@@ -19,7 +19,7 @@ from fusion.geometry.angles import wrap_angle_scalar
 from fusion.io.atomic import AtomicFile
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, format_fused_row
 from fusion.io.incremental import DEFAULT_SYNC_INTERVAL, IncrementalFile
-from fusion.sinks.base import Sink
+from fusion.sinks.base import Sink, SinkError
 from fusion.types.fused import FusedOdometry
 
 __all__ = ["CsvSink", "JsonLinesSink"]
@@ -93,6 +93,19 @@ class JsonLinesSink(_FileOutput):
     def _write(self, record: FusedOdometry) -> None:
         assert self._stream is not None
         self._stream.write(json.dumps(record.to_dict(), allow_nan=False,
+                                      separators=(",", ":")) + "\n")
+        if self._flush:
+            self._stream.flush()
+        self._synced()
+
+    def write_status(self, status: dict) -> None:
+        """One status line ``{"status": status}`` (JSON-ready values; a record has no
+        ``status`` key, so a reader tells the two apart by it): what ``fusion run`` and
+        ``fusion replay`` write after the last record (counters and trust warnings,
+        :mod:`fusion.jobs.status`)."""
+        if self._state != "open" or self._stream is None:
+            raise SinkError(f"{self!r} is not open (state {self._state})")
+        self._stream.write(json.dumps({"status": status}, allow_nan=False,
                                       separators=(",", ":")) + "\n")
         if self._flush:
             self._stream.flush()
