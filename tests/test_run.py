@@ -27,10 +27,15 @@ def _mcap_counts(path) -> dict[str, int]:
     return counts
 
 
-def _records(path) -> list[dict]:
+def _lines(path) -> list[dict]:
     text = path.read_text()
     assert text.endswith("\n")
     return [json.loads(line) for line in text.splitlines()]
+
+
+def _records(path) -> list[dict]:
+    """The record lines (``--status`` puts status lines between them)."""
+    return [r for r in _lines(path) if "status" not in r]
 
 
 def test_ctrl_c_stops_cleanly_with_complete_files(tmp_path):
@@ -59,6 +64,14 @@ def test_ctrl_c_stops_cleanly_with_complete_files(tmp_path):
     assert "stopping" in err and "done after" in err
     recs = _records(jsonl)  # every line complete
     assert len(recs) > 150
+    # status records every 0.5 s, the last after the final flush: every event accounted for
+    status = [r["status"] for r in _lines(jsonl) if "status" in r]
+    assert len(status) >= 2 and status[-1]["final"] and not any(s["final"] for s in status[:-1])
+    led = status[-1]["ledger"]
+    assert led["unaccounted"] == 0 and led["held"] == led["queued"] == 0
+    assert led["in"] == led["fused"] + sum(led["dropped"].values()) > 5 * len(recs) * 0.9
+    assert all(s["ledger"]["unaccounted"] == 0 for s in status)
+    assert "unaccounted 0" in err.splitlines()[-1]  # the summary line on stderr
     counts = _mcap_counts(mcap)  # a readable MCAP with every record
     assert counts["/odom"] == counts["/tf"] == len(recs)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.jsonl", "run.mcap"]

@@ -31,7 +31,6 @@ complete. Status lines go to standard error.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import signal
 import sys
@@ -155,6 +154,10 @@ def _sinks_for(cfg, cmd_vel) -> list:
     return sinks
 
 
+#: s a live stamp may be ahead of the host clock before it counts as invalid (a clock jump).
+MAX_STAMP_LEAD = 1.0
+
+
 class _Stop(Exception):
     """SIGTERM, turned into a clean stop like Ctrl-C."""
 
@@ -165,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.sim.robot import LoopingMission, ScaledClock, SimRobot, SimRobotParams, send_twist
     from fusion.cli.demo import freeze_heap, warm_up
     from fusion.pipeline.core import FusionPipeline
-    from fusion.pipeline.live import LiveRunner
+    from fusion.pipeline.live import LiveRunner, SourceFailedError
 
     cfg = _config(args)
     _refuse_options_without_effect(args, cfg)
@@ -198,12 +201,15 @@ def run(args: argparse.Namespace) -> int:
     window = 0.5 * chassis.encode_sampling_time + cfg.fifo_interval + 0.02
     pipe = FusionPipeline(cfg.robot, sinks, publish_rate_hz=cfg.publish_rate_hz,
                           reorder_window=cfg.reorder_window or window, imu_rate_hz=cfg.imu_rate_hz,
-                          tilt=cfg.tilt, clock=clock,
+                          tilt=cfg.tilt, clock=clock, max_stamp_lead=MAX_STAMP_LEAD,
+                          on_sink_error=lambda sink, text: err(
+                              f"sink {sink!r} failed; the others go on:\n{text}"),
                           sources=[name for name, on in (("imu", cfg.imu != "none"),
                                                          ("wheels", cfg.chassis != "none"))
                                    if on])
     robot = link = imu = runner = None
     complete = False
+    failure: BaseException | None = None
     previous = signal.getsignal(signal.SIGTERM)
     if threading.current_thread() is threading.main_thread():
         def on_term(signum, frame):
@@ -247,7 +253,8 @@ def run(args: argparse.Namespace) -> int:
             imu = _open_imu(cfg, robot, clock)
         if robot is not None:
             robot.start()
-        runner = LiveRunner(pipe, link=link, imu=imu, fifo_interval=cfg.fifo_interval).start()
+        runner = LiveRunner(pipe, link=link, imu=imu, fifo_interval=cfg.fifo_interval,
+                            on_fault=lambda name, text: err(text)).start()
         t0 = clock()
         drive = sim and not any(s.strip().lower() in ("ros1", "ros2") for s in cfg.publish)
         state = {"status": time.monotonic()}
@@ -258,7 +265,7 @@ def run(args: argparse.Namespace) -> int:
                 mission()
             if status and time.monotonic() - state["status"] >= status:
                 state["status"] = time.monotonic()
-                err(_status(pipe, runner))
+                _report_status(pipe, runner, err)
             return duration is not None and time.monotonic() - wall0 >= duration
 
         err(f"running: imu {cfg.imu}, chassis {port if cfg.chassis != 'none' else 'none'}, "
@@ -267,29 +274,52 @@ def run(args: argparse.Namespace) -> int:
             runner.run(until=tick, poll=0.02)
         except (KeyboardInterrupt, _Stop):
             err("stopping")
+        except SourceFailedError as exc:  # the files still get what was fused
+            err(f"stopping: {exc}")
+            failure = exc
         complete = True
     finally:
-        with contextlib.suppress(Exception):
+        try:
             if runner is not None:
-                runner.stop()
-        if link is not None:
-            link.close()
-        if robot is not None:
-            robot.close()
-        if imu is not None:
-            imu.close()
-        if complete:
-            pipe.close()  # files complete
-        else:
-            pipe.abort()
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, previous)
-        sys.setswitchinterval(switch)
-        import gc
+                runner.stop()  # pushes what the sources had queued: never suppressed
+        except BaseException:
+            complete = False
+            raise
+        finally:
+            try:
+                for device in (link, robot, imu):
+                    if device is not None:
+                        device.close()
+            finally:
+                try:
+                    _finish(pipe, complete, lambda: status and _report_status(
+                        pipe, runner, err, final=True))
+                finally:
+                    if threading.current_thread() is threading.main_thread():
+                        signal.signal(signal.SIGTERM, previous)
+                    sys.setswitchinterval(switch)
+                    import gc
 
-        gc.unfreeze()
+                    gc.unfreeze()
     err(_status(pipe, runner) + f"; done after {time.monotonic() - wall0:.1f} s")
+    if failure is not None:
+        raise failure
     return 0
+
+
+def _finish(pipe, complete: bool, last_words) -> None:
+    """Close the pipeline: after a clean stop fuse what it holds, call ``last_words()`` (the
+    final status record) and close (files complete); otherwise abort (no partial files)."""
+    if not complete:
+        pipe.abort()
+        return
+    try:
+        pipe.flush()
+        last_words()
+    except BaseException:
+        pipe.abort()
+        raise
+    pipe.close()
 
 
 def _refuse_options_without_effect(args: argparse.Namespace, cfg) -> None:
@@ -323,14 +353,42 @@ def _open_imu(cfg, robot, clock):
     return MPU6050(int(cfg.imu.split(":")[1]), cfg.imu_address, **kw)
 
 
+def _report_status(pipe, runner, err, final: bool = False) -> None:
+    """A status line on stderr and a status record in the JSON lines sinks."""
+    if not final:
+        err(_status(pipe, runner))
+    if runner is None:
+        return
+    record = runner.status()
+    record["final"] = final
+    for sink in pipe.sinks:
+        if hasattr(sink, "write_status"):
+            sink.write_status(record)
+
+
+def _ledger_text(led: dict) -> str:
+    """``events in N: fused F, held H, queued Q, dropped r1 n1, ...; unaccounted U``."""
+    dropped = ", ".join(f"{k} {v}" for k, v in led["dropped"].items() if v) or "none"
+    return (f"events in {led['in']}: fused {led['fused']}, held {led['held']}, queued "
+            f"{led['queued']}, dropped: {dropped}; unaccounted {led['unaccounted']}")
+
+
 def _status(pipe, runner) -> str:
     s = pipe.finish_stats()
     p50, p99 = pipe.latency_percentiles(50, 99)
     parts = [f"{s.wheel_frames} frames, {s.imu_samples} IMU samples, {s.records} records",
              f"{s.gap_count} wheel gaps ({s.frames_missing} frames missing)",
              f"{s.slips} slips, {s.zupts} ZUPTs"]
+    if runner is not None:
+        parts.append(_ledger_text(runner.ledger()))
+        faults = {n: h for n, h in runner.health.items() if h.faults}
+        parts.extend(f"source {n}: {h.faults} faults, {h.restarts} restarts"
+                     for n, h in faults.items())
     if runner is not None and (runner.imu_errors or runner.imu_lost):
         parts.append(f"{runner.imu_errors} failed IMU reads, {runner.imu_lost} samples lost")
+    for sink, exc, missed in pipe.sink_failures:
+        parts.append(f"sink {sink!r} failed ({type(exc).__name__}: {exc}); {missed} records "
+                     "not written to it")
     if p50 == p50:
         parts.append(f"latency p50 {p50 * 1e3:.1f} ms p99 {p99 * 1e3:.1f} ms")
     return "; ".join(parts)

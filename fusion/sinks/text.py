@@ -98,6 +98,30 @@ class JsonLinesSink(_FileOutput):
             self._stream.flush()
         self._synced()
 
+    def write_status(self, status: dict) -> None:
+        """A status line ``{"status": {...}}`` between the records (``fusion run --status``:
+        the ledger of events, sources' health, latency); a record line has ``"t"`` instead.
+        NaN and infinite numbers are written as null."""
+        if self._state != "open":
+            return
+        assert self._stream is not None
+        self._stream.write(json.dumps({"status": _json_safe(status)}, allow_nan=False,
+                                      separators=(",", ":")) + "\n")
+        if self._flush:
+            self._stream.flush()
+        self._synced()
+
+
+def _json_safe(value):
+    """``value`` with NaN and infinite floats replaced by None (JSON has neither)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
+
 
 class CsvSink(_FileOutput):
     """Fused records as rows of the fused CSV (:mod:`fusion.io.fused_csv`), one per record.
