@@ -32,7 +32,8 @@ from typing import Any, Protocol
 
 from fusion.pipeline.core import FusionPipeline
 
-__all__ = ["OVERFLOW_POLICIES", "LiveRunner", "Source", "SourceFailedError", "SourceHealth"]
+__all__ = ["OVERFLOW_POLICIES", "ImuFifoSource", "LinkSource", "LiveRunner", "Source",
+           "SourceFailedError", "SourceHealth"]
 
 #: What a full queue drops: the oldest waiting event, or the one being put.
 OVERFLOW_POLICIES = ("drop_oldest", "drop_newest")
@@ -43,7 +44,9 @@ class Source(Protocol):
     """An event source run in its own thread by :class:`LiveRunner`.
 
     ``read()`` returns the events available now (blocking at most a fraction of a second),
-    oldest first; ``restart()`` is called after ``read()`` raised, before reading again.
+    oldest first; ``restart()`` is called after ``read()`` raised, before reading again. An
+    optional ``start()`` is called by :meth:`LiveRunner.start` before the threads start; a
+    source that wraps another has it as ``inner`` (so its counters are found).
     """
 
     name: str
@@ -81,15 +84,24 @@ class SourceHealth:
     last_error: str | None = None
 
 
-class _ImuSource:
-    """The MPU6050's FIFO, read every ``interval`` s of its clock. A read the driver's
-    retries could not save (:class:`drivers.mpu6050.MPU6050Error`) is counted on the runner
-    and the loop goes on (the FIFO is reset by the driver; the samples lost are counted)."""
+class ImuFifoSource:
+    """An MPU6050's FIFO (:class:`drivers.mpu6050.MPU6050`), read every ``interval`` s of its
+    clock. A read the driver's retries could not save (:class:`drivers.mpu6050.MPU6050Error`)
+    is counted in :attr:`errors` (``last_error`` its message) and the loop goes on; the
+    samples the driver reports lost (FIFO overflow, failed reads) are counted in :attr:`lost`
+    (missing upstream: they never reach the queue)."""
 
     name = "imu"
 
-    def __init__(self, imu: Any, interval: float, runner: LiveRunner) -> None:
-        self.imu, self.interval, self.runner = imu, interval, runner
+    def __init__(self, imu: Any, interval: float = 0.02) -> None:
+        self.imu, self.interval = imu, float(interval)
+        self.errors = 0
+        self.lost = 0
+        self.overflows = 0
+        self.last_error: str | None = None
+
+    def start(self) -> None:
+        self.imu.enable_fifo()
 
     def read(self) -> list[Any]:
         from drivers.mpu6050 import MPU6050Error
@@ -98,19 +110,20 @@ class _ImuSource:
         try:
             r = self.imu.read_fifo()
         except MPU6050Error as exc:  # retried by the driver already: reported and counted
-            self.runner.imu_errors += 1
-            self.runner.last_imu_error = str(exc)
+            self.errors += 1
+            self.last_error = str(exc)
             return []
-        self.runner.imu_lost += r.lost
-        self.runner.imu_overflows += int(r.overflow)
+        self.lost += r.lost
+        self.overflows += int(r.overflow)
         return r.samples
 
     def restart(self) -> None:
         self.imu.enable_fifo()  # resets the FIFO and its clock
 
 
-class _LinkSource:
-    """The chassis link's frames (the link reconnects a vanished port by itself)."""
+class LinkSource:
+    """A chassis link's frames (:class:`drivers.serial_link.ChassisLink`, which reconnects
+    a vanished port by itself)."""
 
     name = "wheels"
 
@@ -149,7 +162,7 @@ class LiveRunner:
 
     Attributes:
         imu_errors: FIFO reads that failed after the driver's retries (the loop goes on);
-            ``last_imu_error`` the newest message.
+            ``last_imu_error`` the newest message (of every :class:`ImuFifoSource`).
         imu_lost: IMU samples the driver reported lost (overflow, failed reads): known missing
             upstream, never queued.
         queue_overflow: events the full queue dropped (``dropped`` is the same count).
@@ -184,9 +197,9 @@ class LiveRunner:
         self._on_fault = on_fault
         srcs: list[Any] = []
         if imu is not None:
-            srcs.append(_ImuSource(imu, self.fifo_interval, self))
+            srcs.append(ImuFifoSource(imu, self.fifo_interval))
         if link is not None:
-            srcs.append(_LinkSource(link))
+            srcs.append(LinkSource(link))
         srcs.extend(sources)
         names = [s.name for s in srcs]
         if len(set(names)) != len(names):
@@ -198,14 +211,35 @@ class LiveRunner:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._failure: SourceFailedError | None = None
-        self.imu_errors = 0
-        self.imu_lost = 0
-        self.imu_overflows = 0
-        self.last_imu_error: str | None = None
         self.queue_overflow = 0
         self.events_pushed = 0
 
     # -- counters -----------------------------------------------------------------------------
+    def _imu_sources(self) -> list[ImuFifoSource]:
+        found = []
+        for src in self._sources:
+            while not isinstance(src, ImuFifoSource) and hasattr(src, "inner"):
+                src = src.inner
+            if isinstance(src, ImuFifoSource):
+                found.append(src)
+        return found
+
+    @property
+    def imu_errors(self) -> int:
+        return sum(s.errors for s in self._imu_sources())
+
+    @property
+    def imu_lost(self) -> int:
+        return sum(s.lost for s in self._imu_sources())
+
+    @property
+    def imu_overflows(self) -> int:
+        return sum(s.overflows for s in self._imu_sources())
+
+    @property
+    def last_imu_error(self) -> str | None:
+        return next((s.last_error for s in self._imu_sources() if s.last_error), None)
+
     @property
     def dropped(self) -> int:
         """Events the full queue dropped (:attr:`queue_overflow`)."""
@@ -295,9 +329,11 @@ class LiveRunner:
             _log.error("%s", text)
 
     def start(self) -> LiveRunner:
-        """Enable the IMU FIFO and start the source threads."""
-        if self.imu is not None:
-            self.imu.enable_fifo()
+        """Start the sources (the IMU's FIFO is enabled) and their threads."""
+        for src in self._sources:
+            start = getattr(src, "start", None)
+            if start is not None:
+                start()
         for src in self._sources:
             self._threads.append(threading.Thread(target=self._source_loop, args=(src,),
                                                   name=f"source-{src.name}", daemon=True))
