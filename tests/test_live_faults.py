@@ -22,10 +22,9 @@ import threading
 
 import numpy as np
 import pytest
+from sim_hardware import NackBursts, sim_hardware  # tests/sim_hardware.py
 
-from drivers.mpu6050 import MPU6050
-from drivers.serial_link import ChassisLink
-from drivers.sim.robot import ScaledClock, SimRobot, SimRobotParams, send_twist
+from drivers.sim.robot import ScaledClock, SimRobotParams, send_twist
 from fusion.cli.demo import nominal_config, warm_up
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS
 from fusion.pipeline.core import FusionPipeline
@@ -177,14 +176,9 @@ class Rig:
         self.records = []
         self.robot = self.link = self.imu = None
         if make_sources is None:
-            self.robot = SimRobot(self.clock, PARAMS, data_link=link_path, keep_truth=False)
-            ch = CFG.robot.chassis
-            self.link = ChassisLink(self.robot.port, period=ch.encode_sampling_time,
-                                    clock=self.clock, command_timeout=0.5,
-                                    reconnect_interval=0.02)
-            self.link.start(wait=5.0)
-            self.imu = MPU6050(self.robot.bus, clock=self.clock, sample_rate_hz=100.0,
-                               gyro_range_dps=500, accel_range_g=4)
+            self.robot, self.link, self.imu = sim_hardware(self.clock, PARAMS, CFG,
+                                                           link_path=link_path,
+                                                           keep_truth=False)
             self.imu_source = ImuFifoSource(self.imu, 0.02)
             sources = [self.imu_source, LinkSource(self.link)]
         else:
@@ -453,23 +447,13 @@ def test_the_serial_port_pulled_and_restored(tmp_path):
 
 def test_i2c_error_bursts(tmp_path):
     rig = Rig(tmp_path, speed=4.0)
-    bursts = {"short": 0, "long": 0}
-
-    def hook(t: float) -> None:
-        # every 0.5 s 2 NACKs (the driver retries 3 times); at 3 s 12 in a row (EIO)
-        if t > 1.0 and int(t * 2) > bursts["short"] + 2:
-            rig.robot.bus.inject_nack(2)
-            bursts["short"] += 1
-        if t > 3.0 and not bursts["long"]:
-            rig.robot.bus.inject_nack(12, errno=errno.EIO)
-            bursts["long"] = t
-
-    rig.drive_until(6.0, hook)
+    bursts = NackBursts(rig.robot.bus, long_at=3.0)
+    rig.drive_until(6.0, bursts)
     led = rig.close()
-    assert bursts["short"] >= 6 and rig.imu.stats.retries >= 2 * bursts["short"]
+    assert bursts.short >= 6 and rig.imu.stats.retries >= 2 * bursts.short
     assert rig.imu_source.errors >= 1  # the long burst: reported, the loop goes on
     assert "INT_STATUS" in rig.imu_source.last_error or "FIFO" in rig.imu_source.last_error
-    rec = rig.recovery(bursts["long"] + 0.1, 1)
+    rec = rig.recovery(bursts.long_t + 0.1, 1)
     assert rec < 1.0
     rig.check(led, "I2C error bursts (2 NACKs every 0.5 s, 12 at once)", rec)
     print(f"(failed FIFO reads {rig.imu_source.errors}, samples lost upstream "
