@@ -215,14 +215,18 @@ class LiveRunner:
         self.events_pushed = 0
 
     # -- counters -----------------------------------------------------------------------------
-    def _imu_sources(self) -> list[ImuFifoSource]:
+    def _unwrapped(self, kind: type) -> list[Any]:
+        """The sources of type ``kind``, found through wrappers' ``inner``."""
         found = []
         for src in self._sources:
-            while not isinstance(src, ImuFifoSource) and hasattr(src, "inner"):
+            while not isinstance(src, kind) and hasattr(src, "inner"):
                 src = src.inner
-            if isinstance(src, ImuFifoSource):
+            if isinstance(src, kind):
                 found.append(src)
         return found
+
+    def _imu_sources(self) -> list[ImuFifoSource]:
+        return self._unwrapped(ImuFifoSource)
 
     @property
     def imu_errors(self) -> int:
@@ -397,7 +401,9 @@ class LiveRunner:
                 break
 
     def status(self) -> dict[str, Any]:
-        """A status record: the ledger, per-source health, latency percentiles (s)."""
+        """A status record: the ledger, per-source health, what is known missing upstream
+        (IMU samples the driver lost, wheel frames missing in gaps, frames the link's own
+        queue dropped), latency percentiles (s, robot time)."""
         p50, p99 = self.pipeline.latency_percentiles(50, 99)
         return {"ledger": self.ledger(),
                 "sources": {n: dict(h.__dict__, last_error=None if h.last_error is None
@@ -405,4 +411,6 @@ class LiveRunner:
                             for n, h in self.health.items()},
                 "imu_errors": self.imu_errors, "imu_lost_upstream": self.imu_lost,
                 "wheel_frames_missing_upstream": self.pipeline.stats.frames_missing,
+                "link_queue_dropped_upstream": sum(
+                    getattr(s.link, "frames_dropped", 0) for s in self._unwrapped(LinkSource)),
                 "latency_p50": p50, "latency_p99": p99, "wall_time": time.time()}
