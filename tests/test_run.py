@@ -271,3 +271,34 @@ def test_ros1_cmd_vel_drives_the_simulated_chassis_and_odom_comes_back(tmp_path)
     # 0.3 m/s for 3 s, minus the ramp: the simulated robot drove forward, not sideways
     assert 0.5 < x - res["x_before"] < 1.2 and abs(y) < 0.1
     assert "stopping" in node_err
+
+
+def test_a_source_that_keeps_failing_stops_the_run_with_its_traceback(tmp_path, capsys,
+                                                                     monkeypatch):
+    from fusion.pipeline.live import ImuFifoSource
+
+    calls = {"n": 0}
+    real_read = ImuFifoSource.read
+
+    def read(self):
+        calls["n"] += 1
+        if calls["n"] > 50:  # the I2C adapter's driver crashes after a while
+            raise ZeroDivisionError("injected: a bug in the IMU's read path")
+        return real_read(self)
+
+    monkeypatch.setattr(ImuFifoSource, "read", read)
+    out = tmp_path / "run.jsonl"
+    assert main(["run", "--imu", "sim", "--chassis", "sim", "--publish", f"jsonl:{out}",
+                 "--speed", "4", "--status", "0.5", "--duration", "60"]) == 2
+    err = capsys.readouterr().err
+    # each failure reported with its traceback, then one line naming the source
+    assert err.count("Traceback (most recent call last)") == 6
+    assert "ZeroDivisionError: injected" in err
+    assert err.strip().splitlines()[-1].startswith(
+        "fusion run: error: source 'imu' failed 6 times in a row, last: ZeroDivisionError")
+    # the run stopped (no 60 s), and the file is complete with every record fused before
+    lines = _lines(out)
+    final = lines[-1]["status"]
+    assert final["final"] and final["ledger"]["unaccounted"] == 0
+    assert final["sources"]["imu"]["failed"] and final["sources"]["imu"]["restarts"] == 5
+    assert len(_records(out)) > 10
