@@ -75,7 +75,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--speed", type=float,
                    help="with --chassis sim: robot time per wall second (default 1)")
     p.add_argument("--status", type=float, metavar="S",
-                   help="seconds between status lines on stderr (0: none; default 10)")
+                   help="seconds between status lines on stderr and {\"status\": ...} "
+                        "records in JSON lines outputs: events in, fused, dropped by reason, "
+                        "unaccounted, source faults (0: none; default 10)")
     p.set_defaults(func=run)
 
 
