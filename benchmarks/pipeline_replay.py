@@ -1,12 +1,12 @@
 """Replay throughput and live latency of fusion.pipeline.core.FusionPipeline.
 
 1. Replay: one hour of a synthetic mission with a 200 Hz IMU and 25 Hz wheel frames
-   (720 000 + 90 000 events) through the whole pipeline (IMU mount rotation, Mahony,
-   tilt-compensated yaw rate, reorder policy, EKF, a FusedOdometry record per wheel frame),
-   by the batch entry point ``push_arrays`` (bit-identical to streaming, see
+   (720 000 + 90 000 events) through the whole pipeline (IMU mount rotation, the wheels'
+   knowledge, Keel, tilt-compensated yaw rate, reorder policy, EKF, a FusedOdometry record
+   per wheel frame), by the batch entry point ``push_arrays`` (bit-identical to streaming, see
    tests/test_pipeline.py), without a sink and into a JSON lines file; the streaming path
    ``push()`` on a 5-minute slice; and, as the reference, the bare EKF batch
-   (``fusion.planar.ekf.fuse`` after ``Mahony.update_batch``, no records) on the same hour.
+   (``fusion.planar.ekf.fuse`` after ``Keel.update_batch``, no records) on the same hour.
    Target: the hour in under 10 s.
 2. Live latency: the demo's simulated robot (STM32 on a pty through the real ChassisLink,
    MPU6050 through the real driver) at 1x real time for ``--live`` seconds; latency from a
@@ -80,13 +80,12 @@ def streaming(run, seconds: float) -> tuple[float, int]:
 
 
 def bare_ekf(run) -> float:
-    from fusion.attitude.mahony import Mahony
+    from fusion.attitude.keel import Keel
     from fusion.geometry.mount import vertical_rate
     from fusion.planar.ekf import fuse
 
     t0 = time.perf_counter()
-    q = Mahony(axes=6, sample_period=0.005).update_batch(run.gyro, run.accel,
-                                                          timestamps=run.imu_t)
+    q = Keel(sample_period=0.005).update_batch(run.gyro, run.accel, timestamps=run.imu_t)
     fuse(run.robot, run.imu_t, vertical_rate(run.gyro, q), run.wheel_t, run.ticks)
     return time.perf_counter() - t0
 
@@ -143,7 +142,7 @@ def main() -> None:
           f"frames (25 Hz), {run.duration / 3600:.2f} h; made in {time.perf_counter() - t:.1f} s")
     replay(synthetic_hour(0.01))  # compile / load the numba cores first
     ref = bare_ekf(run)
-    print(f"reference, bare Mahony + EKF batch (no records): {ref:6.2f} s  "
+    print(f"reference, bare Keel + EKF batch (no records):   {ref:6.2f} s  "
           f"{n / ref:10.0f} samples/s")
     dt, recs = replay(run)
     print(f"pipeline replay, a record per wheel frame:      {dt:6.2f} s  {n / dt:10.0f} "

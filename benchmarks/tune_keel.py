@@ -26,10 +26,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from _cv import leave_one_out  # benchmarks/_cv.py (scripts run from benchmarks/)
 
 from fusion.attitude.keel import Keel, KeelParams
 from fusion.attitude.keel_offline import keel_offline
+from fusion.evaluation.crossval import leave_one_out
 from fusion.evaluation.orientation import orientation_rmse
 from fusion.io.broad import read_broad
 

@@ -17,9 +17,9 @@ import itertools
 from pathlib import Path
 
 import numpy as np
-from _cv import leave_one_out  # benchmarks/_cv.py (scripts run from benchmarks/)
 
 from fusion.attitude.mahony import DEFAULT_KI, DEFAULT_KP, Mahony
+from fusion.evaluation.crossval import leave_one_out
 from fusion.evaluation.orientation import orientation_rmse
 from fusion.io.broad import read_broad
 

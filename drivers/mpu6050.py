@@ -344,12 +344,15 @@ class MPU6050:
             raise ValueError(f"dlpf must be DLPF_CFG 0..6 (7 is reserved); got {dlpf}")
         if not 0x00 <= address <= 0x7F:
             raise ValueError(f"address {address:#x} is not a 7-bit I2C address")
-        if retries < 0 or backoff_s < 0:
-            raise ValueError("retries and backoff_s must be >= 0")
+        for name, value, least in (("retries", retries, 0), ("stuck_samples", stuck_samples, 0)):
+            if isinstance(value, bool) or not (isinstance(value, int) and value >= least):
+                raise ValueError(f"{name} must be a whole number >= {least}; got {value!r}")
+        if not (isinstance(backoff_s, (int, float)) and 0 <= backoff_s < math.inf):
+            raise ValueError(f"backoff_s must be finite and >= 0 s; got {backoff_s!r}")
         if on_stuck not in ("raise", "flag"):
             raise ValueError(f"on_stuck must be 'raise' or 'flag'; got {on_stuck!r}")
-        if not gravity > 0:
-            raise ValueError(f"gravity must be > 0 m/s^2; got {gravity}")
+        if not (isinstance(gravity, (int, float)) and 0 < gravity < math.inf):
+            raise ValueError(f"gravity must be finite and > 0 m/s^2; got {gravity!r}")
         self.address = int(address)
         self.gyro_range_dps = int(gyro_range_dps)
         self.accel_range_g = int(accel_range_g)

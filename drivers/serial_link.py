@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import math
 import queue
 import threading
 import time
@@ -102,10 +103,15 @@ class ChassisLink:
         queue_size: int = 100_000,
         on_read: Callable[[float, bytes], None] | None = None,
     ) -> None:
-        if period <= 0 or silence_periods <= 0 or reconnect_interval <= 0:
-            raise ValueError("period, silence_periods and reconnect_interval must be > 0")
-        if command_timeout is not None and command_timeout <= 0:
-            raise ValueError(f"command_timeout must be > 0 s or None, got {command_timeout!r}")
+        positive = {"period": period, "silence_periods": silence_periods,
+                    "reconnect_interval": reconnect_interval}
+        if command_timeout is not None:
+            positive["command_timeout"] = command_timeout
+        for name, value in positive.items():
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{url}: {name} must be finite and > 0, got {value!r}")
+        if isinstance(baudrate, bool) or not (isinstance(baudrate, int) and baudrate > 0):
+            raise ValueError(f"{url}: baudrate must be a whole number > 0, got {baudrate!r}")
         self.url = url
         self.baudrate = int(baudrate)
         self.period = float(period)

@@ -43,3 +43,15 @@ def ros2_env(monkeypatch) -> dict[str, str]:
     monkeypatch.setenv("ROS_DOMAIN_ID", str(random.SystemRandom().randint(1, 101)))
     monkeypatch.setenv("CYCLONEDDS_URI", LOOPBACK_DDS)
     return {**os.environ, "PYTHONUNBUFFERED": "1"}
+
+
+@pytest.fixture(autouse=True)
+def _heap_unfrozen_after_each_test():
+    """A test that freezes the heap as ``fusion run`` does (``fusion.cli.demo.freeze_heap``:
+    ``gc.freeze``) gets it unfrozen after it, so the objects it and the tests after it
+    allocate are collected as usual (tests/test_gc_freeze.py)."""
+    import gc
+
+    yield
+    if gc.get_freeze_count():
+        gc.unfreeze()

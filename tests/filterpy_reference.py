@@ -3,9 +3,9 @@
 filterpy does the Kalman algebra (``predict``: ``P = F P F^T + Q``; ``update``: ``inv(S)``,
 Joseph form, ``residual``); :mod:`fusion.planar.model` gives f, F, Q and each sensor's h, H
 and R; the filter's logic (time bookkeeping, late inputs, ZUPTs, slip gating, motion onset,
-saturated gyro) is written here again from :mod:`fusion.planar.ekf`'s description, with
-numpy, independently of :mod:`fusion.planar._ekf_core`. Used by tests/test_ekf.py and
-benchmarks/ekf_speed.py.
+saturated gyro, implausible inputs, the gap policy) is written here again from
+:mod:`fusion.planar.ekf`'s description, with numpy, independently of
+:mod:`fusion.planar._ekf_core`. Used by tests/test_ekf.py and benchmarks/ekf_speed.py.
 """
 
 from __future__ import annotations
@@ -41,7 +41,11 @@ class FilterpyReference:
         self.t: float | None = None
         self.zero_count = 0
         self.stats = dict.fromkeys(("slips", "zupts", "late_dropped", "late_applied",
-                                    "invalid", "gyro_saturated", "updates"), 0)
+                                    "invalid", "gyro_saturated", "updates", "speed_resets",
+                                    "predictions"), 0)
+        # gap policy: filter time of the last measurement of v and of w (None: forgotten)
+        self.measured: dict[int, float | None] = {3: None, 4: None}
+        self.forgotten: dict[int, tuple[float, float]] = {}  # i -> (time, second moment)
 
     # -- time ------------------------------------------------------------------------------------
     def _predict(self, dt: float, still: bool) -> None:
@@ -53,10 +57,47 @@ class FilterpyReference:
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
 
+    def _forget(self, i: int, now: float) -> None:
+        """Speed state i unknown: mean 0, variance max(x_i^2 + P_ii, prior), uncorrelated."""
+        kf = self.kf
+        var = max(kf.x[i] ** 2 + kf.P[i, i], self.noise.initial_speed_std ** 2)
+        kf.P[i, :] = 0.0
+        kf.P[:, i] = 0.0
+        kf.P[i, i] = var
+        kf.x[i] = 0.0
+        self.zero_count = 0
+        self.measured[i] = None
+        self.forgotten[i] = (now, var)
+        self.stats["speed_resets"] += 1
+
+    def _predict_span(self, start: float, span: float, one_step: bool) -> None:
+        steps = [span] if one_step else []
+        while not one_step and span > 0:
+            steps.append(min(span, self.noise.max_dt))
+            span -= steps[-1]
+        now = start
+        for h in steps:
+            lost = [i for i in (3, 4) if self.measured[i] is None]
+            P = self.kf.P
+            kept = {i: P[i, i] for i in lost}
+            for i in lost:  # a forgotten speed takes no part in the propagation
+                P[i, i] = 0.0
+            self._predict(h, self.zero_count >= self.noise.zupt_frames)
+            P = self.kf.P
+            for i in lost:  # ... the pose gets the envelope r * s^2 of an unknown motion
+                P[i, i] += kept[i]
+                t_forgot, r = self.forgotten[i]
+                grow = r * ((now + h - t_forgot) ** 2 - (now - t_forgot) ** 2)
+                for j in ((0, 1) if i == 3 else (2,)):
+                    P[j, j] += grow
+            self.stats["predictions"] += 1
+            now += h
+
     def _advance(self, t: float) -> bool:
         n = self.noise
         if self.t is None:
             self.t = t
+            self.measured = {3: t, 4: t}
             return True
         dt = t - self.t
         if dt < 0:
@@ -65,19 +106,38 @@ class FilterpyReference:
                 return True
             self.stats["late_dropped"] += 1
             return False
-        still = self.zero_count >= n.zupt_frames
+        now = self.t
         while dt > 0:
-            h = min(dt, n.max_dt)
-            self._predict(h, still)
-            dt -= h
+            # deadlines (time from now) of the speeds still extrapolated, within this interval
+            due = {i: m + n.max_extrapolation - now for i, m in self.measured.items()
+                   if m is not None}
+            span = min([dt] + [max(d, 0.0) for d in due.values()])
+            both_forgotten = not due
+            if span > 0:
+                self._predict_span(now, span, one_step=both_forgotten)
+            dt -= span
+            now += span
+            for i in (3, 4):
+                if i in due and due[i] <= span:
+                    self._forget(i, now)
         self.t = t
         return True
+
+    def _measured(self, *states: int) -> None:
+        for i in states:
+            self.measured[i] = self.t
 
     # -- one event -------------------------------------------------------------------------------
     def step(self, kind: int, t: float, a: float, b: float) -> int:
         n, kf, r = self.noise, self.kf, self.robot
         if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)):
             self.stats["invalid"] += 1
+            return 6
+        wheel_speed = max(abs(a), abs(b)) * r.speed_ratio / r.encode_sampling_time
+        if ((kind == GYRO and abs(a) > n.max_rate)
+                or (kind == WHEELS and wheel_speed > n.max_speed)
+                or (kind == TWIST and (abs(a) > n.max_speed or abs(b) > n.max_rate))):
+            self.stats["invalid"] += 1  # implausible: a corrupt value
             return 6
         if not self._advance(t):
             return 5
@@ -94,6 +154,7 @@ class FilterpyReference:
                     self.zero_count = 0
                     kf.P[4, 4] += n.angular_accel_psd * r.encode_sampling_time
             kf.update(np.array([a]), model.gyro_jacobian, model.gyro_h, R=R)
+            self._measured(4)
         elif kind in (WHEELS, TWIST):
             if kind == WHEELS:
                 still = a == 0 and b == 0
@@ -105,6 +166,7 @@ class FilterpyReference:
                           R=model.zupt_noise(n.zupt_v_std, n.zupt_w_std))
                 status = 4
                 self.stats["zupts"] += 1
+                self._measured(3, 4)
             else:
                 L = r.wheel_distance
                 if kind == WHEELS:
@@ -126,6 +188,7 @@ class FilterpyReference:
                     R = R * n.slip_inflation
                     status = 1
                 kf.update(z, model.wheel_jacobian, model.wheel_h, R=R, args=(L,), hx_args=(L,))
+                self._measured(3, 4)
         elif kind == YAW:
             kf.update(np.array([a]), model.yaw_jacobian, model.yaw_h, R=model.yaw_noise(b),
                       residual=model.yaw_residual)

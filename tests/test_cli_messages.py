@@ -91,6 +91,7 @@ def test_run_on_a_real_chassis_without_imu_fuses_the_wheels_and_says_so(tmp_path
     assert "--imu sim needs --chassis sim" not in r.stderr
     assert f"no --imu given: fusing the wheel odometry of {board.data_port} alone" in r.stderr
     recs = [json.loads(line) for line in (tmp_path / "fused.jsonl").read_text().splitlines()]
+    assert "status" in recs.pop()  # the status record after the records
     assert len(recs) > 10 and all(r["orientation"] is None for r in recs)  # no IMU
 
 
@@ -140,6 +141,49 @@ def test_attitude_names_the_lines_of_the_rows_it_skips(tmp_path: Path) -> None:
     assert r.returncode == 0, r.stderr
     assert "1 gyro rows skipped" in r.stdout and "imu.csv line 5\n" in r.stdout
     assert "2 accelerometer rows unusable" in r.stdout and "imu.csv lines 6, 7\n" in r.stdout
+
+
+def test_replay_names_the_lines_of_the_imu_rows_it_skips(tmp_path: Path) -> None:
+    log = tmp_path / "log"
+    log.mkdir()
+    (log / "robot.toml").write_text((LOGDIR / "robot.toml").read_text())
+    (log / "wheels.csv").write_text("t,left,right\n0.04,0,0\n0.08,0,0\n0.12,0,0\n")
+    (log / "imu.csv").write_text(
+        "t,gx,gy,gz,ax,ay,az\n0,0,0,0,0,0,9.8\n0.01,0,0,0,0,0,9.8\n\n"
+        "0.02,nan,0,0,0,0,9.8\n0.03,0,0,0,0,0,inf\n0.04,0,0,0,0,0,9.8\n")
+    r = fusion("replay", "log", "-o", "f.mcap", cwd=tmp_path)
+    assert r.returncode == 0, r.stderr
+    assert ("warning: log/imu.csv: 2 sample(s) with a NaN or infinite value skipped: "
+            "line(s) 5, 6\n") in r.stdout
+    assert "3 IMU samples" in r.stdout
+    assert "-> f.mcap (3 records)" in r.stdout  # an MCAP output has records, not rows
+
+
+def test_a_bag_without_topics_lists_its_topics(tmp_path: Path) -> None:
+    pytest.importorskip("rosbags")
+    bag = ROOT / "datasets" / "rosbag" / "jackal_sim_test2.bag"
+    r = fusion("replay", str(bag), "-o", "f.csv", cwd=tmp_path)
+    assert r.returncode == 2
+    assert ("a bag needs --imu-topic (sensor_msgs/Imu) and --odom-topic (nav_msgs/Odometry); "
+            "its topics: /imu/data (sensor_msgs/Imu), /jackal_velocity_controller/odom "
+            "(nav_msgs/Odometry)") in r.stderr
+    # bag-only runs refuse the options of a folder of logs, as for any single input
+    r = fusion("replay", str(bag), "-o", "f.csv", "--imu-topic", "/imu/data", "--odom-topic",
+               "/jackal_velocity_controller/odom", "--format", "mcap", cwd=tmp_path)
+    assert r.returncode == 2 and "--format applies to a folder of logs" in r.stderr
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_output_into_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
+    # `fusion run | head -c 100`: the reader goes away while records are still written
+    proc = subprocess.Popen([sys.executable, "-m", "fusion", "run", "--duration", "3",
+                             "--status", "0"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert proc.stdout.read(100).startswith(b'{"t":')
+    proc.stdout.close()
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == 1
+    assert "Traceback" not in err and "Broken pipe" not in err, err
 
 
 def test_version(tmp_path: Path) -> None:

@@ -61,7 +61,7 @@ def test_replay_writes_the_fused_track(run, logdir, tmp_path, capsys):
 
 def test_mounted_imu_and_tilt_compensation(run, tmp_path):
     # The IMU mounted rotated (roll 180 deg, yaw 90 deg): the log holds IMU-frame vectors and
-    # robot.toml the mount. Replay (with Mahony tilt compensation) must match the level replay
+    # robot.toml the mount. Replay (tilt-compensated by the attitude) must match the level replay
     # of the base-frame log closely.
     rpy = (math.pi, 0.0, math.pi / 2)
     q = from_euler(*rpy)
@@ -144,7 +144,7 @@ def test_replay_of_the_sample_ros_bag(datasets_dir, tmp_path, capsys):
 def test_tilt_compensation_of_an_unknown_imu_tilt(tmp_path):
     # The IMU sits 4 deg rolled and 6 deg pitched on the base, and robot.toml does not know:
     # the gyro's z axis then sees the yaw rate scaled by about cos(7 deg) and mixed with x, y.
-    # The Mahony attitude (gravity) finds the tilt and the vertical rate restores the heading.
+    # The attitude filter (gravity) finds the tilt and the vertical rate restores the heading.
     # Measured when written (seed 2, 300 s): level 2.10 % / 4.25 deg, compensated 0.36 % /
     # 0.71 deg.
     from fusion.evaluation.trajectory import final_position_error_percent, yaw_rmse

@@ -4,9 +4,9 @@ nav_msgs/Odometry twists as the pipeline's twist input), on the bundled ROS 1 ba
 50 Hz on /imu/data, 3060 nav_msgs/Odometry on /jackal_velocity_controller/odom).
 
 Oracles: the pipeline fed by hand, one message at a time, from :func:`fusion.io.bags.read_bag`;
-the filters composed by hand (Mahony.update_batch -> vertical_rate -> ekf.fuse with twists),
-which is what the bag path ran before it used the pipeline; the mcap package reading the
-.mcap output back.
+the filters composed by hand (Keel told the twists' v*w and stillness, as
+tests/keel_feed_reference.py states it -> vertical_rate -> ekf.fuse with twists); the mcap
+package reading the .mcap output back.
 """
 
 from __future__ import annotations
@@ -19,8 +19,8 @@ import stat
 
 import numpy as np
 import pytest
+from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
 
-from fusion.attitude.mahony import Mahony
 from fusion.cli import main
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.fused_csv import write_fused_csv
@@ -81,10 +81,13 @@ def test_jsonl_equals_the_pipeline_fed_by_hand_from_read_bag(bag, msgs, tmp_path
     assert _replay(bag, out) == 0
     text = capsys.readouterr().out
     assert f"{N_IMU} IMU messages (base_link), {N_ODOM} odometry messages" in text
-    assert f"({N_IMU} rows, {N_ODOM} records)" in text
+    assert f"-> {out} ({N_ODOM} records)" in text  # a .jsonl has records, not rows
     buf = io.StringIO()
     pipe = _by_hand(msgs, NEUTRAL, [JsonLinesSink(buf, flush=False)])
-    assert out.read_text() == buf.getvalue()  # byte for byte
+    lines = out.read_text().splitlines(keepends=True)
+    assert "".join(lines[:-1]) == buf.getvalue()  # byte for byte, then the status record
+    assert [w["name"] for w in json.loads(lines[-1])["status"]["warnings"]] == [
+        "slip", "heading_divergence"]  # tests/test_trust.py
     recs = [json.loads(x) for x in buf.getvalue().splitlines()]
     assert len(recs) == N_ODOM == pipe.stats.twist_messages  # one record per odometry msg
     # each record is stamped with its odometry message's header stamp
@@ -95,14 +98,14 @@ def test_jsonl_equals_the_pipeline_fed_by_hand_from_read_bag(bag, msgs, tmp_path
     buf = io.StringIO()
     _by_hand(msgs, RobotConfig(NEUTRAL.chassis, imu_mount_rpy=rpy),
              [JsonLinesSink(buf, flush=False)])
-    assert out.read_text() == buf.getvalue()
+    assert "".join(out.read_text().splitlines(keepends=True)[:-1]) == buf.getvalue()
 
 
 def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
-    """The CSV (state after every IMU message) is the old fuse()-based output, byte for
-    byte, once the Mahony filter's first step is the nominal IMU period (0.02 s) as in the
-    pipeline, instead of the first stamp difference (0.01999999999999602 s), which moved one
-    value in the 10th significant digit (w at t = 78.56 s)."""
+    """The CSV (state after every IMU message) is the fuse()-based output, byte for byte,
+    with the attitude of Keel told the odometry twists' v*w and stillness
+    (tests/keel_feed_reference.py), its first step the nominal IMU period (0.02 s) as in the
+    pipeline."""
     imu, odom = msgs.imu, msgs.odometry
     out = tmp_path / "fused.csv"
     for level in (False, True):
@@ -110,8 +113,8 @@ def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
         if level:
             gz = imu.gyro[:, 2]
         else:
-            q = Mahony(axes=6, sample_period=0.02).update_batch(imu.gyro, imu.accel,
-                                                                timestamps=imu.t)
+            q = keel_by_hand(NEUTRAL, imu.t, imu.gyro, imu.accel, twist_t=odom.t,
+                             twist_v=odom.v, twist_w=odom.w, sample_period=0.02)
             gz = vertical_rate(imu.gyro, q)
         track, _ = fuse(NEUTRAL.chassis, imu.t, gz, noise=NEUTRAL.ekf, twist_t=odom.t,
                         twist_v=odom.v, twist_w=odom.w)
@@ -140,7 +143,7 @@ def test_mcap_output_reads_back(bag, tmp_path):
     from rosbags.highlevel import AnyReader
 
     assert _replay(bag, tmp_path / "f.jsonl") == 0
-    last = json.loads((tmp_path / "f.jsonl").read_text().splitlines()[-1])
+    last = json.loads((tmp_path / "f.jsonl").read_text().splitlines()[-2])  # [-1]: status
     with AnyReader([out]) as reader:
         conns = [c for c in reader.connections if c.topic == "/odom"]
         *_, (conn, _t, raw) = reader.messages(connections=conns)
@@ -179,6 +182,6 @@ def test_the_mount_comes_from_robot_toml_unless_given(bag, tmp_path):
     assert outs["toml"] == outs["flag"]
     assert outs["override"] == outs["none"]
     assert outs["toml"] != outs["none"]  # the records carry the mounted IMU's vectors
-    a = json.loads(outs["toml"].splitlines()[-1])
-    b = json.loads(outs["none"].splitlines()[-1])
+    a = json.loads(outs["toml"].splitlines()[-2])  # the last records ([-1]: the status)
+    b = json.loads(outs["none"].splitlines()[-2])
     assert a["linear_acceleration"] != b["linear_acceleration"]

@@ -60,7 +60,9 @@ def test_jsonl_output_is_the_pipeline_fed_event_by_event(logs, tmp_path):
     robot, events = logdir_events(log)
     buf = io.StringIO()
     replay(FusionPipeline(robot, [JsonLinesSink(buf, flush=False)], imu_rate_hz=100.0), events)
-    assert out.read_text() == buf.getvalue()  # byte for byte
+    lines = out.read_text().splitlines(keepends=True)
+    assert "".join(lines[:-1]) == buf.getvalue()  # byte for byte
+    assert json.loads(lines[-1])["status"]["warnings"] == []  # then the status record
     recs = [json.loads(x) for x in buf.getvalue().splitlines()]
     wheels = np.loadtxt(log / "wheels.csv", delimiter=",", skiprows=1, ndmin=2)
     assert len(recs) == wheels.shape[0]  # one record per wheel frame
@@ -74,7 +76,7 @@ def test_csv_and_records_come_from_one_filter(logs, tmp_path):
     assert main(["replay", str(log), "-o", str(tmp_path / "f.csv")]) == 0
     assert main(["replay", str(log), "-o", str(tmp_path / "f.jsonl")]) == 0
     csv = read_fused_csv(tmp_path / "f.csv")
-    last = json.loads((tmp_path / "f.jsonl").read_text().splitlines()[-1])
+    last = json.loads((tmp_path / "f.jsonl").read_text().splitlines()[-2])  # [-1]: status
     assert abs(last["v"]) < 1e-3 and abs(csv["v"][-1]) < 1e-3
     np.testing.assert_allclose([csv["x"][-1], csv["y"][-1], csv["yaw"][-1]],
                                [last["x"], last["y"], last["yaw"]], atol=1e-6)

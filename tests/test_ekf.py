@@ -50,8 +50,8 @@ def _events(run, **kw):
 def _every_kind_of_event(run):
     """Gyro (a few saturated), wheel frames in the first half (slips, ZUPTs), the same frames as
     external twists in the second half, absolute yaw across the +-pi seam, a late input
-    fused at the filter time, one too late to use, a non-finite one, an unknown kind and a
-    gap longer than max_dt."""
+    fused at the filter time, one too late to use, a non-finite one, an implausible one, an
+    unknown kind, a gap longer than max_dt and one longer than max_extrapolation."""
     T, L, sr = ROBOT.encode_sampling_time, ROBOT.wheel_distance, ROBOT.speed_ratio
     dl, dr = run.ticks[:, 0] * sr, run.ticks[:, 1] * sr
     late = run.wheel_t > 0.5 * run.duration
@@ -69,6 +69,8 @@ def _every_kind_of_event(run):
     a[1200] = np.nan
     kinds[1300] = 7
     t[2000:] += 0.3
+    t[2600:] += 4.0  # longer than max_extrapolation: v and w forgotten
+    a[2700] = 1e200  # implausible
     return kinds, t, a, b
 
 
@@ -95,6 +97,7 @@ def test_core_equals_filterpy_driven_by_the_model(short_run, noise):
     assert expected <= set(status.tolist())
     assert fast.stats == ref.stats
     assert fast.stats["late_applied"] == 1 and fast.stats["slips"] > 5
+    assert fast.stats["speed_resets"] >= 2 and fast.stats["invalid"] == 3  # NaN, 1e200, kind 7
     assert (kinds == core.EV_TWIST).sum() > 400 and (kinds == core.EV_YAW).sum() >= 9
     # measured: states within 5e-15, variances within 1.4e-12 (relative)
     np.testing.assert_allclose(out[:, :8], ref_x, rtol=0, atol=1e-11)
@@ -426,12 +429,12 @@ def test_predict_to_moves_the_pose_with_the_speed():
     x0[3], x0[4] = 0.5, 0.0
     ekf = PlanarEKF(ROBOT, x0=x0)
     ekf.update_gyro(0.0, 0.0)
-    ekf.predict_to(2.0)
-    assert ekf.t == 2.0
-    assert ekf.x[0] == pytest.approx(1.0, abs=1e-3)
+    ekf.predict_to(0.4)  # within max_extrapolation (3 s; beyond: tests/test_ekf_gaps.py)
+    assert ekf.t == 0.4
+    assert ekf.x[0] == pytest.approx(0.2, abs=1e-12)
     assert ekf.P[0, 0] > 1e-9  # grew with the speed uncertainty
-    ekf.predict_to(1.0)  # older: ignored
-    assert ekf.t == 2.0
+    ekf.predict_to(0.3)  # older: ignored
+    assert ekf.t == 0.4
 
 
 def test_filterpy_api_fuses_a_custom_measurement():

@@ -189,7 +189,7 @@ class Rig:
             CFG.robot, self.sinks, reorder_window=0.1, clock=self.clock, max_stamp_lead=1.0,
             sources=pipeline_sources, publish_rate_hz=publish_rate_hz,
             on_record=self.records.append,
-            on_sink_error=lambda sink, text: self.sink_errors.append(text)).open()
+            on_sink_error=lambda sink, exc, text: self.sink_errors.append(text)).open()
         if self.robot is not None:
             self.robot.start()
         self.runner = LiveRunner(self.pipe, sources=sources,
@@ -486,5 +486,6 @@ def test_a_sink_whose_writes_fail_leaves_the_old_file_and_the_others_go_on(tmp_p
     assert len(rig.sink_errors) == 1 and "No space left on device" in rig.sink_errors[0]
     sink, _exc, missed = rig.pipe.sink_failures[0]
     assert sink is failing and missed == rig.pipe.stats.records - 20
+    assert failing not in rig.pipe.working_sinks and len(rig.pipe.working_sinks) == 2
     rig.check(led, "a sink whose writes fail (disk full after 20 records)",
               "0 (other sinks); the failed one keeps the old file")

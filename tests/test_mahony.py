@@ -118,6 +118,11 @@ def messy_inputs(n=3000, seed=7):
     accel[301, 1] = np.inf
     mag[400] = 0.0
     mag[401, 0] = np.nan
+    # corrupt values (skipped and counted, never a poisoned state) and a gap (the gap policy)
+    k = n // 5
+    gyro[k, 2] = 1e200
+    accel[k + 50, 0] = -1e150
+    t[n // 2:] += 2.0
     return t, gyro, accel, mag
 
 
@@ -143,7 +148,8 @@ def test_streaming_equals_batch_exactly(axes, options):
     assert np.array_equal(out_b, out_s)
     assert np.array_equal(batch.gyro_bias, stream.gyro_bias)
     assert batch.counters == stream.counters
-    assert batch.counters.gyro_skipped == 1 and batch.counters.accel_skipped == 2
+    assert batch.counters.gyro_skipped == 2 and batch.counters.accel_skipped == 3
+    assert batch.counters.gaps == 1
     if axes == 9:
         assert batch.counters.mag_skipped >= 1
     assert np.all(np.isfinite(out_b))
@@ -255,6 +261,7 @@ def test_seed_gain_mapping():
     _, gyro, accel, _ = messy_inputs(1500)
     gyro = np.nan_to_num(gyro)
     accel[300:302] = [0, 0, G]
+    gyro[300], accel[350] = 0.0, [0, 0, G]  # corrupt rows: the filter skips them, the seed not
     dt, kp, seed_ki = 0.005, 2.0, 0.01
     ref = seed_mahony_fixed(gyro, accel, kp, seed_ki, dt / 2)
     f = Mahony(kp=kp, ki=seed_ki / dt, sample_period=dt, initial_quaternion=[1, 0, 0, 0],

@@ -1,4 +1,4 @@
-"""fusion.pipeline: one pipeline object for live and replay (Mahony -> EKF -> sinks)."""
+"""fusion.pipeline: one pipeline object for live and replay (Keel -> EKF -> sinks)."""
 
 from __future__ import annotations
 
@@ -8,9 +8,9 @@ import math
 
 import numpy as np
 import pytest
+from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
 
 from drivers.chassis import encode_wheel_frame
-from fusion.attitude.mahony import Mahony
 from fusion.evaluation.synthetic import (
     EXAMPLE_ROBOT,
     EncoderModel,
@@ -49,12 +49,12 @@ def events(run):
 
 
 def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
-    """Oracle: Mahony.update_batch -> ekf.vertical_rate -> ekf.fuse (batch, merge_events'
-    own ordering), composed here from the library's pieces. The pipeline, fed one event at a
-    time in host order, must publish exactly the fused state after every wheel frame."""
+    """Oracle: Keel told the wheels' knowledge (tests/keel_feed_reference.py) ->
+    ekf.vertical_rate -> ekf.fuse (batch, merge_events' own ordering), composed here from the
+    library's pieces. The pipeline, fed one event at a time in host order, must publish
+    exactly the fused state after every wheel frame."""
     robot = RobotConfig(chassis=run.robot)
-    q = Mahony(axes=6, sample_period=0.01).update_batch(run.gyro, run.accel,
-                                                         timestamps=run.imu_t)
+    q = keel_by_hand(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     gz = vertical_rate(run.gyro, q)
     track, ekf = fuse(run.robot, run.imu_t, gz, run.wheel_t, run.ticks, EkfNoise())
     rows = track.states[track.kind == core.EV_WHEELS]
@@ -84,7 +84,7 @@ def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
 
 @pytest.mark.parametrize("rate", [None, 10.0])
 def test_batch_entry_point_gives_the_same_bytes_as_streaming(run, rate):
-    """push_arrays (Mahony and EKF batch cores) == push() one event at a time, byte for byte
+    """push_arrays (Keel and EKF batch cores) == push() one event at a time, byte for byte
     in the JSON lines output, with a tilted IMU mount and both publish modes."""
     robot = RobotConfig(chassis=run.robot, imu_mount_rpy=(0.02, -0.01, 0.3))
     out = []
@@ -294,13 +294,14 @@ def _push_any(pipe, ev):
 
 
 def test_twists_stream_into_the_ekfs_own_twist_update(run):
-    """Oracle: Mahony.update_batch -> vertical_rate -> ekf.fuse(twist_t=...) composed by hand
-    (merge_events' ordering). IMU samples and twists pushed one at a time in host order must
-    publish exactly the fused state after every twist."""
+    """Oracle: Keel told the twists' v*w and stillness (tests/keel_feed_reference.py) ->
+    vertical_rate -> ekf.fuse(twist_t=...) composed by hand (merge_events' ordering). IMU
+    samples and twists pushed one at a time in host order must publish exactly the fused
+    state after every twist."""
     robot = RobotConfig(chassis=run.robot)
     tt, tv, tw = _twists(run)
-    q = Mahony(axes=6, sample_period=0.01).update_batch(run.gyro, run.accel,
-                                                         timestamps=run.imu_t)
+    q = keel_by_hand(robot, run.imu_t, run.gyro, run.accel, twist_t=tt, twist_v=tv,
+                     twist_w=tw)
     gz = vertical_rate(run.gyro, q)
     track, ekf = fuse(run.robot, run.imu_t, gz, noise=EkfNoise(), twist_t=tt, twist_v=tv,
                       twist_w=tw)

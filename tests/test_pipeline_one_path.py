@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 import pytest
+from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
 
-from fusion.attitude.mahony import Mahony
 from fusion.evaluation.synthetic import (
     EXAMPLE_ROBOT,
     EncoderModel,
@@ -85,8 +85,8 @@ def _reference(run, window: float, sources: tuple[str, ...]):
     robot = run.robot
     ekf = PlanarEKF(robot)
     shift = 0.5 * robot.encode_sampling_time
-    q = Mahony(axes=6, sample_period=0.01).update_batch(run.gyro, run.accel,
-                                                         timestamps=run.imu_t)
+    q = keel_by_hand(RobotConfig(chassis=robot), run.imu_t, run.gyro, run.accel, run.wheel_t,
+                     run.ticks)
     rate = vertical_rate(run.gyro, q)
     rate_at = dict(zip(run.imu_t.tolist(), rate.tolist()))
     heap: list = []

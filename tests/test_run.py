@@ -28,13 +28,15 @@ def _mcap_counts(path) -> dict[str, int]:
 
 
 def _lines(path) -> list[dict]:
+    """Every line, records and status records."""
     text = path.read_text()
     assert text.endswith("\n")
     return [json.loads(line) for line in text.splitlines()]
 
 
 def _records(path) -> list[dict]:
-    """The record lines (``--status`` puts status lines between them)."""
+    """The record lines (``--status`` puts status lines between them, and the final status
+    record comes after the last)."""
     return [r for r in _lines(path) if "status" not in r]
 
 

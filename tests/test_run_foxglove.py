@@ -80,6 +80,7 @@ def test_foxglove_cmd_vel_drives_the_simulated_chassis(tmp_path):
             proc.wait(timeout=10)
     assert proc.returncode == 0, "".join(lines)
     recs = [json.loads(x) for x in jsonl.read_text().splitlines()]
+    assert "status" in recs.pop()  # the status record after the records
     assert t_cmd > 0 and len(recs) > 100
     # the last 1.5 s of robot time are under the command (4 s of it, minus the ramp):
     # turning in place at ~1 rad/s, not driving the mission

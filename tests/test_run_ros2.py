@@ -69,6 +69,7 @@ def test_ros2_cmd_vel_drives_the_simulated_chassis_and_odom_comes_back(tmp_path,
     assert 0.5 < x - x_before < 1.2 and abs(y) < 0.1
 
     recs = [json.loads(r) for r in jsonl.read_text().splitlines()]
+    assert "status" in recs.pop()  # the status record after the records
     x0 = recs[0]["x"]
     moved = [r["t"] for r in recs if abs(r["x"] - x0) > 0.01]
     assert moved, "the fused odometry never moved"

@@ -1,6 +1,6 @@
 """Soak test: the demo's live pipeline at 2x real time for a bounded 30 s of wall time
 (1 minute of robot time: ~1500 wheel frames, ~6000 IMU samples through the real pty,
-link, driver, Mahony, EKF and a JSON lines file sink), checking that memory stays flat
+link, driver, Keel, EKF and a JSON lines file sink), checking that memory stays flat
 (tracemalloc, after a warm-up), that latency does not creep up and that every event is
 accounted for (fused or counted by reason).
 

@@ -14,6 +14,7 @@ __all__ = [
     "check_dt",
     "check_dts",
     "explicit_periods",
+    "finite_vec3",
     "timestamps_array",
     "unit_quaternion",
     "vec3",
@@ -55,6 +56,16 @@ def vec3(name: str, v: ArrayLike) -> NDArray[np.float64]:
     arr = np.asarray(v, dtype=np.float64)
     if arr.shape != (3,):
         raise ValueError(f"{name} must have 3 components, got shape {arr.shape}")
+    return arr
+
+
+def finite_vec3(name: str, v: ArrayLike) -> NDArray[np.float64]:
+    """``v`` as a finite float64 (3,) array (a copy); ``ValueError`` naming ``name`` else."""
+    arr = np.array(v, dtype=np.float64)
+    if arr.shape != (3,):
+        raise ValueError(f"{name} must have 3 components, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} must be finite, got {arr.tolist()}")
     return arr
 
 

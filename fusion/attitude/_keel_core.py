@@ -51,6 +51,7 @@ _P, P_LEN = _layout(
     ("mag_tau", 1), ("mag_norm_tol", 1), ("mag_dip_tol", 1), ("mag_hold", 1),
     ("mag_slow_factor", 1), ("mag_new_time", 1), ("mag_new_rate", 1), ("mag_ref_tau", 1),
     ("mag_init_time", 1), ("mag_gate", 1), ("mag_gate_scale", 1),
+    ("max_gyro", 1), ("max_accel", 1),
 )
 _C, C_LEN = _layout(
     ("gyro_skipped", 1), ("accel_skipped", 1), ("mag_skipped", 1), ("gaps", 1),
@@ -85,6 +86,7 @@ P_MAG_SLOW, P_MAG_NEW_TIME, P_MAG_NEW_RATE = (_P["mag_slow_factor"], _P["mag_new
                                              _P["mag_new_rate"])
 P_MAG_REF_TAU, P_MAG_INIT_TIME, P_MAG_GATE, P_MAG_GATE_SCALE = (
     _P["mag_ref_tau"], _P["mag_init_time"], _P["mag_gate"], _P["mag_gate_scale"])
+P_MAX_GYRO, P_MAX_ACCEL = _P["max_gyro"], _P["max_accel"]
 
 C_GYRO_SKIP, C_ACC_SKIP, C_MAG_SKIP = _C["gyro_skipped"], _C["accel_skipped"], _C["mag_skipped"]
 C_GAPS, C_REST, C_MAG_DIST = _C["gaps"], _C["rest_samples"], _C["mag_disturbed"]
@@ -322,7 +324,9 @@ def step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, still, kx, ky, kz
     period). ``still``: 1 known still, 0 known moving, -1 unknown. ``k*``: known kinematic
     acceleration in the body frame, m/s^2, subtracted from the accelerometer.
     """
-    if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
+    mg = P[P_MAX_GYRO]  # components first (false for NaN), so 1e200 never overflows
+    if not (abs(gx) <= mg and abs(gy) <= mg and abs(gz) <= mg
+            and gx * gx + gy * gy + gz * gz <= mg * mg):  # non-finite or corrupt
         C[C_GYRO_SKIP] += 1
         S[PENDING_DT] += dt  # the next sample integrates over the skipped interval too
         return
@@ -366,8 +370,11 @@ def step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, still, kx, ky, kz
     S[COV + 3] += grow
     S[COV + 5] += grow
 
-    anorm = math.sqrt(ax * ax + ay * ay + az * az)
-    acc_ok = math.isfinite(anorm) and anorm > 0.0
+    ma = P[P_MAX_ACCEL]
+    anorm = 0.0
+    if abs(ax) <= ma and abs(ay) <= ma and abs(az) <= ma:  # false for NaN and inf
+        anorm = math.sqrt(ax * ax + ay * ay + az * az)
+    acc_ok = 0.0 < anorm <= ma
     if not acc_ok:
         C[C_ACC_SKIP] += 1
     if acc_ok and S[ACC_SEEN] == 0.0:
@@ -419,6 +426,8 @@ def step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, still, kx, ky, kz
     moving_update = False
     ex = ey = 0.0
     if acc_ok:
+        if not (abs(kx) <= ma and abs(ky) <= ma and abs(kz) <= ma):
+            kx = ky = kz = 0.0  # a known acceleration no robot has (a corrupt input): unknown
         fx, fy, fz = ax - kx, ay - ky, az - kz
         ix, iy, iz = rotate(q0, q1, q2, q3, fx, fy, fz)
         # B -> E6 rotation matrix, low-passed alongside (the bias update's measurement model).

@@ -38,15 +38,18 @@ needs no special care. **Gap policy**: an interval longer than ``max_gap`` s (da
 host stalled) is not integrated as one step: the sample's rate is integrated over the last
 regular period, the bias covariance grows over the whole gap, and the accelerometer low-pass,
 the rest detector and the heading start-up gain restart (the attitude re-acquires inclination
-from the accelerometer at once, counted in ``counters.gaps``). Non-finite gyro rows are skipped
-(attitude held; the next sample integrates over their interval too); zero or non-finite
-accelerometer rows propagate the gyro only; zero or non-finite magnetometer rows leave the
-heading offset alone. Non-positive or non-finite periods and wrong shapes raise ``ValueError``.
+from the accelerometer at once, counted in ``counters.gaps``). The cost is that of one sample
+for any gap. Non-finite gyro rows and rows faster than ``max_gyro`` (corrupt values) are
+skipped (attitude held; the next sample integrates over their interval too); zero, non-finite
+or above-``max_accel`` accelerometer rows propagate the gyro only; zero or non-finite
+magnetometer rows leave the heading offset alone. Non-positive or non-finite periods and wrong
+shapes raise ``ValueError``.
 
 External knowledge (``update(..., still=, known_accel=)``): ``known_accel`` is the body-frame
 kinematic acceleration, m/s^2, that the host knows (a wheeled robot turning at yaw rate w with
 forward speed v has a centripetal v*w towards the turn centre, plus dv/dt along its heading);
-it is subtracted from the accelerometer before the inclination update.
+it is subtracted from the accelerometer before the inclination update (one with a component
+above ``max_accel``, a corrupt input, is ignored).
 
 The offline (forward-backward) mode for recorded data is :func:`fusion.attitude.keel_offline`.
 """
@@ -54,23 +57,15 @@ The offline (forward-backward) mode for recorded data is :func:`fusion.attitude.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion._jit import compiled_entry_point
 from fusion.attitude import _keel_core as core
-from fusion.attitude._inputs import (
-    as_rows,
-    check_dt,
-    check_dts,
-    explicit_periods,
-    timestamps_array,
-    unit_quaternion,
-    vec3,
-)
-from fusion.geometry import quaternion as quat
+from fusion.attitude._base import AttitudeFilter
+from fusion.attitude._inputs import as_rows, check_dt, vec3
 from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = ["Keel", "KeelCounters", "KeelDiagnostics", "KeelParams", "KeelState"]
@@ -129,6 +124,15 @@ class KeelParams:
             ``mag_gate_scale`` times the angle turned since the field was last trusted, which
             covers gyro scale errors) marks the field as disturbed, rad.
         mag_gate_scale: see ``mag_heading_gate`` (dimensionless, rad per rad turned).
+        max_gyro: a gyro row faster than this (rad/s) is corrupt and skipped; above every
+            MEMS gyro's full scale (+-4000 deg/s = 70 rad/s).
+        max_accel: an accelerometer row above this (m/s^2, about 100 g) is corrupt: gyro
+            only.
+
+    Raises:
+        ValueError: a value that is not a finite number > 0 (``rest_min_duration``: >= 0;
+            the switches: True or False), or a ``sample_period`` longer than ``max_gap``;
+            the message names the field and the value.
     """
 
     sample_period: float | None = None
@@ -161,6 +165,8 @@ class KeelParams:
     mag_initial_time: float = 2.0
     mag_heading_gate: float = 5.0 * _DEG
     mag_gate_scale: float = 0.03
+    max_gyro: float = 100.0
+    max_accel: float = 1000.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -168,13 +174,19 @@ class KeelParams:
             if f.name == "sample_period":
                 if value is not None:
                     check_dt(value)
+            elif f.type in ("bool", bool):
+                if not isinstance(value, bool):
+                    raise ValueError(f"{f.name} must be True or False, got {value!r}")
             elif isinstance(value, bool):
-                continue
+                raise ValueError(f"{f.name} must be a number, got {value!r}")
             elif f.name == "rest_min_duration":
                 if not (math.isfinite(value) and value >= 0):
                     raise ValueError(f"{f.name} must be finite and >= 0, got {value!r}")
             elif not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{f.name} must be finite and > 0, got {value!r}")
+        if self.sample_period is not None and self.sample_period > self.max_gap:
+            raise ValueError(f"sample_period {self.sample_period!r} s is longer than max_gap "
+                             f"{self.max_gap!r} s: every sample would be a gap")
 
     def packed(self) -> NDArray[np.float64]:
         """The parameters as the flat float64 array the compiled core reads."""
@@ -197,6 +209,7 @@ class KeelParams:
             "mag_ref_tau": self.mag_reference_time_constant,
             "mag_init_time": self.mag_initial_time, "mag_gate": self.mag_heading_gate,
             "mag_gate_scale": self.mag_gate_scale,
+            "max_gyro": self.max_gyro, "max_accel": self.max_accel,
         }
         for name, value in values.items():
             p[core.P_INDEX[name]] = value
@@ -301,7 +314,7 @@ def _entry_points():
     return _fast6, _fast_full
 
 
-class Keel:
+class Keel(AttitudeFilter):
     """Keel attitude estimator, 6-axis (gyro + accelerometer) or 9-axis (+ magnetometer).
 
     Args:
@@ -331,47 +344,20 @@ class Keel:
         params: KeelParams | None = None,
         **options,
     ) -> None:
-        if axes not in (6, 9):
-            raise ValueError(f"axes must be 6 or 9, got {axes!r}")
         if params is None:
             params = KeelParams(sample_period=sample_period, **options)
         elif sample_period is not None or options:
             raise ValueError("give either params or individual settings, not both")
-        self.axes = axes
-        self._initial = None
-        if initial_quaternion is not None:
-            self._initial = unit_quaternion("initial_quaternion", initial_quaternion)
-        self.params = params
-        self.reset()
+        self._setup(axes, initial_quaternion, params)
 
-    # -- parameters and state -----------------------------------------------------------------
+    # -- parameters and state (params, with_params, quaternion, euler: AttitudeFilter) --------
 
-    @property
-    def params(self) -> KeelParams:
-        return self._params
+    _params_class = KeelParams
+    _layout = (core.B_P, core.B_C, core.B_LEN)
 
-    @params.setter
-    def params(self, params: KeelParams) -> None:
-        if not isinstance(params, KeelParams):
-            raise ValueError(f"params must be a KeelParams, got {type(params).__name__}")
-        self._params = params
-        self._default_dt = params.sample_period
+    def _params_changed(self) -> None:
         if hasattr(self, "_B"):
-            self._P[:] = params.packed()
             self._S[core.DT_CACHED] = -1.0  # coefficients depend on the time constants
-
-    def with_params(self, **changes) -> Keel:
-        """A fresh estimator with the same settings and some parameters changed."""
-        return Keel(axes=self.axes, initial_quaternion=self._initial,
-                    params=replace(self._params, **changes))
-
-    def _new_buffer(self) -> None:
-        self._B = np.zeros(core.B_LEN)
-        self._S = self._B[core.B_S:core.B_P]
-        self._P = self._B[core.B_P:core.B_C]
-        self._C = self._B[core.B_C:]
-        self._q = self._B[core.Q:core.Q + 4]
-        self._P[:] = self._params.packed()
 
     def reset(self) -> None:
         """Forget everything: back to the state before the first sample."""
@@ -413,16 +399,6 @@ class Keel:
         self._C[:] = [c.gyro_skipped, c.accel_skipped, c.mag_skipped, c.gaps, c.rest_samples,
                       c.mag_disturbed]
         self._last_t = state.last_timestamp
-
-    @property
-    def quaternion(self) -> NDArray[np.float64]:
-        """Current attitude ``[w, x, y, z]``, body -> world ENU."""
-        return self._q.copy()
-
-    @property
-    def euler(self) -> NDArray[np.float64]:
-        """Current roll, pitch, yaw in radians (ZYX)."""
-        return quat.to_euler(self.quaternion)
 
     @property
     def gyro_bias(self) -> NDArray[np.float64]:
@@ -571,11 +547,8 @@ class Keel:
             known_accel: (N, 3) known kinematic acceleration, m/s^2, body frame (NaN rows:
                 none known).
         """
-        g = as_rows("gyro", gyro)
+        g, a, m, use_mag = self._batch_rows(gyro, accel, mag)
         n = g.shape[0]
-        a = as_rows("accel", accel, n)
-        use_mag = self.axes == 9 and mag is not None
-        m = as_rows("mag", mag, n) if use_mag else np.zeros((0, 3))
         s = np.zeros(0)
         if still is not None:
             s = np.ascontiguousarray(still, dtype=np.float64).reshape(-1)
@@ -597,25 +570,7 @@ class Keel:
             return out, KeelDiagnostics.from_rows(diag)
         return out
 
-    def _batch_periods(self, n: int, dt, timestamps) -> NDArray[np.float64]:
-        if timestamps is not None:
-            t = timestamps_array(timestamps, n)
-            if n == 0:
-                return np.zeros(1)
-            if dt is None:
-                dts = np.empty(n)
-                dts[1:] = np.diff(t)
-                dts[0] = 1.0  # checked below with the others, then replaced
-                if self._last_t is not None:
-                    dts[0] = t[0] - self._last_t
-                check_dts(dts, "timestamps must increase strictly: at index")
-                if self._last_t is None:
-                    dts[0] = self._period(None, None)
-                self._last_t = float(t[-1])
-                return dts
-            self._last_t = float(t[-1])
-        if dt is None:
-            if self._params.sample_period is None:
-                raise ValueError("no dt: pass dt=, timestamps=, or set sample_period")
-            return np.array([self._params.sample_period])
-        return explicit_periods(dt, n)
+    def _first_period(self, t: NDArray[np.float64]) -> float:
+        """The first period of a batch with no earlier timestamp: ``sample_period``, else 0
+        for a first sample (it only initialises)."""
+        return self._period(None, None)

@@ -83,9 +83,16 @@ def keel_offline(
     bias, cov = _fuse(fwd.gyro_bias, fwd.bias_covariance,
                       -bwd.gyro_bias[::-1], bwd.bias_covariance[::-1])
 
-    # 2. Gyro frame with the fused bias.
-    dt_int, restart = _integration_periods(dts, np.all(np.isfinite(g), axis=1), p.max_gap)
-    valid_acc = np.all(np.isfinite(a), axis=1) & np.any(a != 0.0, axis=1)
+    # 2. Gyro frame with the fused bias (rows skipped online are skipped here too:
+    # non-finite or faster than max_gyro).
+    with np.errstate(over="ignore", invalid="ignore"):
+        gyro_ok = np.linalg.norm(g, axis=1) <= p.max_gyro
+        acc_norm = np.linalg.norm(a, axis=1)
+    dt_int, restart = _integration_periods(dts, gyro_ok, p.max_gap)
+    if not gyro_ok.all():
+        g = g.copy()
+        g[~gyro_ok] = np.nan  # strapdown holds the attitude over them
+    valid_acc = (acc_norm > 0.0) & (acc_norm <= p.max_accel)
     first = int(np.argmax(valid_acc)) if np.any(valid_acc) else None
     q_start = quat.from_accel(a[first]) if first is not None else quat.IDENTITY.copy()
     qg = np.empty((n, 4))
@@ -107,7 +114,7 @@ def keel_offline(
     delta = np.zeros(n)
     disturbed = np.zeros(n, dtype=bool)
     if use_mag:
-        rates = np.linalg.norm(g - bias, axis=1)
+        rates = np.where(gyro_ok, np.linalg.norm(g - bias, axis=1), 0.0)  # skipped: no turn
         d_f, x_f = _heading(p, q6, m, rates, dt_int, restart)
         d_b, x_b = _heading(p, q6[::-1], m[::-1], rates[::-1], _reversed_periods(dt_int),
                             _reversed_periods(restart))

@@ -35,30 +35,41 @@ observable without a magnetometer), acceleration rejection (no correction while 
 from g), and a start-up gain ramp (large Kp at first so the attitude converges quickly).
 
 Invalid samples are handled by documented skips, counted in :attr:`Mahony.counters`:
-a non-finite gyro row is skipped entirely (attitude held); a zero or non-finite accelerometer
-row propagates the gyro (with the bias estimate) without correction; a zero or non-finite
-magnetometer row falls back to the 6-axis correction. Non-positive or non-finite ``dt`` and
-wrong shapes raise ``ValueError``.
+a non-finite gyro row, or one faster than ``max_gyro`` (a corrupt value: no gyro reads 1e200
+rad/s), is skipped entirely (attitude held); a zero or non-finite accelerometer row, or one
+above ``max_accel``, propagates the gyro (with the bias estimate) without correction; a zero or
+non-finite magnetometer row falls back to the 6-axis correction. Non-positive or non-finite
+``dt`` and wrong shapes raise ``ValueError``.
+
+**Gap policy.** A period longer than ``max_gap`` s (data lost, the host stalled) is not
+integrated as one first-order step (a 30 s gap at 0.01 rad/s gave a roll of 1.17 rad where
+the truth is 0.30, and rest detection replaced 91 % of the bias with that one sample). Instead
+the sample's rate is integrated over the last regular period only, the integral (bias) and
+the rest detector's low-pass and timer see that period too (the rest detector restarts), and
+the inclination is re-initialised from the accelerometer: from this sample, or from the first
+later one that is usable (finite, non-zero, below ``max_accel`` and inside
+``accel_rejection`` when that is set). The heading is kept (the gyro cannot tell what happened
+in the gap; a 9-axis filter's magnetometer correction then pulls it back at ``kp``). The cost
+is that of one sample for any gap; each gap is counted in ``counters.gaps``.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from fusion._jit import compiled_entry_point, njit
+from fusion.attitude._base import AttitudeFilter, check_axes
 from fusion.attitude._inputs import (
-    as_rows,
     check_dt,
-    check_dts,
-    explicit_periods,
-    timestamps_array,
+    finite_vec3,
     unit_quaternion,
     vec3,
 )
+from fusion.attitude._keel_core import qmul, rotate, tilt_quaternion
 from fusion.geometry import quaternion as quat
 from fusion.types.constants import STANDARD_GRAVITY
 
@@ -92,14 +103,16 @@ PRESETS = {
 # Parameters P:
 _P_KP, _P_KI, _P_G, _P_ACC_REJ, _P_REST_ON, _P_REST_GYR, _P_REST_ACC = range(7)
 _P_REST_T, _P_REST_TAU, _P_LP_TAU, _P_RAMP_KP, _P_RAMP_T, _P_REST_MAX = range(7, 13)
-_P_LEN = 13
+_P_MAX_GAP, _P_MAX_GYRO, _P_MAX_ACC = range(13, 16)
+_P_LEN = 16
 # State S: quaternion, integral (= -bias), elapsed time, rest timer, low-passed gyro and accel,
-# low-pass initialised flag.
+# low-pass initialised flag, last regular period, inclination re-initialisation pending.
 _S_Q, _S_I, _S_ELAPSED, _S_REST_TIMER, _S_GLP, _S_ALP, _S_LP_INIT = 0, 4, 7, 8, 9, 12, 15
-_S_LEN = 16
+_S_LAST_DT, _S_REINIT = 16, 17
+_S_LEN = 18
 # Counters C:
-_C_GYRO_SKIP, _C_ACC_SKIP, _C_MAG_SKIP, _C_ACC_REJECT, _C_REST = range(5)
-_C_LEN = 5
+_C_GYRO_SKIP, _C_ACC_SKIP, _C_MAG_SKIP, _C_ACC_REJECT, _C_REST, _C_GAPS = range(6)
+_C_LEN = 6
 
 
 @dataclass(frozen=True)
@@ -128,6 +141,17 @@ class MahonyParams:
         ramp_kp: initial proportional gain of the start-up ramp, rad/s per unit error.
         ramp_time: duration of the start-up ramp, s (0 disables it). During the ramp Kp falls
             linearly from ``ramp_kp`` to ``kp`` and the integral is frozen.
+        max_gap: longest period integrated as one step, s (see the gap policy in the module
+            docstring). Hand-set, not tuned: 25 periods at 100 Hz.
+        max_gyro: a gyro row faster than this (rad/s) is corrupt and skipped. The default is
+            above every MEMS gyro's full scale (+-4000 deg/s = 70 rad/s).
+        max_accel: an accelerometer row above this (m/s^2) is corrupt: no correction. The
+            default (about 100 g) is above every MEMS accelerometer's full scale.
+
+    Raises:
+        ValueError: a gain, threshold, time constant or limit that is not finite or out of
+            range, or a ``sample_period`` longer than ``max_gap``; the message names the field
+            and the value.
     """
 
     kp: float = DEFAULT_KP
@@ -144,6 +168,9 @@ class MahonyParams:
     rest_lowpass_time_constant: float = 0.5
     ramp_kp: float = 10.0
     ramp_time: float = 0.0
+    max_gap: float = 0.25
+    max_gyro: float = 100.0
+    max_accel: float = 1000.0
 
     def __post_init__(self) -> None:
         for name in ("kp", "ki", "ramp_kp", "ramp_time"):
@@ -157,6 +184,9 @@ class MahonyParams:
             "rest_max_rate",
             "rest_bias_time_constant",
             "rest_lowpass_time_constant",
+            "max_gap",
+            "max_gyro",
+            "max_accel",
         ]
         for name in positive:
             value = getattr(self, name)
@@ -166,8 +196,14 @@ class MahonyParams:
             raise ValueError(f"rest_min_duration must be >= 0, got {self.rest_min_duration!r}")
         if self.sample_period is not None:
             check_dt(self.sample_period)
+            if self.sample_period > self.max_gap:
+                raise ValueError(f"sample_period {self.sample_period!r} s is longer than "
+                                 f"max_gap {self.max_gap!r} s: every sample would be a gap")
         if self.accel_rejection is not None and not self.accel_rejection > 0:
             raise ValueError(f"accel_rejection must be > 0 or None, got {self.accel_rejection!r}")
+        if not isinstance(self.rest_detection, bool):
+            raise ValueError(f"rest_detection must be True or False, got "
+                             f"{self.rest_detection!r}")
 
     def packed(self) -> NDArray[np.float64]:
         """The parameters as the flat float64 array the compiled core reads."""
@@ -180,6 +216,7 @@ class MahonyParams:
         p[_P_LP_TAU] = self.rest_lowpass_time_constant
         p[_P_RAMP_KP], p[_P_RAMP_T] = self.ramp_kp, self.ramp_time
         p[_P_REST_MAX] = self.rest_max_rate
+        p[_P_MAX_GAP], p[_P_MAX_GYRO], p[_P_MAX_ACC] = self.max_gap, self.max_gyro, self.max_accel
         return p
 
 
@@ -187,11 +224,12 @@ class MahonyParams:
 class MahonyCounters:
     """Samples handled by a documented skip since the last reset."""
 
-    gyro_skipped: int = 0  # non-finite gyro: sample skipped, attitude held
-    accel_skipped: int = 0  # zero/non-finite accelerometer: gyro-only propagation
+    gyro_skipped: int = 0  # non-finite or above max_gyro: sample skipped, attitude held
+    accel_skipped: int = 0  # zero/non-finite/above max_accel accelerometer: gyro only
     mag_skipped: int = 0  # zero/non-finite magnetometer in 9-axis mode: 6-axis correction
     accel_rejected: int = 0  # |a| too far from g: correction skipped (accel_rejection)
     rest_samples: int = 0  # samples spent refining the bias at rest
+    gaps: int = 0  # periods longer than max_gap (see the gap policy)
 
 
 @dataclass
@@ -208,6 +246,8 @@ class MahonyState:
         lowpass_ready: whether the low-pass means hold data.
         last_timestamp: timestamp of the last sample given with timestamps, s, or None.
         counters: see :class:`MahonyCounters`.
+        last_period: the last regular (not gap) period, s (0: none yet).
+        reinit_pending: a gap happened and the inclination waits for a usable accelerometer.
     """
 
     quaternion: NDArray[np.float64] | None = None
@@ -219,6 +259,8 @@ class MahonyState:
     lowpass_ready: bool = False
     last_timestamp: float | None = None
     counters: MahonyCounters = field(default_factory=MahonyCounters)
+    last_period: float = 0.0
+    reinit_pending: bool = False
 
 
 # --------------------------------------------------------------------------------------------
@@ -229,15 +271,32 @@ class MahonyState:
 @njit
 def _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
     """Advance the packed state ``S`` by one sample. Returns nothing; mutates S and C."""
-    if not (math.isfinite(gx) and math.isfinite(gy) and math.isfinite(gz)):
+    mg = P[_P_MAX_GYRO]  # components first (false for NaN), so 1e200 never overflows
+    if not (abs(gx) <= mg and abs(gy) <= mg and abs(gz) <= mg
+            and gx * gx + gy * gy + gz * gz <= mg * mg):
         C[_C_GYRO_SKIP] += 1
         return
     q0, q1, q2, q3 = S[0], S[1], S[2], S[3]
     ix, iy, iz = S[4], S[5], S[6]
     elapsed = S[_S_ELAPSED]
 
-    anorm = math.sqrt(ax * ax + ay * ay + az * az)
-    acc_ok = math.isfinite(anorm) and anorm > 0.0
+    # Gap policy: a period longer than max_gap integrates over the last regular period only
+    # and re-initialises the inclination from the accelerometer (module docstring).
+    span = dt
+    if dt > P[_P_MAX_GAP]:
+        C[_C_GAPS] += 1
+        dt = S[_S_LAST_DT]
+        S[_S_REST_TIMER] = 0.0
+        S[_S_LP_INIT] = 0.0
+        S[_S_REINIT] = 1.0
+    else:
+        S[_S_LAST_DT] = dt
+
+    ma = P[_P_MAX_ACC]
+    anorm = 0.0
+    if abs(ax) <= ma and abs(ay) <= ma and abs(az) <= ma:  # false for NaN and inf
+        anorm = math.sqrt(ax * ax + ay * ay + az * az)
+    acc_ok = 0.0 < anorm <= ma
     if not acc_ok:
         C[_C_ACC_SKIP] += 1
 
@@ -273,6 +332,9 @@ def _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
     if correct and P[_P_ACC_REJ] > 0.0 and abs(anorm - P[_P_G]) > P[_P_ACC_REJ]:
         correct = False
         C[_C_ACC_REJECT] += 1
+    reinit = correct and S[_S_REINIT] != 0.0
+    if reinit:
+        correct = False  # the error of an attitude from before the gap: no feedback from it
 
     kp = P[_P_KP]
     ramping = P[_P_RAMP_T] > 0.0 and elapsed < P[_P_RAMP_T]
@@ -336,9 +398,19 @@ def _step(S, P, C, gx, gy, gz, ax, ay, az, mx, my, mz, use_mag, dt):
     n2 = q2 + (q0 * gy - q1 * gz + q3 * gx)
     n3 = q3 + (q0 * gz + q1 * gy - q2 * gx)
     inv = 1.0 / math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
-    S[0], S[1], S[2], S[3] = n0 * inv, n1 * inv, n2 * inv, n3 * inv
+    n0, n1, n2, n3 = n0 * inv, n1 * inv, n2 * inv, n3 * inv
+    if reinit:
+        # After a gap: the inclination from this accelerometer sample, the heading kept (the
+        # shortest world-frame rotation taking the measured up onto +z, applied on the left).
+        ux, uy, uz = rotate(n0, n1, n2, n3, ax, ay, az)
+        c0, c1, c2 = tilt_quaternion(ux, uy, uz)
+        n0, n1, n2, n3 = qmul(c0, c1, c2, 0.0, n0, n1, n2, n3)
+        inv = 1.0 / math.sqrt(n0 * n0 + n1 * n1 + n2 * n2 + n3 * n3)
+        n0, n1, n2, n3 = n0 * inv, n1 * inv, n2 * inv, n3 * inv
+        S[_S_REINIT] = 0.0
+    S[0], S[1], S[2], S[3] = n0, n1, n2, n3
     S[4], S[5], S[6] = ix, iy, iz
-    S[_S_ELAPSED] = elapsed + dt
+    S[_S_ELAPSED] = elapsed + span
 
 
 # One float64 buffer holds state, parameters and counters, so the compiled entry points take a
@@ -387,7 +459,7 @@ _NDARRAY = np.ndarray
 _SHAPE3 = (3,)
 
 
-class Mahony:
+class Mahony(AttitudeFilter):
     """Mahony attitude filter: 6-axis (gyro + accelerometer) or 9-axis (+ magnetometer).
 
     Args:
@@ -423,45 +495,26 @@ class Mahony:
         params: MahonyParams | None = None,
         **options,
     ) -> None:
-        if axes not in (6, 9):
-            raise ValueError(f"axes must be 6 or 9, got {axes!r}")
+        check_axes(axes)
         if params is None:
             given = {"kp": kp, "ki": ki, "sample_period": sample_period}
             settings = {**PRESETS[axes], **{k: v for k, v in given.items() if v is not None}}
             params = MahonyParams(**{**settings, **options})
         elif kp is not None or ki is not None or sample_period is not None or options:
             raise ValueError("give either params or individual settings, not both")
-        self.axes = axes
-        self._initial = None
-        if initial_quaternion is not None:
-            self._initial = unit_quaternion("initial_quaternion", initial_quaternion)
-        self.params = params
-        self.reset()
+        self._setup(axes, initial_quaternion, params)
 
-    # -- parameters and state -----------------------------------------------------------------
+    # -- parameters and state (params, with_params, euler: AttitudeFilter) --------------------
 
-    @property
-    def params(self) -> MahonyParams:
-        return self._params
+    _params_class = MahonyParams
+    _layout = (_B_P, _B_C, _B_LEN)
 
-    @params.setter
-    def params(self, params: MahonyParams) -> None:
-        if not isinstance(params, MahonyParams):
-            raise ValueError(f"params must be a MahonyParams, got {type(params).__name__}")
-        self._params = params
-        self._default_dt = params.sample_period
-        self._fast6 = None
-        if hasattr(self, "_B"):
-            self._P[:] = params.packed()
+    def _params_changed(self) -> None:
+        self._fast6 = None  # re-armed by the next general update
 
     def _new_buffer(self) -> None:
         self._fast6 = None  # re-armed by the next general update
-        self._B = np.zeros(_B_LEN)
-        self._S = self._B[_B_S:_B_P]
-        self._P = self._B[_B_P:_B_C]
-        self._C = self._B[_B_C:]
-        self._q = self._B[0:4]
-        self._P[:] = self._params.packed()
+        super()._new_buffer()
 
     def reset(self) -> None:
         """Forget everything: back to the state before the first sample."""
@@ -485,36 +538,66 @@ class Mahony:
             lowpass_ready=bool(S[_S_LP_INIT]),
             last_timestamp=self._last_t,
             counters=MahonyCounters(*(int(c) for c in C)),
+            last_period=float(S[_S_LAST_DT]),
+            reinit_pending=bool(S[_S_REINIT]),
         )
 
     def set_state(self, state: MahonyState) -> None:
-        """Restore a state from :meth:`get_state` (or a hand-made one)."""
-        self._new_buffer()
-        S = self._S
+        """Restore a state from :meth:`get_state` (or a hand-made one).
+
+        Raises:
+            ValueError: a field of the wrong shape, not finite, or out of range (a zero
+                quaternion, a negative time, a bias above ``max_gyro``); the filter is
+                left unchanged.
+        """
+        q = None
         if state.quaternion is not None:
             q = np.asarray(state.quaternion, dtype=float).reshape(4)
+            unit_quaternion("state.quaternion", q)  # finite and non-zero, else ValueError
             # Re-normalising a unit quaternion could change its last bit: only fix real drift.
-            S[:4] = q if abs(np.dot(q, q) - 1.0) < 1e-12 else quat.normalize(q)
-        S[4:7] = np.asarray(state.integral, dtype=float).reshape(3)
+            q = q if abs(np.dot(q, q) - 1.0) < 1e-12 else quat.normalize(q)
+        integral = self._check_rate("state.integral", state.integral)
+        gyro_lp = self._check_rate("state.gyro_lowpass", state.gyro_lowpass)
+        accel_lp = finite_vec3("state.accel_lowpass", state.accel_lowpass)
+        times = {"state.elapsed": state.elapsed, "state.rest_timer": state.rest_timer,
+                 "state.last_period": state.last_period}
+        for name, value in times.items():
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be finite and >= 0 s, got {value!r}")
+        if state.last_timestamp is not None and not math.isfinite(state.last_timestamp):
+            raise ValueError(f"state.last_timestamp must be finite or None, got "
+                             f"{state.last_timestamp!r}")
+        self._new_buffer()
+        S = self._S
+        if q is not None:
+            S[:4] = q
+        S[4:7] = integral
         S[_S_ELAPSED], S[_S_REST_TIMER] = state.elapsed, state.rest_timer
-        S[9:12] = np.asarray(state.gyro_lowpass, dtype=float).reshape(3)
-        S[12:15] = np.asarray(state.accel_lowpass, dtype=float).reshape(3)
+        S[9:12] = gyro_lp
+        S[12:15] = accel_lp
         S[_S_LP_INIT] = 1.0 if state.lowpass_ready else 0.0
+        S[_S_LAST_DT] = state.last_period
+        S[_S_REINIT] = 1.0 if state.reinit_pending else 0.0
         c = state.counters
         self._C[:] = [c.gyro_skipped, c.accel_skipped, c.mag_skipped, c.accel_rejected,
-                      c.rest_samples]
-        self._initialised = state.quaternion is not None
+                      c.rest_samples, c.gaps]
+        self._initialised = q is not None
         self._last_t = state.last_timestamp
+
+    def _check_rate(self, name: str, value: ArrayLike) -> NDArray[np.float64]:
+        """A finite (3,) rate, rad/s, no faster than ``max_gyro``; ``ValueError`` else."""
+        v = finite_vec3(name, value)
+        with np.errstate(over="ignore"):  # 1e200: inf, refused below
+            rate = float(np.linalg.norm(v))
+        if rate > self._params.max_gyro:
+            raise ValueError(f"{name} = {v.tolist()} rad/s is faster than max_gyro "
+                             f"({self._params.max_gyro!r} rad/s)")
+        return v
 
     @property
     def quaternion(self) -> NDArray[np.float64]:
         """Current attitude ``[w, x, y, z]``, body -> world ENU (identity before any sample)."""
         return self._S[:4].copy() if self._initialised else quat.IDENTITY.copy()
-
-    @property
-    def euler(self) -> NDArray[np.float64]:
-        """Current roll, pitch, yaw in radians (ZYX)."""
-        return quat.to_euler(self.quaternion)
 
     @property
     def gyro_bias(self) -> NDArray[np.float64]:
@@ -523,20 +606,14 @@ class Mahony:
 
     @gyro_bias.setter
     def gyro_bias(self, bias: ArrayLike) -> None:
-        self._S[4:7] = -np.asarray(bias, dtype=float).reshape(3)
+        """Set the bias estimate, rad/s (3,): finite and no faster than ``max_gyro``, else
+        ``ValueError`` (a NaN bias would silently turn the attitude into NaN)."""
+        self._S[4:7] = -self._check_rate("gyro_bias", bias)
 
     @property
     def counters(self) -> MahonyCounters:
         """Documented skips since the last reset (see :class:`MahonyCounters`)."""
         return MahonyCounters(*(int(c) for c in self._C))
-
-    def with_params(self, **changes) -> Mahony:
-        """A fresh filter with the same settings and some parameters changed."""
-        return Mahony(
-            axes=self.axes,
-            initial_quaternion=self._initial,
-            params=replace(self._params, **changes),
-        )
 
     # -- initialisation ---------------------------------------------------------------------
 
@@ -660,12 +737,9 @@ class Mahony:
                 measured from the previous call's last timestamp when there was one, else it is
                 ``sample_period`` if set, else the first difference.
         """
-        g = as_rows("gyro", gyro)
+        g, a, m, use_mag = self._batch_rows(gyro, accel, mag)
         n = g.shape[0]
-        a = as_rows("accel", accel, n)
-        use_mag = self.axes == 9 and mag is not None
-        m = as_rows("mag", mag, n) if use_mag else np.zeros((0, 3))
-        dts = self._batch_dt(n, dt, timestamps)
+        dts = self._batch_periods(n, dt, timestamps)
         out = np.empty((n, 4))
         if n == 0:
             return out
@@ -685,29 +759,11 @@ class Mahony:
         )
         return out
 
-    def _batch_dt(self, n: int, dt, timestamps) -> NDArray[np.float64]:
-        if timestamps is not None:
-            t = timestamps_array(timestamps, n)
-            if n == 0:
-                return np.zeros(1)
-            if dt is None:
-                if self._last_t is not None:
-                    first = t[0] - self._last_t
-                elif self._params.sample_period is not None:
-                    first = self._params.sample_period
-                elif n > 1:
-                    first = t[1] - t[0]
-                else:
-                    raise ValueError("one timestamp alone gives no dt: pass dt= or sample_period")
-                dts = np.empty(n)
-                dts[0] = first
-                dts[1:] = np.diff(t)
-                check_dts(dts, "timestamps must increase strictly: at index")
-                self._last_t = float(t[-1])
-                return dts
-            self._last_t = float(t[-1])
-        if dt is None:
-            if self._params.sample_period is None:
-                raise ValueError("no dt: pass dt=, timestamps=, or set sample_period")
-            return np.array([self._params.sample_period])
-        return explicit_periods(dt, n)
+    def _first_period(self, t: NDArray[np.float64]) -> float:
+        """The first period of a batch with no earlier timestamp: ``sample_period``, else
+        the first stamp difference."""
+        if self._params.sample_period is not None:
+            return self._params.sample_period
+        if t.size > 1:
+            return float(t[1] - t[0])
+        raise ValueError("one timestamp alone gives no dt: pass dt= or sample_period")

@@ -101,6 +101,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     try:
         return int(args.func(args) or 0)
+    except BrokenPipeError:
+        if not _stdout_closed():
+            raise
+        return 1  # the reader of our output went away (`fusion ... | head`): no message
     except KeyboardInterrupt:
         return 130
     except Exception as exc:
@@ -115,6 +119,26 @@ def main(argv: list[str] | None = None) -> int:
         print(f"fusion {args.command}: internal error: {type(exc).__name__}: {exc} (a bug: "
               "please report it with the traceback above)", file=sys.stderr)
         return 1
+
+
+def _stdout_closed() -> bool:
+    """True when standard output's reader has gone (a pipe whose reader closed: poll says
+    POLLERR); standard output then points at /dev/null so that the interpreter's own final
+    flush is quiet too."""
+    import os
+    import select
+
+    try:
+        fd = sys.stdout.fileno()
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        broken = any(ev & select.POLLERR for _fd, ev in poller.poll(0))
+    except (AttributeError, ValueError, OSError):
+        return False
+    if broken:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, fd)
+    return broken
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -278,7 +278,13 @@ def _cmd_step(args) -> int:
     wheel = "right" if args.wheel == "right" else "left"
     y = np.array([getattr(f, wheel) for f in samples], dtype=float)
     m = step_metrics(t, y, args.ticks)
-    print(f"target {m.target:g} ticks/period ({wheel} wheel), {len(samples)} frames")
+    expected = args.duration / args.period
+    print(f"target {m.target:g} ticks/period ({wheel} wheel), {len(samples)} frames "
+          f"({expected:.0f} expected at --period {args.period:g} s)")
+    if not 0.8 * expected <= len(samples) <= 1.2 * expected:
+        print(f"warning: {len(samples)} frames in {args.duration:g} s is one per "
+              f"{args.duration / len(samples):.3f} s: is --period {args.period:g} s the "
+              "board's encoder sampling period? (the rise time is in s either way)")
     print(f"rise time (10-90 %): {m.rise_time:.3f} s")
     print(f"overshoot: {m.overshoot:.1f} %")
     print(f"steady-state value: {m.steady_state_value:.2f} ticks/period, "
@@ -349,7 +355,8 @@ def register(subparsers) -> None:
     q.add_argument("action", choices=("get", "reset", "set"))
     q.add_argument("gains", type=float, nargs="*", metavar="K", help="KP KI KD for set")
     q.add_argument("--port", required=True, help="DEBUG-uart1 port or pyserial URL")
-    q.add_argument("--timeout", type=float, default=2.0, help="s to wait for the reply")
+    q.add_argument("--timeout", type=float, default=2.0, metavar="S",
+                   help="s to wait for the reply (default 2)")
     q.add_argument("-v", "--verbose", action="store_true", help="echo the other reply lines")
     q.set_defaults(func=_cmd_pid)
 

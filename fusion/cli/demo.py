@@ -10,7 +10,7 @@ What runs (all of it the real code path of ``fusion run`` on a robot):
 - a simulated MPU6050 on a register-level I2C bus (:class:`drivers.sim.mpu6050.SimulatedMPU6050`)
   driven by the simulated chassis' true motion, read by the real
   :class:`drivers.mpu6050.MPU6050` driver through its FIFO;
-- :class:`fusion.pipeline.core.FusionPipeline` (Mahony + EKF) publishing to an MCAP file.
+- :class:`fusion.pipeline.core.FusionPipeline` (Keel + EKF) publishing to an MCAP file.
 
 The robot is honest about its flaws: ``robot.toml`` says the wheels are 3 % further apart than
 they are, the wheel radii differ by 0.5 %, two one-second slip patches make a wheel spin
@@ -374,7 +374,8 @@ def register(subparsers) -> None:
         description=(
             "Runs a one-minute scripted mission on a simulated miiboo STM32 chassis (on a "
             "pseudo-terminal, through the real serial link) and a simulated MPU6050 (through "
-            "the real driver), sped up; fuses it live with the Mahony filter and the EKF; "
+            "the real driver), sped up; fuses it live with the Keel attitude estimator and "
+            "the EKF; "
             "prints distance, final position error and yaw RMSE of the fused and the "
             "wheel-only odometry against the simulator's truth, frames and samples handled "
             "and the latency; writes demo.mcap and demo.png."

@@ -2,9 +2,10 @@
 the job itself is :mod:`fusion.jobs.replay`).
 
 Inputs: a log directory (``datasets/LOGDIR.md``), a folder whose subfolders are log directories
-(every log replayed in a worker process, ``--jobs``; one output per log in the ``-o`` folder and a
-summary table), a DATA-uart2 capture (``*.uart2``) with ``--robot robot.toml``, or a ROS 1
-``.bag``, a ROS 2 bag folder or an ``.mcap`` file with ``--imu-topic`` and ``--odom-topic``.
+(every log replayed in a worker process, ``--jobs``, or on Dask workers, ``--cluster``
+(:mod:`fusion.jobs.cluster`); one output per log in the ``-o`` folder and a summary table), a
+DATA-uart2 capture (``*.uart2``) with ``--robot robot.toml``, or a ROS 1 ``.bag``, a ROS 2 bag
+folder or an ``.mcap`` file with ``--imu-topic`` and ``--odom-topic``.
 
 Outputs (``-o``, by suffix): ``.csv`` the fused CSV (:mod:`fusion.io.fused_csv`, the state at
 every IMU sample), ``.mcap`` or ``.jsonl`` the pipeline's records. ``--plot out.png`` draws the
@@ -39,7 +40,7 @@ def register(subparsers) -> None:
         "replay",
         help="fused wheel + gyro odometry (EKF) of recorded logs",
         description=(
-            "Run the fusion pipeline (Mahony attitude + planar EKF: wheel odometry and the "
+            "Run the fusion pipeline (Keel attitude + planar EKF: wheel odometry and the "
             "gyro yaw rate with a gyro-bias state) over a log directory (robot.toml, imu.csv "
             "and/or wheels.csv or wheels.uart2, optional truth.csv; see datasets/LOGDIR.md), "
             "a folder of log directories (in parallel worker processes), a DATA-uart2 "
@@ -61,7 +62,7 @@ def register(subparsers) -> None:
                         "output's format comes from its suffix)")
     p.add_argument("--level", action="store_true",
                    help="take the robot as level: use the gyro's z axis as the yaw rate "
-                        "(default: tilt-compensate with the Mahony attitude)")
+                        "(default: tilt-compensate with the attitude filter's attitude)")
     p.add_argument("--plot", type=Path, metavar="PNG",
                    help="draw fused vs wheel-only (vs truth) trajectories and the yaw error to "
                         "this PNG (for a folder of logs: a folder, one PNG per log); needs "
@@ -71,9 +72,19 @@ def register(subparsers) -> None:
                         "of 10 minutes or more and for folders of logs)")
     p.add_argument("-j", "--jobs", type=int, default=None,
                    help="worker processes for a folder of logs (default: the CPU count)")
+    p.add_argument("--cluster", nargs="?", const="", default=None, metavar="SPEC",
+                   help="replay a folder of logs on Dask (the 'cluster' extra): local[:N] "
+                        "starts a local cluster of N one-thread workers (default N: the CPU "
+                        "count), tcp://HOST:8786 joins a running scheduler, and --cluster "
+                        "alone joins the one in DASK_SCHEDULER_ADDRESS; not with --jobs")
     p.add_argument("--robot", type=Path,
                    help="robot.toml for a capture (required), a bag (wheel_distance and "
                         "[ekf] tuning; optional) or a log directory (instead of its own)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit with status 3 when the inputs disagree beyond what the model "
+                        "explains (most frames slip, an implausible gyro bias, odometry and "
+                        "gyro headings diverging; printed as 'warning: inputs disagree' "
+                        "either way)")
     bag = p.add_argument_group("ROS bags")
     bag.add_argument("--imu-topic", help="sensor_msgs/Imu topic (bags only)")
     bag.add_argument("--odom-topic", help="nav_msgs/Odometry topic of the wheel odometry "
@@ -132,6 +143,12 @@ class _Progress:
         print(f"{self.desc}: {pct:3.0f}% ({self._done:.1f}/{self.total:.1f} {self.unit})",
               file=sys.stderr, flush=True)
 
+    def discard(self) -> None:
+        """Stop showing an unfinished bar (an interrupt): no final line."""
+        if self.enabled and self._bar is not None:
+            self._bar.close()
+        self.enabled = False
+
     def close(self) -> None:
         if not self.enabled:
             return
@@ -163,17 +180,21 @@ def _progress_for(flag: bool | None, span: float) -> bool:
 
 def _print_result(r, level_note: bool = True) -> None:
     s = r.stats
+    written = (f"{r.rows} rows" if OUTPUT_FORMATS.get(Path(r.output).suffix.lower()) == "csv"
+               else f"{r.records} records")
     print(f"{r.source}: {r.span:.1f} s, {r.n_imu} IMU samples, {r.n_wheels} wheel frames "
-          f"-> {r.output} ({r.rows} rows, {r.records} records)")
+          f"-> {r.output} ({written})")
     x, y, yaw = r.final
     print(f"final pose: x {x:.3f} m, y {y:.3f} m, yaw {math.degrees(yaw):.2f} deg; path "
           f"{r.distance:.2f} m")
     print(f"gyro bias {math.degrees(r.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, "
           f"slip frames {s['slips']}, late inputs fused {s['late_applied']}, dropped "
           f"{s['late_dropped']}, invalid {s['invalid']}; wheel gaps {s['gap_count']} "
-          f"({s['frames_missing']} frames missing)")
+          f"({s['frames_missing']} frames missing), IMU gaps {s['attitude_gaps']}, "
+          f"speeds forgotten after a gap {s['speed_resets']}")
     for note in r.notes:
         print(f"warning: {note}")
+    _print_warnings(r.warnings)
     if r.n_imu:
         print(f"wheel yaw-rate calibration seen by the gyro: k {r.k:+.4f} "
               f"(wheel_distance ~ {r.wheel_distance * (1 + r.k):.4f} m), "
@@ -189,7 +210,25 @@ def _print_result(r, level_note: bool = True) -> None:
               f"yaw RMSE {tr['wheel_yaw_deg']:.3f} deg")
 
 
-def _print_table(work, results, jobs: int) -> int:
+def _print_warnings(warnings) -> None:
+    """The trust warnings (:mod:`fusion.evaluation.trust`) of one replay."""
+    for w in warnings:
+        print(f"warning: inputs disagree ({w.name}): {w.message}")
+    if warnings:
+        print("warning: the fused odometry above should not be trusted")
+
+
+def _exit_status(args: argparse.Namespace, warnings) -> int:
+    from fusion.jobs.status import STRICT_EXIT_STATUS
+
+    if args.strict and warnings:
+        print(f"fusion replay: --strict: the inputs disagree (exit status {STRICT_EXIT_STATUS})",
+              file=sys.stderr)
+        return STRICT_EXIT_STATUS
+    return 0
+
+
+def _print_table(work, results, where: str) -> int:
     head = (f"{'log':<24} {'status':<6} {'time s':>8} {'IMU':>8} {'wheels':>7} "
             f"{'final x':>8} {'final y':>8} {'yaw deg':>8} {'fused %':>8} {'wheel %':>8}  output")
     print(head)
@@ -209,8 +248,7 @@ def _print_table(work, results, jobs: int) -> int:
         print(f"{name:<24} {'ok':<6} {r.span:>8.1f} {r.n_imu:>8} {r.n_wheels:>7} "
               f"{r.final[0]:>8.3f} {r.final[1]:>8.3f} {math.degrees(r.final[2]):>8.2f} "
               f"{fp:>8} {wp:>8}  {output}")
-    print(f"{len(work) - failed} of {len(work)} logs replayed ({jobs} worker process"
-          f"{'es' if jobs != 1 else ''}); {failed} failed")
+    print(f"{len(work) - failed} of {len(work)} logs replayed ({where}); {failed} failed")
     for w in work:
         status, value = results[w.source]
         if status != "ok":
@@ -219,17 +257,62 @@ def _print_table(work, results, jobs: int) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    """The command; Ctrl-C (SIGINT) stops it with status 130, saying what was written."""
+    outputs = [p for p in (args.output, args.plot) if p is not None]
+    before = {p: _file_state(p) for p in outputs}
+    started = time.time()
+    try:
+        return _run(args)
+    except KeyboardInterrupt:
+        for line in _interrupt_report(before, started):
+            print(f"fusion replay: interrupted: {line}", file=sys.stderr, flush=True)
+        return 130
+
+
+def _file_state(path: Path) -> tuple[int, int] | None:
+    """(mtime ns, size) of a file, None if there is none (a folder: None)."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return (st.st_mtime_ns, st.st_size) if path.is_file() else None
+
+
+def _interrupt_report(before: dict[Path, tuple[int, int] | None], started: float
+                      ) -> list[str]:
+    """What an interrupted replay left: each output written completely before the interrupt,
+    or left as it was (outputs are replaced only by complete files, never partly written)."""
+    lines = []
+    for path, old in before.items():
+        if path.is_dir():  # a folder of logs: the outputs finished before the interrupt
+            done = sorted(p.name for p in path.iterdir()
+                          if p.is_file() and p.stat().st_mtime >= started)
+            lines.append(f"{len(done)} output(s) in {path} complete"
+                         f"{': ' + ', '.join(done) if done else ''}; the other logs wrote "
+                         "nothing")
+            continue
+        now = _file_state(path)
+        if now is not None and now != old:
+            lines.append(f"{path} was written completely before the interrupt (kept)")
+        elif old is None:
+            lines.append(f"{path} not written (nothing partial left)")
+        else:
+            lines.append(f"{path} left as it was (an existing file is only replaced by a "
+                         "complete one)")
+    return lines
+
+
+def _run(args: argparse.Namespace) -> int:
     from fusion.jobs import replay as job
 
     path: Path = args.input
     if not path.exists():
         raise CommandError(f"{path}: no such log directory or bag")
-    if job.is_bag(path):
-        return run_bag(args)
-    if args.imu_topic or args.odom_topic:
+    bag = job.is_bag(path)
+    if not bag and (args.imu_topic or args.odom_topic):
         raise CommandError(f"{path}: --imu-topic/--odom-topic are for ROS bags; this is not "
                            "a .bag, .mcap or ROS 2 bag folder")
-    folder = path.is_dir() and not (path / "robot.toml").is_file()
+    folder = not bag and path.is_dir() and not (path / "robot.toml").is_file()
     if args.format is not None and not folder:
         fmt = OUTPUT_FORMATS.get(args.output.suffix.lower())
         if fmt != args.format:
@@ -237,6 +320,13 @@ def run(args: argparse.Namespace) -> int:
                                f"{args.output} is {fmt or 'of no known type'} by its suffix")
     if args.jobs is not None and not folder:
         raise CommandError("--jobs applies to a folder of logs only")
+    if args.cluster is not None and not folder:
+        raise CommandError("--cluster applies to a folder of logs only")
+    if args.cluster is not None and args.jobs is not None:
+        raise CommandError("--cluster and --jobs exclude each other: --jobs N runs worker "
+                           "processes on this machine, --cluster runs on Dask workers")
+    if bag:
+        return run_bag(args)
     if path.is_file():
         for given, option in ((args.level, "--level"),
                               (args.imu_mount_rpy is not None, "--imu-mount-rpy")):
@@ -257,7 +347,7 @@ def run(args: argparse.Namespace) -> int:
                                    progress=bar.callback)
         _print_result(r, level_note=False)
         print("DATA-uart2 capture: wheel odometry only (no gyro to fuse)")
-        return 0
+        return _exit_status(args, r.warnings)
     if folder:
         logs = job.find_log_dirs(path)
         if logs:
@@ -280,18 +370,39 @@ def run(args: argparse.Namespace) -> int:
     with _BarContext(args.progress, path.name) as bar:
         r = job.replay_logdir(path, args.output, tilt=not args.level, plot=args.plot,
                               robot=robot, imu_mount_rpy=args.imu_mount_rpy,
-                              progress=bar.callback)
+                              progress=bar.callback, load_progress=bar.loading)
     _print_result(r)
-    return 0
+    return _exit_status(args, r.warnings)
+
+
+#: Without --progress/--no-progress, loading a file of at least this many bytes shows its
+#: progress when stderr is a terminal (a 100 Hz imu.csv of about 10 minutes).
+AUTO_LOAD_PROGRESS_MIN_BYTES = 8 << 20
 
 
 class _BarContext:
-    """A progress bar made on the first callback of a job, when the log's span is known."""
+    """A progress bar made on the first callback of a job, when the log's span is known;
+    before it, one per file being loaded (:meth:`loading`)."""
 
     def __init__(self, flag: bool | None, desc: str) -> None:
         self.flag = flag
         self.desc = desc
         self.bar: _Progress | None = None
+        self._loads: dict[str, _Progress] = {}
+
+    def loading(self, name: str, done: int, total: int) -> None:
+        """``done`` of ``total`` bytes of the file ``name`` parsed."""
+        bar = self._loads.get(name)
+        if bar is None:
+            enabled = (self.flag if self.flag is not None
+                       else total >= AUTO_LOAD_PROGRESS_MIN_BYTES and _stderr_is_tty())
+            bar = self._loads[name] = _Progress(total / 1e6, f"{self.desc}: loading {name}",
+                                                "MB", bool(enabled))
+        if bar.enabled:
+            bar.update_to(done / 1e6)
+            if done >= total:
+                bar.close()
+                bar.enabled = False  # closed: later calls are no-ops
 
     def callback(self, done: float, total: float) -> None:
         if self.bar is None:
@@ -302,6 +413,8 @@ class _BarContext:
         return self
 
     def __exit__(self, *exc) -> None:
+        for bar in self._loads.values():  # an interrupt while loading
+            bar.discard()
         if self.bar is not None:
             self.bar.close()
 
@@ -323,6 +436,11 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
     if workers < 1:
         raise CommandError(f"--jobs must be >= 1, got {workers}")
     workers = min(workers, len(logs))
+    cluster = None
+    if args.cluster is not None:
+        from fusion.jobs import cluster as dask_jobs
+
+        cluster = dask_jobs.parse_cluster(args.cluster)
     out_dir.mkdir(parents=True, exist_ok=True)
     if args.plot is not None:
         args.plot.mkdir(parents=True, exist_ok=True)
@@ -339,12 +457,36 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
         done[0] += 1
         bar.update_to(done[0])
 
-    try:
-        results = job.replay_logs(work, workers, on_done)
-    finally:
-        bar.close()
-    failed = _print_table(work, results, workers)
-    return 1 if failed else 0
+    if cluster is None:
+        where = f"{workers} worker process{'es' if workers != 1 else ''}"
+        try:
+            results = job.replay_logs(work, workers, on_done)
+        finally:
+            bar.close()
+    else:
+        where = cluster.describe()
+        try:
+            with dask_jobs.dask_client(cluster) as client:
+                n_workers, threads = dask_jobs.cluster_threads(client)
+                if threads > n_workers:
+                    print(f"warning: the cluster's {n_workers} workers run {threads} threads; "
+                          "replay tasks hold the GIL, start workers with --nthreads 1",
+                          file=sys.stderr)
+                results = dask_jobs.replay_logs_cluster(work, client, on_done)
+        finally:
+            bar.close()
+    failed = _print_table(work, results, where)
+    warned = []
+    for w in work:
+        status, value = results[w.source]
+        if status == "ok" and value.warnings:
+            warned.extend(value.warnings)
+            for tw in value.warnings:
+                print(f"warning: {Path(w.source).name}: inputs disagree ({tw.name}): "
+                      f"{tw.message}")
+    if failed:
+        return 1
+    return _exit_status(args, warned)
 
 
 def run_bag(args: argparse.Namespace) -> int:
@@ -355,8 +497,13 @@ def run_bag(args: argparse.Namespace) -> int:
 
     path: Path = args.input
     if not (args.imu_topic and args.odom_topic):
+        from fusion.io.bags import bag_topics
+
+        topics = bag_topics(path)
+        present = ", ".join(f"{t} ({typ})" for t, (typ, _n) in sorted(topics.items()))
         raise CommandError(f"{path}: a bag needs --imu-topic (sensor_msgs/Imu) and "
-                           "--odom-topic (nav_msgs/Odometry)")
+                           "--odom-topic (nav_msgs/Odometry); its topics: "
+                           f"{present or 'none'}")
     robot = read_robot_toml(args.robot) if args.robot is not None else None
     with _BarContext(args.progress, path.name) as bar:
         r = job.replay_bag(path, args.output, imu_topic=args.imu_topic,
@@ -364,9 +511,11 @@ def run_bag(args: argparse.Namespace) -> int:
                            imu_mount_rpy=args.imu_mount_rpy, tilt=not args.level,
                            plot=args.plot, progress=bar.callback)
     imu, odom, table, stats, own = r.imu, r.odom, r.table, r.stats, r.own
+    written = (f"{table.shape[0]} rows" if args.output.suffix.lower() == ".csv"
+               else f"{stats.records} records")
     print(f"{path}: {len(imu)} IMU messages ({imu.frame_id or 'no frame_id'}), {len(odom)} "
           f"odometry messages ({odom.frame_id} -> {odom.child_frame_id}) -> {args.output} "
-          f"({table.shape[0]} rows, {stats.records} records)")
+          f"({written})")
     if imu.out_of_order or odom.out_of_order:
         print(f"warning: messages out of order in the bag (sorted): IMU {imu.out_of_order}, "
               f"odometry {odom.out_of_order}")
@@ -378,4 +527,5 @@ def run_bag(args: argparse.Namespace) -> int:
           f"(twist/gyro disagreement) {stats.slips}, invalid {ekf.stats['invalid']}")
     print(f"the bag's own odometry ({args.odom_topic}) final pose from its start: x "
           f"{own[-1, 0]:.3f} m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")
-    return 0
+    _print_warnings(r.warnings)
+    return _exit_status(args, r.warnings)

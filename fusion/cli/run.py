@@ -49,7 +49,7 @@ def register(subparsers: Any) -> None:
         "run",
         help="live fused odometry from the IMU and the chassis, published to ROS 1, "
              "ROS 2, Foxglove, MCAP or JSON lines",
-        description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Mahony + EKF -> "
+        description="The live publisher: MPU6050 (I2C) + chassis (serial) -> Keel + EKF -> "
                     "sinks. Every option can come from --config (TOML, see fusion.io.run_config); "
                     "the command line wins. Ctrl-C stops cleanly (files complete).",
     )
@@ -78,6 +78,10 @@ def register(subparsers: Any) -> None:
                    help="seconds between status lines on stderr and {\"status\": ...} "
                         "records in JSON lines outputs: events in, fused, dropped by reason, "
                         "unaccounted, source faults (0: none; default 10)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit with status 3 when the inputs disagree beyond what the model "
+                        "explains (most frames slip, an implausible gyro bias, odometry and "
+                        "gyro headings diverging); the final status says so either way")
     p.set_defaults(func=run)
 
 
@@ -99,7 +103,8 @@ def _config(args: argparse.Namespace):
     cfg = cfg.with_overrides(imu=args.imu, imu_address=args.address, imu_rate_hz=args.rate,
                              imu_calibration=args.calibration, chassis=args.chassis,
                              baudrate=args.baudrate, publish=publish, duration=args.duration,
-                             speed=args.speed, status=args.status)
+                             speed=args.speed, status=args.status,
+                             strict=True if args.strict else None)
     if rate is not None:
         from dataclasses import replace
 
@@ -204,14 +209,15 @@ def run(args: argparse.Namespace) -> int:
     pipe = FusionPipeline(cfg.robot, sinks, publish_rate_hz=cfg.publish_rate_hz,
                           reorder_window=cfg.reorder_window or window, imu_rate_hz=cfg.imu_rate_hz,
                           tilt=cfg.tilt, clock=clock, max_stamp_lead=MAX_STAMP_LEAD,
-                          on_sink_error=lambda sink, text: err(
-                              f"sink {sink!r} failed; the others go on:\n{text}"),
+                          on_sink_error=lambda sink, exc, text: _sink_failed(sink, exc, text,
+                                                                             err),
                           sources=[name for name, on in (("imu", cfg.imu != "none"),
                                                          ("wheels", cfg.chassis != "none"))
                                    if on])
     robot = link = imu = runner = None
     complete = False
     failure: BaseException | None = None
+    warnings: list = []
     previous = signal.getsignal(signal.SIGTERM)
     if threading.current_thread() is threading.main_thread():
         def on_term(signum, frame):
@@ -268,6 +274,9 @@ def run(args: argparse.Namespace) -> int:
             if status and time.monotonic() - state["status"] >= status:
                 state["status"] = time.monotonic()
                 _report_status(pipe, runner, err)
+            if not pipe.working_sinks and sinks:  # every output failed: nothing to run for
+                err("stopping: every output failed")
+                return True
             return duration is not None and time.monotonic() - wall0 >= duration
 
         err(f"running: imu {cfg.imu}, chassis {port if cfg.chassis != 'none' else 'none'}, "
@@ -294,8 +303,10 @@ def run(args: argparse.Namespace) -> int:
                         device.close()
             finally:
                 try:
-                    _finish(pipe, complete, lambda: status and _report_status(
-                        pipe, runner, err, final=True))
+                    if complete:  # files complete, the final status record last
+                        warnings = _close_with_status(pipe, runner)
+                    else:
+                        pipe.abort()
                 finally:
                     if threading.current_thread() is threading.main_thread():
                         signal.signal(signal.SIGTERM, previous)
@@ -304,24 +315,35 @@ def run(args: argparse.Namespace) -> int:
 
                     gc.unfreeze()
     err(_status(pipe, runner) + f"; done after {time.monotonic() - wall0:.1f} s")
+    for w in warnings:
+        err(f"warning: inputs disagree ({w.name}): {w.message}")
     if failure is not None:
         raise failure
-    return 0
+    from fusion.jobs.status import STRICT_EXIT_STATUS
+
+    return STRICT_EXIT_STATUS if cfg.strict and warnings else 0
 
 
-def _finish(pipe, complete: bool, last_words) -> None:
-    """Close the pipeline: after a clean stop fuse what it holds, call ``last_words()`` (the
-    final status record) and close (files complete); otherwise abort (no partial files)."""
-    if not complete:
-        pipe.abort()
-        return
+def _close_with_status(pipe, runner) -> list:
+    """Fuse what the pipeline holds, write the final status record to the JSON lines sinks
+    after the last record (counters and trust warnings, :mod:`fusion.jobs.status`, with the
+    runner's ledger and sources' health: :meth:`LiveRunner.status`, ``"final": true``),
+    close; the warnings."""
+    from fusion.jobs.status import pipeline_warnings, status_record, write_status
+
     try:
         pipe.flush()
-        last_words()
+        warnings = pipeline_warnings(pipe)
+        record = status_record(pipe, warnings)
+        if runner is not None:
+            record.update(runner.status())
+        record["final"] = True
+        write_status(pipe, record)
     except BaseException:
         pipe.abort()
         raise
     pipe.close()
+    return warnings
 
 
 def _refuse_options_without_effect(args: argparse.Namespace, cfg) -> None:
@@ -355,17 +377,24 @@ def _open_imu(cfg, robot, clock):
     return MPU6050(int(cfg.imu.split(":")[1]), cfg.imu_address, **kw)
 
 
-def _report_status(pipe, runner, err, final: bool = False) -> None:
-    """A status line on stderr and a status record in the JSON lines sinks."""
-    if not final:
-        err(_status(pipe, runner))
+def _sink_failed(sink, exc: BaseException, text: str, err) -> None:
+    """A sink's write failed: say so with the traceback; the run goes on with the others
+    (it stops when none is left). Standard output whose reader went away (``fusion run |
+    head``) is no error to report: the run ends quietly (exit status 1)."""
+    if isinstance(exc, BrokenPipeError):
+        return
+    err(f"sink {sink!r} failed; the others go on:\n{text}")
+
+
+def _report_status(pipe, runner, err) -> None:
+    """A status line on stderr and a status record in the JSON lines sinks (the final one:
+    :func:`_close_with_status`)."""
+    err(_status(pipe, runner))
     if runner is None:
         return
-    record = runner.status()
-    record["final"] = final
-    for sink in pipe.sinks:
-        if hasattr(sink, "write_status"):
-            sink.write_status(record)
+    from fusion.jobs.status import write_status
+
+    write_status(pipe, {**runner.status(), "final": False})
 
 
 def _ledger_text(led: dict) -> str:
@@ -379,7 +408,8 @@ def _status(pipe, runner) -> str:
     s = pipe.finish_stats()
     p50, p99 = pipe.latency_percentiles(50, 99)
     parts = [f"{s.wheel_frames} frames, {s.imu_samples} IMU samples, {s.records} records",
-             f"{s.gap_count} wheel gaps ({s.frames_missing} frames missing)",
+             f"{s.gap_count} wheel gaps ({s.frames_missing} frames missing), "
+             f"{s.attitude_gaps} IMU gaps, {s.speed_resets} speeds forgotten after a gap",
              f"{s.slips} slips, {s.zupts} ZUPTs"]
     if runner is not None:
         parts.append(_ledger_text(runner.ledger()))
@@ -393,4 +423,9 @@ def _status(pipe, runner) -> str:
                      "not written to it")
     if p50 == p50:
         parts.append(f"latency p50 {p50 * 1e3:.1f} ms p99 {p99 * 1e3:.1f} ms")
+    from fusion.jobs.status import pipeline_warnings
+
+    disagree = [w.name for w in pipeline_warnings(pipe)]
+    if disagree:
+        parts.append(f"inputs disagree: {', '.join(disagree)}")
     return "; ".join(parts)

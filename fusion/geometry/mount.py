@@ -65,7 +65,7 @@ def base_to_imu(R: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
 def vertical_rate(gyro: ArrayLike, quaternion: ArrayLike | None = None) -> NDArray[np.float64]:
     """Rate about the world vertical (rad/s) from body-frame gyro rates (..., 3).
 
-    With ``quaternion`` (scalar first ``[w, x, y, z]``, body -> world ENU, e.g. the Mahony
+    With ``quaternion`` (scalar first ``[w, x, y, z]``, body -> world ENU, e.g. the Keel
     attitude; normalised here) the body rate is rotated into the world frame and its z
     component returned: ``R[2, :] @ gyro``, the tilt-compensated yaw rate. Without it the
     robot is taken as level and ``gyro[..., 2]`` is returned.

@@ -28,9 +28,10 @@ from numpy.typing import NDArray
 from fusion.geometry import quaternion as quat
 from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
+from fusion.io.read_progress import LineProgress, ReadProgress
 
 __all__ = ["ATTITUDE_CSV_COLUMNS", "IMU_CSV_COLUMNS", "IMU_RECORD_COLUMNS", "ImuLog",
-           "imu_csv_line", "read_imu_csv", "write_attitude_csv"]
+           "imu_csv_line", "imu_csv_lines", "read_imu_csv", "write_attitude_csv"]
 
 #: The columns every IMU CSV has (s, rad/s, m/s^2).
 IMU_CSV_COLUMNS = ("t", "gx", "gy", "gz", "ax", "ay", "az")
@@ -60,8 +61,10 @@ class ImuLog:
         return len(self.t)
 
 
-def read_imu_csv(path: str | Path) -> ImuLog:
-    """Read an IMU CSV (schema in the module docstring): the columns named there, by name.
+def read_imu_csv(path: str | Path, progress: ReadProgress | None = None) -> ImuLog:
+    """Read an IMU CSV (schema in the module docstring): the columns named there, by name;
+    ``progress(done, total)`` (bytes) is told how far the parse is (a large file takes
+    seconds).
 
     Raises :class:`LogFormatError` naming the file and line for a header without the IMU
     columns, a row with the wrong number of fields, a value of a read column that is not a
@@ -73,9 +76,16 @@ def read_imu_csv(path: str | Path) -> ImuLog:
     header = [h.strip() for h in header_line.strip().split(",")]
     columns = _read_columns(path, header, header_line)
     width = len(header)
+    usecols = [header.index(c) for c in columns]
     try:
-        data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64,
-                          usecols=[header.index(c) for c in columns])
+        if progress is None:
+            data = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2, dtype=np.float64,
+                              usecols=usecols)
+        else:
+            with path.open() as fh:
+                data = np.loadtxt(LineProgress(fh, path.stat().st_size, progress),
+                                  delimiter=",", skiprows=1, ndmin=2, dtype=np.float64,
+                                  usecols=usecols)
     except ValueError:
         _raise_bad_csv_line(path, header, columns)
         raise
@@ -123,6 +133,12 @@ def _data_lines(path: Path) -> list[int]:
     """Line numbers (1-based) of the data rows: the non-blank lines after the header."""
     with path.open(newline="") as fh:
         return [n for n, line in enumerate(fh, start=1) if n > 1 and line.strip()]
+
+
+def imu_csv_lines(path: str | Path, indices: list[int]) -> list[int]:
+    """The lines of the IMU CSV ``path`` holding samples ``indices`` (0-based data rows)."""
+    lines = _data_lines(Path(path))
+    return [lines[i] for i in indices]
 
 
 def imu_csv_line(log: ImuLog, index: int) -> int:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import csv
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -37,6 +38,7 @@ from fusion.geometry.mount import imu_to_base, mount_matrix
 from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import read_imu_csv
+from fusion.io.read_progress import LineProgress, ReadProgress
 from fusion.io.robot_toml import read_robot_toml, write_robot_toml
 from fusion.io.uart2 import read_uart2_capture
 from fusion.planar.robot import RobotConfig
@@ -95,9 +97,11 @@ class LogDir:
         return float(min(a[0] for a in ts)), float(max(a[-1] for a in ts))
 
 
-def _read_csv(path: Path, columns: tuple[str, ...]) -> tuple[NDArray[np.float64], NDArray]:
+def _read_csv(path: Path, columns: tuple[str, ...], progress: ReadProgress | None = None
+              ) -> tuple[NDArray[np.float64], NDArray]:
     with path.open(newline="") as fh:
-        reader = csv.reader(fh)
+        reader = csv.reader(fh if progress is None
+                            else LineProgress(fh, path.stat().st_size, progress))
         header = next(reader, None)
         if header is None or tuple(h.strip() for h in header) != columns:
             raise LogFormatError(f"{path}:1: header must be {','.join(columns)}, got "
@@ -135,7 +139,8 @@ def _is_float(s: str) -> bool:
     return True
 
 
-def read_wheels_csv(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+def read_wheels_csv(path: str | Path, progress: ReadProgress | None = None
+                    ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
     """Read ``wheels.csv``; returns ``(t, ticks)`` with ticks (M, 2) int64 (left, right).
 
     Raises:
@@ -143,7 +148,7 @@ def read_wheels_csv(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.i
             stamps that do not increase; the message names file and line.
     """
     path = Path(path)
-    data, lines = _read_csv(path, WHEELS_COLUMNS)
+    data, lines = _read_csv(path, WHEELS_COLUMNS, progress)
     ticks = data[:, 1:]
     frac = np.flatnonzero(np.any(ticks != np.round(ticks), axis=1))
     if frac.size:
@@ -163,7 +168,8 @@ def read_truth_csv(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.fl
     return data[:, 0].copy(), np.ascontiguousarray(data[:, 1:])
 
 
-def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True) -> LogDir:
+def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True,
+                progress: Callable[[str, int, int], None] | None = None) -> LogDir:
     """Read a log directory (see the module docstring): the one loader of the project.
 
     Args:
@@ -171,6 +177,8 @@ def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True
         imu_frame: ``"base"``: IMU vectors rotated into the base frame by ``imu_mount_rpy``;
             ``"imu"``: as recorded (the pipeline applies the mount itself).
         truth: read ``truth.csv`` when present.
+        progress: ``progress(file name, bytes done, bytes in all)`` while imu.csv and
+            wheels.csv are parsed (seconds for large logs).
 
     Raises:
         FileNotFoundError: the directory or ``robot.toml`` is missing.
@@ -190,7 +198,7 @@ def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True
     robot = read_robot_toml(toml_path)
     log = LogDir(path=path, robot=robot, imu_frame=imu_frame)
     if (path / "imu.csv").is_file():
-        imu = read_imu_csv(path / "imu.csv")
+        imu = read_imu_csv(path / "imu.csv", _for_file(progress, "imu.csv"))
         log.imu_t, log.gyro, log.accel, log.mag = imu.t, imu.gyro, imu.accel, imu.mag
         if imu_frame == "base":
             R = mount_matrix(robot.imu_mount_rpy)
@@ -199,7 +207,8 @@ def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True
             if imu.mag is not None and imu.mag.size:
                 log.mag = imu_to_base(R, imu.mag)
     if (path / "wheels.csv").is_file():
-        log.wheel_t, log.ticks = read_wheels_csv(path / "wheels.csv")
+        log.wheel_t, log.ticks = read_wheels_csv(path / "wheels.csv",
+                                                 _for_file(progress, "wheels.csv"))
     elif (path / "wheels.uart2").is_file():
         period = robot.chassis.encode_sampling_time
         cap = read_uart2_capture(path / "wheels.uart2", period=period)
@@ -211,6 +220,11 @@ def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True
     if truth and (path / "truth.csv").is_file():
         log.truth_t, log.truth = read_truth_csv(path / "truth.csv")
     return log
+
+
+def _for_file(progress: Callable[[str, int, int], None] | None, name: str
+              ) -> ReadProgress | None:
+    return None if progress is None else (lambda done, total: progress(name, done, total))
 
 
 def _write_table(path: Path, header: tuple[str, ...], cols: list[ArrayLike],

@@ -1,5 +1,12 @@
 """``robot.toml``: read and write a :class:`fusion.planar.robot.RobotConfig` (format in
 ``datasets/LOGDIR.md``). Every error names the file, the table and the key.
+
+The optional ``[attitude]`` table chooses the pipeline's attitude filter::
+
+    [attitude]
+    filter = "keel"             # "keel" (default) or "mahony"
+    wheel_knowledge = true      # Keel only: feed v*w and wheel stillness (default: on)
+    accel_time_constant = 3.0   # any other key: a field of KeelParams / MahonyParams, SI
 """
 
 from __future__ import annotations
@@ -13,11 +20,12 @@ from typing import Any
 
 import numpy as np
 
+from fusion.attitude.select import build_attitude_filter, parameter_kinds
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 from fusion.planar.ekf import EkfNoise
-from fusion.planar.robot import RobotConfig
+from fusion.planar.robot import ATTITUDE_FILTERS, AttitudeConfig, RobotConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -34,6 +42,10 @@ _FRAME_KEYS = {"odom", "base", "imu_mount_rpy"}
 
 
 _EKF_KEYS = {f.name for f in fields(EkfNoise)}
+
+
+#: The tables of robot.toml.
+ROBOT_TABLES = ("chassis", "frames", "ekf", "attitude")
 
 
 def key_line(text: str, table: str, key: str | None) -> int | None:
@@ -83,20 +95,20 @@ def read_robot_toml(path: str | Path) -> RobotConfig:
         raise LogFormatError(f"{path}: invalid TOML: {exc}") from exc
     except UnicodeDecodeError as exc:
         raise LogFormatError(f"{path}: not UTF-8 text ({exc})") from None
-    unknown = set(doc) - {"chassis", "frames", "ekf"}
+    unknown = set(doc) - set(ROBOT_TABLES)
     if unknown:
         first = sorted(unknown)[0]
         raise LogFormatError(f"{where(path, text, first)}: unknown table(s) "
-                             f"{sorted(unknown)}; allowed: chassis, frames, ekf")
+                             f"{sorted(unknown)}; allowed: {', '.join(ROBOT_TABLES)}")
     return robot_config_from_tables(path, doc, text)
 
 
 def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
                              text: str = "") -> RobotConfig:
-    """:class:`RobotConfig` from the ``[chassis]``, ``[frames]`` and ``[ekf]`` tables of an
-    already loaded TOML document (other tables are the caller's: :func:`read_robot_toml`
-    refuses them, :mod:`fusion.io.run_config` has its own). ``path`` names the file in errors,
-    with the line of the key when the document's ``text`` is given.
+    """:class:`RobotConfig` from the ``[chassis]``, ``[frames]``, ``[ekf]`` and ``[attitude]``
+    tables of an already loaded TOML document (other tables are the caller's:
+    :func:`read_robot_toml` refuses them, :mod:`fusion.io.run_config` has its own). ``path``
+    names the file in errors, with the line of the key when the document's ``text`` is given.
 
     Raises:
         LogFormatError: as :func:`read_robot_toml`.
@@ -135,6 +147,9 @@ def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
                              f"be [roll, pitch, yaw] in rad, got {rpy!r}")
     rpy_t = tuple(_number(at("frames", "imu_mount_rpy"), "frames", "imu_mount_rpy", v)
                   for v in rpy)
+    if not all(math.isfinite(v) for v in rpy_t):
+        raise LogFormatError(f"{at('frames', 'imu_mount_rpy')}: [frames] imu_mount_rpy must "
+                             f"be finite angles in rad, got {rpy!r}")
     for key in ("odom", "base"):
         if key in frames and not isinstance(frames[key], str):
             raise LogFormatError(f"{at('frames', key)}: [frames] {key} must be a string")
@@ -146,20 +161,61 @@ def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
         raise LogFormatError(f"{at('ekf', first)}: [ekf] unknown key(s) {bad}; allowed: "
                              f"{sorted(_EKF_KEYS)}")
     ekf_values = {k: _number(at("ekf", k), "ekf", k, v) for k, v in ekf_tab.items()}
-    if "zupt_frames" in ekf_values:
-        ekf_values["zupt_frames"] = int(ekf_values["zupt_frames"])
+    if "zupt_frames" in ekf_values and ekf_values["zupt_frames"].is_integer():
+        ekf_values["zupt_frames"] = int(ekf_values["zupt_frames"])  # else EkfNoise refuses it
     try:
         ekf = EkfNoise(**ekf_values)
     except ValueError as exc:
         named = next((k for k in ekf_tab if k in str(exc)), None)
         raise LogFormatError(f"{at('ekf', named)}: [ekf] {exc}") from exc
-    return RobotConfig(
-        chassis=params,
-        odom_frame=frames.get("odom", "odom"),
-        base_frame=frames.get("base", "base_footprint"),
-        imu_mount_rpy=rpy_t,  # type: ignore[arg-type]
-        ekf=ekf,
-    )
+    attitude = _attitude_config(doc.get("attitude", {}), at)
+    try:
+        return RobotConfig(
+            chassis=params,
+            odom_frame=frames.get("odom", "odom"),
+            base_frame=frames.get("base", "base_footprint"),
+            imu_mount_rpy=rpy_t,  # type: ignore[arg-type]
+            ekf=ekf,
+            attitude=attitude,
+        )
+    except ValueError as exc:  # a frame name: the only check left to RobotConfig
+        key = "base" if "base_frame" in str(exc) else "odom"
+        raise LogFormatError(f"{at('frames', key)}: [frames] {key}: {exc}") from exc
+
+
+def _attitude_config(table: Any, at: Any) -> AttitudeConfig:
+    """The ``[attitude]`` table (see the module docstring); ``at(table, key)`` locates keys."""
+    if not isinstance(table, dict):
+        raise LogFormatError(f"{at('attitude')}: attitude must be a table [attitude], "
+                             f"got {table!r}")
+    name = table.get("filter", "keel")
+    if name not in ATTITUDE_FILTERS:
+        raise LogFormatError(f"{at('attitude', 'filter')}: [attitude] filter must be one of "
+                             f"{', '.join(map(repr, ATTITUDE_FILTERS))}, got {name!r}")
+    kinds = parameter_kinds(name)
+    allowed = ["filter", "wheel_knowledge", *sorted(kinds)]
+    params = []
+    for key, value in table.items():
+        if key == "filter":
+            continue
+        kind = bool if key == "wheel_knowledge" else kinds.get(key)
+        if kind is None:
+            raise LogFormatError(f"{at('attitude', key)}: [attitude] unknown key {key!r} for "
+                                 f"the {name} filter; allowed: {', '.join(allowed)}")
+        if kind is bool and not isinstance(value, bool):
+            raise LogFormatError(f"{at('attitude', key)}: [attitude] {key} must be true or "
+                                 f"false, got {value!r}")
+        if kind is float:
+            value = _number(at("attitude", key), "attitude", key, value)
+        if key != "wheel_knowledge":
+            params.append((key, value))
+    try:
+        config = AttitudeConfig(name, tuple(params), table.get("wheel_knowledge"))
+        build_attitude_filter(name, params)  # the filter's own range checks
+    except ValueError as exc:
+        named = next((k for k in table if k != "filter" and k in str(exc)), None)
+        raise LogFormatError(f"{at('attitude', named)}: [attitude] {exc}") from exc
+    return config
 
 
 def _toml_value(v: Any) -> str:
@@ -201,5 +257,11 @@ def write_robot_toml(path: str | Path, robot: RobotConfig | DiffDriveParams) -> 
                if getattr(robot.ekf, f.name) != getattr(default, f.name)}
     if changed:
         lines += ["", "[ekf]"] + [f"{k} = {_toml_value(v)}" for k, v in changed.items()]
+    att = robot.attitude
+    if att != AttitudeConfig():
+        lines += ["", "[attitude]", f"filter = {_toml_value(att.filter)}"]
+        if att.wheel_knowledge is not None:
+            lines.append(f"wheel_knowledge = {_toml_value(att.wheel_knowledge)}")
+        lines += [f"{k} = {_toml_value(v)}" for k, v in att.params]
     with atomic_write(path, encoding="utf-8") as fh:
         fh.write("\n".join(lines) + "\n")

@@ -18,6 +18,11 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
 
     [ekf]                         # any fusion.planar.ekf.EkfNoise field (fusion.io.logdir)
 
+    [attitude]                    # the pipeline's attitude filter (fusion.io.robot_toml)
+    filter = "keel"               # "keel" (default) or "mahony"
+    wheel_knowledge = true        # Keel: feed the wheels' v*w and stillness (default: on)
+    accel_time_constant = 3.0     # any other key: a KeelParams / MahonyParams field, SI
+
     [imu]
     source = "i2c:1"              # "i2c:N" (/dev/i2c-N), "sim" or "none"
     address = 0x68
@@ -27,7 +32,7 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
     dlpf = 3                      # DLPF_CFG 0..6
     fifo_interval = 0.02          # s between FIFO reads
     calibration = "imu_cal.json"  # from fusion imu-calibrate (optional; relative to this file)
-    tilt = true                   # tilt-compensate the gyro with the Mahony attitude
+    tilt = true                   # tilt-compensate the gyro with the attitude filter
 
     [link]                        # the chassis DATA-uart2 port
     port = "/dev/ttyUSB0"         # device, socket://host:port, loop://, or "sim"
@@ -46,6 +51,7 @@ except ``[chassis]`` on a real robot; every error names the file, the line and t
     duration = 0                  # s, 0 = until Ctrl-C
     speed = 1.0                   # robot time per wall second, simulated chassis only
     status = 10.0                 # s between status lines on stderr, 0 = none
+    strict = false                # exit status 3 when the inputs disagree (fusion.jobs.status)
 
     [topics]                      # ROS topic names (fusion.sinks.Topics); "" leaves one out
     odom = "/odom"
@@ -65,13 +71,13 @@ import math
 import re
 import sys
 from collections.abc import Callable
-from dataclasses import dataclass, field, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.errors import ConfigError, LogFormatError
-from fusion.io.robot_toml import robot_config_from_tables, where
+from fusion.io.robot_toml import ROBOT_TABLES, robot_config_from_tables, where
 from fusion.io.sink_spec import parse_sink_spec
 from fusion.planar.robot import RobotConfig
 
@@ -103,13 +109,13 @@ class RunConfig:
     """Everything ``fusion run`` needs (units SI; see the module docstring for the file).
 
     Attributes:
-        robot: chassis, frames (IMU mount) and EKF tuning.
+        robot: chassis, frames (IMU mount), EKF tuning and attitude filter.
         imu: ``"i2c:N"``, ``"sim"`` or ``"none"``.
         imu_address, imu_rate_hz, gyro_range_dps, accel_range_g, dlpf: MPU6050 settings
             (I2C address, Hz, deg/s, g, DLPF_CFG).
         fifo_interval: s between FIFO reads.
         imu_calibration: calibration JSON path, or None.
-        tilt: tilt-compensate the gyro with the Mahony attitude.
+        tilt: tilt-compensate the gyro with the attitude filter's attitude.
         chassis: the DATA-uart2 port (device path or pyserial URL) or ``"sim"``.
         baudrate, command_timeout, silence_periods: serial link settings (bit/s, s, periods).
         publish: sink specs (:func:`fusion.io.sink_spec.parse_sink_spec`).
@@ -118,8 +124,13 @@ class RunConfig:
         topics: topic names (odom, tf, imu, wheel_left, wheel_right; None leaves one out).
         cmd_vel_topic: velocity command topic of the ROS 1, ROS 2 and Foxglove sinks, or None.
         duration: s to run, None until stopped; speed: robot time per wall second
-            (simulated chassis); status: s between status lines, 0 none.
+            (simulated chassis); status: s between status lines, 0 none; strict: exit
+            with an error status when the trust checks fail (:mod:`fusion.evaluation.trust`).
         source: the file this came from, or None.
+
+    Raises:
+        ConfigError: a field that the file's checks (:data:`SCHEMA`) refuse (NaN, infinite,
+            out of range, wrong type), naming the field, its table and key, and the value.
     """
 
     robot: RobotConfig = field(default_factory=lambda: RobotConfig(chassis=DEMO_ROBOT))
@@ -146,11 +157,34 @@ class RunConfig:
     duration: float | None = None
     speed: float = 1.0
     status: float = 10.0
+    strict: bool = False
     source: Path | None = None
 
+    def __post_init__(self) -> None:
+        if not isinstance(self.robot, RobotConfig):
+            raise ConfigError(f"RunConfig.robot must be a RobotConfig, got {self.robot!r}")
+        for name in _FIELD_CHECKS:
+            _check_field(name, self._value(name), f"RunConfig.{name}")
+
+    def _value(self, name: str) -> Any:
+        if name.startswith("topics."):
+            return self.topics.get(name[7:])
+        value = getattr(self, name)
+        return list(value) if name == "publish" else value
+
     def with_overrides(self, **changes: Any) -> RunConfig:
-        """A copy with the given fields changed; None values are ignored (option not given)."""
-        return replace(self, **{k: v for k, v in changes.items() if v is not None})
+        """A copy with the given fields changed; None values are ignored (option not given).
+
+        Raises:
+            ConfigError: a value the file's checks refuse, naming the ``fusion run`` option
+                (or the field) and the value.
+        """
+        given = {k: v for k, v in changes.items() if v is not None}
+        for name, value in given.items():
+            if name in _FIELD_CHECKS:
+                _check_field(name, list(value) if name == "publish" else value,
+                             _OPTION_OF.get(name, f"RunConfig.{name}"))
+        return replace(self, **given)
 
 
 # -- value checks ------------------------------------------------------------------------------
@@ -226,7 +260,8 @@ def _topic(v: Any) -> str | None:
     return s
 
 
-#: table -> key -> (RunConfig field, check). [chassis], [frames], [ekf] go to fusion.io.logdir.
+#: table -> key -> (RunConfig field, check). [chassis], [frames], [ekf], [attitude] go to
+#: fusion.io.robot_toml.
 SCHEMA: dict[str, dict[str, tuple[str, Check]]] = {
     "imu": {
         "source": ("imu", _imu_source),
@@ -254,6 +289,7 @@ SCHEMA: dict[str, dict[str, tuple[str, Check]]] = {
         "duration": ("duration", _rate),
         "speed": ("speed", _number(0.1, 20.0)),
         "status": ("status", _number(0.0)),
+        "strict": ("strict", _boolean),
     },
     "topics": {
         "odom": ("topics.odom", _topic),
@@ -264,7 +300,22 @@ SCHEMA: dict[str, dict[str, tuple[str, Check]]] = {
         "cmd_vel": ("cmd_vel_topic", _topic),
     },
 }
-_ROBOT_TABLES = ("chassis", "frames", "ekf")
+#: RunConfig field -> (table, key, check), from SCHEMA.
+_FIELD_CHECKS = {name: (table, key, check) for table, spec in SCHEMA.items()
+                 for key, (name, check) in spec.items()}
+
+
+def _check_field(name: str, value: Any, origin: str) -> None:
+    """``ConfigError`` naming ``origin`` (a field or an option), the table and key, unless the
+    file's check of ``name`` accepts ``value`` (None: an optional field not set)."""
+    if value is None:
+        return
+    table, key, check = _FIELD_CHECKS[name]
+    try:
+        check(value)
+    except ValueError as exc:
+        raise ConfigError(f"{origin} {exc} (in a file: [{table}] {key})") from None
+
 
 #: ``fusion run`` option (argparse dest) -> (table, key) in the file.
 RUN_OPTIONS: dict[str, tuple[str, str]] = {
@@ -279,7 +330,11 @@ RUN_OPTIONS: dict[str, tuple[str, str]] = {
     "duration": ("run", "duration"),
     "speed": ("run", "speed"),
     "status": ("run", "status"),
+    "strict": ("run", "strict"),
 }
+#: RunConfig field -> the ``fusion run`` option that sets it.
+_OPTION_OF = {SCHEMA[table][key][0]: "--" + dest.replace("_", "-")
+              for dest, (table, key) in RUN_OPTIONS.items()}
 
 
 def parse_config(doc: dict[str, Any], path: str | Path = "<config>", text: str = "") -> RunConfig:
@@ -289,19 +344,21 @@ def parse_config(doc: dict[str, Any], path: str | Path = "<config>", text: str =
         ConfigError: an unknown table or key, or a bad value, naming file, line and key.
     """
     path = Path(path)
-    known = set(SCHEMA) | set(_ROBOT_TABLES)
+    known = set(SCHEMA) | set(ROBOT_TABLES)
     for table in doc:
         if table not in known:
             raise ConfigError(f"{where(path, text, table)}: unknown table [{table}]; "
                               f"allowed: {', '.join(sorted(known))}")
         if not isinstance(doc[table], dict):
             raise ConfigError(f"{path}: {table} must be a table [{table}], got {doc[table]!r}")
-    robot_doc = {t: doc[t] for t in _ROBOT_TABLES if t in doc}
+    robot_doc = {t: doc[t] for t in ROBOT_TABLES if t in doc}
     if robot_doc:
         if "chassis" not in robot_doc:
-            raise ConfigError(f"{where(path, text, next(iter(robot_doc)))}: [frames]/[ekf] "
-                              "need a [chassis] table (wheel_distance, speed_ratio, "
-                              "encode_sampling_time)")
+            if set(robot_doc) != {"attitude"}:
+                raise ConfigError(f"{where(path, text, next(iter(robot_doc)))}: [frames]/[ekf] "
+                                  "need a [chassis] table (wheel_distance, speed_ratio, "
+                                  "encode_sampling_time)")
+            robot_doc["chassis"] = asdict(DEMO_ROBOT)  # [attitude] alone: the demo chassis
         try:
             robot = robot_config_from_tables(path, robot_doc, text)  # errors name the line
         except LogFormatError as exc:

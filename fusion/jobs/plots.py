@@ -6,6 +6,7 @@ permissions.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -13,16 +14,24 @@ from numpy.typing import NDArray
 
 from fusion.io.atomic import create_temp_file
 
-__all__ = ["plot_replay"]
+__all__ = ["FUSED_LABEL", "WHEEL_LABEL", "plot_replay"]
+
+#: Trace names: what each line is.
+FUSED_LABEL = "fused (EKF: wheel odometry + gyro)"
+WHEEL_LABEL = "wheel odometry alone (dead reckoning)"
 
 
 def plot_replay(path: Path, title: str, t: NDArray[np.float64], pose: NDArray[np.float64],
                 ref_t: NDArray[np.float64], ref: NDArray[np.float64],
                 truth_t: NDArray[np.float64] | None, truth: NDArray[np.float64] | None,
-                ref_label: str = "wheel only") -> None:
+                ref_label: str = WHEEL_LABEL,
+                more_yaw: Sequence[tuple[str, NDArray[np.float64], NDArray[np.float64]]] = ()
+                ) -> None:
     """Draw the fused track ``pose`` ((N, 3) x m, y m, yaw rad at ``t`` s) beside a
     reference track ``ref`` at ``ref_t`` (named ``ref_label``) and, when given, the truth;
-    right: the yaw error against the truth, or both yaws without it (unwrapped, deg)."""
+    right: the yaw error against the truth, or without it the yaws (unwrapped, deg, each from
+    its start), with ``more_yaw`` traces ``(label, t s, yaw rad)`` (e.g. a bag's own IMU
+    orientation)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -33,7 +42,7 @@ def plot_replay(path: Path, title: str, t: NDArray[np.float64], pose: NDArray[np
         if truth is not None:
             ax1.plot(truth[:, 0], truth[:, 1], "k-", lw=2, label="truth")
         ax1.plot(ref[:, 0], ref[:, 1], "-", color="tab:orange", lw=1, label=ref_label)
-        ax1.plot(pose[:, 0], pose[:, 1], "-", color="tab:blue", lw=1, label="fused EKF")
+        ax1.plot(pose[:, 0], pose[:, 1], "-", color="tab:blue", lw=1, label=FUSED_LABEL)
         ax1.set_aspect("equal", adjustable="datalim")
         ax1.set_xlabel("x (m)")
         ax1.set_ylabel("y (m)")
@@ -50,7 +59,7 @@ def plot_replay(path: Path, title: str, t: NDArray[np.float64], pose: NDArray[np
             ax2.plot(ref_t[r_in], err(ref_t[r_in], ref[r_in, 2]), color="tab:orange", lw=1,
                      label=ref_label)
             ax2.plot(t[inside], err(t[inside], pose[inside, 2]), color="tab:blue", lw=1,
-                     label="fused EKF")
+                     label=FUSED_LABEL)
             ax2.axhline(0.0, color="k", lw=0.8)
             ax2.set_ylabel("yaw error (deg)")
             ax2.set_title("Yaw error against the truth")
@@ -58,7 +67,12 @@ def plot_replay(path: Path, title: str, t: NDArray[np.float64], pose: NDArray[np
             ax2.plot(ref_t, np.degrees(np.unwrap(ref[:, 2])), color="tab:orange", lw=1,
                      label=ref_label)
             ax2.plot(t, np.degrees(np.unwrap(pose[:, 2])), color="tab:blue", lw=1,
-                     label="fused EKF")
+                     label=FUSED_LABEL)
+            for (label, ts, yaw), color in zip(more_yaw, ("tab:green", "tab:red",
+                                                           "tab:purple")):
+                ok = np.isfinite(yaw)
+                y = np.unwrap(yaw[ok])
+                ax2.plot(ts[ok], np.degrees(y - y[0]), color=color, lw=1, label=label)
             ax2.set_ylabel("yaw, unwrapped (deg)")
             ax2.set_title("Yaw (no truth in the log)")
         ax2.set_xlabel("t (s)")

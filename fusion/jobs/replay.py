@@ -26,11 +26,15 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
+from fusion.evaluation.trust import TrustWarning
 from fusion.geometry.angles import wrap_angle
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
+from fusion.io.imu_csv import imu_csv_lines
 from fusion.io.logdir import read_logdir
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
+from fusion.jobs.engine import run_tasks
+from fusion.jobs.status import pipeline_warnings, status_record, write_status
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.odometry import WheelOdometry
 from fusion.planar.robot import RobotConfig
@@ -132,7 +136,9 @@ class ReplayResult:
         wheel_distance: robot.toml's wheel separation, m.
         truth: with truth, ``distance`` m and the fused/wheel-only final position error (% of
             distance) and yaw RMSE (deg); else None.
-        notes: warnings for the user.
+        notes: warnings for the user about the input files.
+        warnings: the trust checks that failed (:mod:`fusion.evaluation.trust`: the inputs
+            disagree beyond what the model explains).
     """
 
     source: str
@@ -151,6 +157,7 @@ class ReplayResult:
     wheel_distance: float
     truth: dict[str, float] | None = None
     notes: list[str] = field(default_factory=list)
+    warnings: list[TrustWarning] = field(default_factory=list)
 
 
 def output_format(path: Path) -> str:
@@ -182,20 +189,24 @@ def find_log_dirs(path: Path) -> list[Path]:
     return sorted(p for p in path.iterdir() if p.is_dir() and (p / "robot.toml").is_file())
 
 
-def fuse_streams(robot: RobotConfig, streams: Streams, output: Path, *, tilt: bool = True,
-                 progress: Progress | None = None
-                 ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats]:
-    """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl).
+def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
+                 tilt: bool = True, progress: Progress | None = None
+                 ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats,
+                            list[TrustWarning]]:
+    """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl;
+    None: no file, the table only).
 
-    Returns ``(table, pipeline, stats)``: ``table`` (N, 19) in the fused CSV's columns
-    (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state after every IMU sample (after
-    every wheel frame or twist without an IMU).
+    Returns ``(table, pipeline, stats, warnings)``: ``table`` (N, 19) in the fused CSV's
+    columns (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state after every IMU sample
+    (after every wheel frame or twist without an IMU); the trust warnings
+    (:func:`fusion.jobs.status.pipeline_warnings`), also in a .jsonl output's last line, the
+    status record (:func:`fusion.jobs.status.status_record`).
     """
-    fmt = output_format(output)
+    fmt = None if output is None else output_format(output)
     t0, t1 = streams.span()
     sources = [name for name, on in (("imu", streams.has_imu), ("wheels", streams.has_wheels),
                                      ("twist", streams.has_twist)) if on]
-    sinks = [] if fmt == "csv" else [open_sink(f"{fmt}:{output}")]
+    sinks = [] if fmt in (None, "csv") else [open_sink(f"{fmt}:{output}")]
     pipe = FusionPipeline(
         robot, sinks, tilt=tilt, sources=sources, imu_rate_hz=streams.nominal_imu_rate(),
         state_rows=("imu",) if streams.has_imu else ("wheels", "twist"),
@@ -204,13 +215,15 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path, *, tilt: bo
         pipe.push_arrays(streams.imu_t, streams.gyro, streams.accel, streams.wheel_t,
                          streams.ticks, twist_t=streams.twist_t, twist_v=streams.twist_v,
                          twist_w=streams.twist_w)
+        warnings = pipeline_warnings(pipe)
+        write_status(pipe, status_record(pipe, warnings))
     table = fused_table(pipe.state_rows, robot.chassis.speed_ratio
                          / robot.chassis.encode_sampling_time)
     if fmt == "csv":
         write_fused_csv(output, table)
     if progress is not None:
         progress(t1 - t0, t1 - t0)
-    return table, pipe, pipe.finish_stats()
+    return table, pipe, pipe.finish_stats(), warnings
 
 
 def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.float64]:
@@ -232,24 +245,50 @@ def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.fl
 def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                   plot: str | Path | None = None, robot: RobotConfig | None = None,
                   imu_mount_rpy: tuple[float, float, float] | None = None,
-                  progress: Progress | None = None) -> ReplayResult:
+                  progress: Progress | None = None,
+                  load_progress: Callable[[str, int, int], None] | None = None
+                  ) -> ReplayResult:
     """Replay a log directory into ``output``; optionally draw ``plot`` (PNG).
+
+    ``progress(done, total)``: s of log time replayed; ``load_progress(file name, done,
+    total)``: bytes of imu.csv and wheels.csv parsed (:func:`fusion.io.logdir.read_logdir`).
 
     ``robot`` replaces the directory's own robot.toml (geometry, IMU mount, EKF tuning);
     ``imu_mount_rpy`` (URDF roll, pitch, yaw, rad) replaces the IMU mount of either.
     Raises on bad input, leaving no partial output.
     """
     path, output = Path(path), Path(output)
-    log = read_logdir(path, imu_frame="imu")
+    log = read_logdir(path, imu_frame="imu", progress=load_progress)
     robot = robot or log.robot
     if imu_mount_rpy is not None:
         robot = dataclasses.replace(robot, imu_mount_rpy=tuple(float(a) for a in imu_mount_rpy))
     if log.wheel_t is None or log.wheel_t.size == 0:
         raise ValueError(f"{path}: wheels.csv is missing or empty; the fused odometry needs "
                          "the wheel encoder frames")
-    streams = Streams(log.imu_t, log.gyro, log.accel, log.wheel_t, log.ticks)
-    return _finish(path, output, robot, streams, log.truth_t, log.truth,
-                   tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats)
+    imu_t, gyro, accel, note = _finite_imu_rows(path / "imu.csv", log.imu_t, log.gyro,
+                                                log.accel)
+    streams = Streams(imu_t, gyro, accel, log.wheel_t, log.ticks)
+    result = _finish(path, output, robot, streams, log.truth_t, log.truth,
+                     tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats)
+    if note:
+        result.notes.append(note)
+    return result
+
+
+def _finite_imu_rows(csv: Path, t, gyro, accel):
+    """``(t, gyro, accel, note)``: the IMU rows without a NaN or infinity, and a note naming
+    the lines of the rows left out (None when none was)."""
+    if t is None or not t.size:
+        return t, gyro, accel, None
+    ok = np.isfinite(np.hstack([gyro, accel])).all(axis=1)
+    if ok.all():
+        return t, gyro, accel, None
+    bad = np.flatnonzero(~ok)
+    lines = imu_csv_lines(csv, bad[:5].tolist())
+    more = f" and {bad.size - 5} more" if bad.size > 5 else ""
+    note = (f"{csv}: {bad.size} sample(s) with a NaN or infinite value skipped: line(s) "
+            f"{', '.join(map(str, lines))}{more}")
+    return t[ok], gyro[ok], accel[ok], note
 
 
 def replay_capture(path: str | Path, output: str | Path, robot: RobotConfig | str | Path, *,
@@ -277,7 +316,8 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
             tilt: bool, plot, progress, capture_stats) -> ReplayResult:
     if plot is not None:
         check_plot_output(Path(plot))
-    table, pipe, stats = fuse_streams(robot, streams, output, tilt=tilt, progress=progress)
+    table, pipe, stats, warnings = fuse_streams(robot, streams, output, tilt=tilt,
+                                                progress=progress)
     chassis = robot.chassis
     ekf = pipe.ekf
     wheel_t, ticks = streams.wheel_t, streams.ticks
@@ -311,7 +351,8 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
         distance=_distance(t_out, table[:, 4]), gyro_bias=float(ekf.gyro_bias),
         k=float(ekf.x[6]), c=float(ekf.x[7]),
         stats={**stats.as_dict(), "invalid": ekf.stats["invalid"], "ledger": pipe.ledger()},
-        wheel_distance=chassis.wheel_distance, truth=truth_res, notes=notes)
+        wheel_distance=chassis.wheel_distance, truth=truth_res, notes=notes,
+        warnings=warnings)
 
 
 def _truth_errors(t, xy, yaw, wheel_t, wheel, truth_t, truth) -> dict[str, float]:
@@ -349,7 +390,8 @@ def check_plot_output(path: Path | None = None) -> None:
 class BagReplay:
     """What :func:`replay_bag` did: the fused table (fused CSV columns), the pipeline, its
     counters, the bag's own odometry pose moved to start at the origin ((K, 3) x m, y m, yaw
-    rad at ``odom_t``), and the bag's IMU and odometry (:func:`fusion.io.bags.read_bag`)."""
+    rad at ``odom_t``), the bag's IMU and odometry (:func:`fusion.io.bags.read_bag`) and the
+    trust warnings (:mod:`fusion.evaluation.trust`)."""
 
     table: NDArray[np.float64]
     pipeline: FusionPipeline
@@ -358,6 +400,7 @@ class BagReplay:
     own: NDArray[np.float64]
     imu: Any
     odom: Any
+    warnings: list[TrustWarning] = field(default_factory=list)
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
@@ -387,7 +430,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     imu, odom = bag.imu, bag.odometry
     streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=odom.t, twist_v=odom.v,
                       twist_w=odom.w)
-    table, pipe, stats = fuse_streams(robot, streams, output, tilt=tilt, progress=progress)
+    table, pipe, stats, warnings = fuse_streams(robot, streams, output, tilt=tilt,
+                                                progress=progress)
     x0, y0, th0 = odom.x[0], odom.y[0], odom.yaw[0]
     c, sn = math.cos(th0), math.sin(th0)
     dx, dy = odom.x - x0, odom.y - y0
@@ -395,9 +439,18 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     if plot is not None:
         from fusion.jobs.plots import plot_replay
 
+        more = []
+        if imu.orientation is not None:  # the bag's own attitude estimate, where it has one
+            from fusion.geometry.quaternion import to_euler
+
+            q = imu.orientation
+            yaw = np.full(q.shape[0], np.nan)
+            has = np.isfinite(q).all(axis=1)
+            yaw[has] = to_euler(q[has])[:, 2]
+            more.append((f"the bag's own IMU orientation ({imu_topic})", imu.t, yaw))
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
-                    None, ref_label=f"the bag's own odometry ({odom_topic})")
-    return BagReplay(table, pipe, stats, odom.t, own, imu, odom)
+                    None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more)
+    return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings)
 
 
 @dataclass(frozen=True)
@@ -427,25 +480,13 @@ def replay_logs(jobs: list[LogJob], workers: int,
                 ) -> dict[str, tuple[str, Any]]:
     """Replay many logs in ``workers`` processes (1: in this process); returns each job's
     :func:`run_log_job` result by source path. A worker that dies fails its log only."""
-    from concurrent.futures import ProcessPoolExecutor, as_completed
-
     results: dict[str, tuple[str, Any]] = {}
-    if workers == 1:
-        for job in jobs:
-            results[job.source] = run_log_job(job)
-            if on_done is not None:
-                on_done(job, results[job.source])
-        return results
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(run_log_job, job): job for job in jobs}
-        for fut in as_completed(futures):
-            job = futures[fut]
-            try:
-                results[job.source] = fut.result()
-            except Exception as exc:  # a worker died (killed, out of memory)
-                results[job.source] = ("error", f"{job.source}: worker failed: {exc!r}")
-            if on_done is not None:
-                on_done(job, results[job.source])
+    for i, ok, value in run_tasks(run_log_job, jobs, jobs=workers):
+        job = jobs[i]  # (a worker died, killed or out of memory, when not ok)
+        results[job.source] = value if ok else ("error", f"{job.source}: worker failed: "
+                                                         f"{value}")
+        if on_done is not None:
+            on_done(job, results[job.source])
     return results
 
 

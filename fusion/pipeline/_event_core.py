@@ -3,8 +3,9 @@
 One function, :func:`run_events`, takes events in *arrival* order and does, per event, what the
 pipeline promises (its module docstring states the policy): hold the event in a reorder heap
 keyed by its effective time, release what the sources' watermark or the reorder window allows,
-apply each released event to the planar EKF (:func:`fusion.planar._ekf_core.step_core`), and
-note where a record is due. Streaming (one event per call) and batch (all events in one call)
+apply each released event to the planar EKF (:func:`fusion.planar._ekf_core.step_core`, which
+also applies the EKF's gap policy and refuses implausible values), and note where a record is
+due. Streaming (one event per call) and batch (all events in one call)
 run this very function, so the two paths agree bit for bit by construction for any reorder
 window and set of sources (tests/test_pipeline.py).
 

@@ -1,14 +1,24 @@
-"""One fusion pipeline for live data and replay: sources -> Mahony -> planar EKF -> sinks.
+"""One fusion pipeline for live data and replay: sources -> Keel -> planar EKF -> sinks.
 
 Data flow (one :class:`FusionPipeline` object; only the sources differ between live and
 replay)::
 
-    ImuSample (IMU frame) --mount rotation--> Mahony (attitude) --vertical rate--\
-                                                                                  ReorderBuffer
+    ImuSample (IMU frame) --mount rotation--> Keel (attitude) --vertical rate---\
+                wheels: v*w, dv/dt, stillness --^                                 ReorderBuffer
     WheelTicks (DATA-uart2 frame, ticks per period) ----------------------------/      |
                                                            PlanarEKF <-----------------+
                                                                |
                                       FusedOdometry records -> sinks (fusion.sinks)
+
+The attitude filter is Keel (:class:`fusion.attitude.keel.Keel`) unless ``robot.toml``'s
+``[attitude]`` table (:class:`fusion.planar.robot.AttitudeConfig`) chooses the Mahony port or
+the constructor is given a configured filter (``attitude=``). Keel is told what the wheels
+know (:meth:`FusionPipeline._wheel_knowledge`): the centripetal acceleration ``v*w`` and the
+forward acceleration dv/dt of the newest wheel frame (or twist) that arrived before the IMU
+sample, removed from the accelerometer (without them Keel leans into sustained turns and
+after starts and stops), and stillness (wheels stopped and the IMU quiet: the gyro bias is
+refined; wheels turning: no rest, even in a slow steady turn that an IMU alone cannot tell
+from bias). A wheel frame or twist older than ``gap_periods`` wheel periods tells nothing.
 
 Event-time model, stated once:
 
@@ -17,9 +27,11 @@ Event-time model, stated once:
   as stamped by :class:`drivers.serial_link.ChassisLink`), or an external odometry twist
   (:meth:`FusionPipeline.push_twist`: a ROS bag's nav_msgs/Odometry, at its stamp). Callers
   push events in *arrival* order, which for a replay is host time order (:func:`merge_by_time`).
-- IMU samples go through the Mahony filter on arrival (they must increase in time; a sample
+- IMU samples go through the attitude filter on arrival (they must increase in time; a sample
   that does not is dropped and counted), which gives the attitude and the yaw rate about the
-  world vertical (:func:`fusion.planar.ekf.vertical_rate`, tilt compensation).
+  world vertical (:func:`fusion.planar.ekf.vertical_rate`, tilt compensation). What the
+  filter is told about the wheels depends only on the events that arrived before the sample,
+  so replaying the same events in one call or one at a time gives the same attitude.
 - The EKF's own policy orders the inputs: each event is keyed by its *effective* time (a wheel
   frame's is ``stamp - encode_sampling_time/2 - wheel_latency``, the middle of its period; an
   IMU sample's and a twist's is its stamp) and held in a :class:`fusion.planar.ekf.ReorderBuffer`
@@ -37,6 +49,12 @@ Event-time model, stated once:
   one record each time the filter time crosses a multiple of ``1/publish_rate_hz`` (seed
   000 publishes at 10 Hz).
 
+Gaps and bad values: a wheel-frame interval longer than ``gap_periods`` periods is recorded
+(:class:`WheelGap`, ``stats.gap_count``); the attitude filter's and the EKF's gap policies
+(their module docstrings) bound the cost of any silence and the pose's extrapolation, counted
+in ``stats.attitude_gaps`` and ``stats.speed_resets``; a non-finite or implausible value is
+skipped by the attitude filter (its counters) and refused by the EKF (``stats.invalid``).
+
 Determinism: nothing here reads a clock except to measure latency (``clock``), so replaying
 the same events gives the same records bit for bit (tests/test_pipeline_golden.py).
 
@@ -53,6 +71,7 @@ import collections
 import logging
 import math
 import traceback
+import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -60,14 +79,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.attitude.keel import Keel
 from fusion.attitude.mahony import Mahony
+from fusion.attitude.select import build_attitude_filter
 from fusion.geometry import quaternion as quat
+from fusion.geometry.kinematics import ticks_to_twist
 from fusion.geometry.mount import imu_to_base, vertical_rate
 from fusion.pipeline import _event_core as ev_core
 from fusion.pipeline.records import _fast_record, _record_fields
 from fusion.planar import _ekf_core as core
 from fusion.planar.ekf import PlanarEKF
-from fusion.planar.robot import RobotConfig
+from fusion.planar.robot import AttitudeConfig, RobotConfig
 from fusion.types.fused import FusedOdometry
 from fusion.types.lifecycle import Lifecycle
 from fusion.types.samples import ImuSample, WheelTicks
@@ -102,6 +124,10 @@ _EV_TWIST = core.EV_TWIST
 _SOURCES = ("imu", "wheels", "twist")
 #: Kinds whose state rows :attr:`FusionPipeline.state_rows` can keep.
 TRACE_KINDS = {"imu": _EV_GYRO, "wheels": _EV_WHEELS, "twist": _EV_TWIST}
+#: Range of a plausible nominal IMU rate, Hz (its period must stay below the attitude
+#: filter's ``max_gap``, 0.25 s; the MPU6050 samples at 1 kHz at most).
+MIN_IMU_RATE_HZ = 4.0
+MAX_IMU_RATE_HZ = 10_000.0
 #: Events per call of the compiled core in :meth:`FusionPipeline.push_arrays` (bounds the
 #: memory of its outputs and sets how often ``on_progress`` is called).
 BATCH_CHUNK = 1 << 16
@@ -142,6 +168,16 @@ class PipelineStats:
         slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
         gap_count: gaps seen in total; frames_missing: frames missing in them.
+        gyro_turn: rad, the gyro's yaw rate about the vertical (as fused, bias included)
+            integrated over the accepted IMU samples; gyro_time: s it spans.
+        wheel_turn: rad, the heading change of the wheel frames ((right - left) travel /
+            wheel_distance); twist_turn: rad, the twists' yaw rate integrated.
+        (The two turns let :mod:`fusion.evaluation.trust` see the sources disagree.)
+        attitude_gaps: IMU periods longer than the attitude filter's ``max_gap`` (integrated
+            over one regular period, inclination re-initialised from the accelerometer).
+        speed_resets: the EKF's speeds forgotten after ``max_extrapolation`` s without a
+            measurement (its gap policy: the pose stops extrapolating).
+        invalid: inputs the EKF refused as non-finite or implausible (a corrupt value).
     """
 
     events_in: int = 0
@@ -162,6 +198,13 @@ class PipelineStats:
     zupts: int = 0
     gap_count: int = 0
     frames_missing: int = 0
+    gyro_turn: float = 0.0
+    gyro_time: float = 0.0
+    wheel_turn: float = 0.0
+    twist_turn: float = 0.0
+    attitude_gaps: int = 0
+    speed_resets: int = 0
+    invalid: int = 0
     gaps: collections.deque = field(default_factory=lambda: collections.deque(maxlen=100))
 
     def as_dict(self) -> dict[str, Any]:
@@ -176,11 +219,12 @@ def _matrix_or_none(q: NDArray[np.float64]) -> list[list[float]] | None:
 
 
 class FusionPipeline(Lifecycle):
-    """Mahony attitude + planar EKF over time-stamped IMU and wheel events, into sinks.
+    """Keel (or Mahony) attitude + planar EKF over time-stamped IMU and wheel events, into sinks.
 
     Args:
-        robot: chassis geometry, frames (with the IMU mount rotation) and EKF tuning
-            (:class:`fusion.planar.robot.RobotConfig`, e.g. from
+        robot: chassis geometry, frames (with the IMU mount rotation), EKF tuning and the
+            attitude filter's choice (:class:`fusion.planar.robot.RobotConfig`, e.g. from
+            :func:`fusion.io.robot_toml.read_robot_toml` or
             :func:`fusion.io.run_config.load_config`).
         sinks: :class:`fusion.sinks.base.Sink` objects; the pipeline opens them in
             :meth:`open` (or ``with``) and closes them in :meth:`close` (aborts them when the
@@ -194,10 +238,16 @@ class FusionPipeline(Lifecycle):
             ``"wheels"``, ``"twist"`` (default ``("imu", "wheels")``; give only the ones
             that will deliver, e.g. ``("wheels",)`` without an IMU or ``("imu", "twist")``
             for a ROS bag's odometry, else only the window releases).
-        imu_rate_hz: nominal IMU rate, Hz (the Mahony filter's first step).
-        tilt: tilt-compensate the gyro with the Mahony attitude (False: the gyro's z axis is
+        imu_rate_hz: nominal IMU rate, Hz (the attitude filter's first step), 4 .. 10,000.
+        tilt: tilt-compensate the gyro with the filter's attitude (False: the gyro's z axis is
             the yaw rate, a level robot).
-        mahony: a configured :class:`fusion.attitude.mahony.Mahony` (default: the 6-axis preset).
+        attitude: a configured :class:`fusion.attitude.keel.Keel` or
+            :class:`fusion.attitude.mahony.Mahony` (default: the one ``robot.attitude``
+            describes, Keel with its defaults unless ``[attitude]`` says otherwise; giving both
+            a filter and a non-default ``robot.attitude`` filter or parameters is refused).
+            A Keel is told the wheels' knowledge unless ``robot.attitude.wheel_knowledge`` is
+            False.
+        mahony: the old name of ``attitude`` (deprecated; warns).
         clock: host clock (s) used only to measure latency from a wheel frame's stamp to its
             record; None disables latency measurement.
         gap_periods: a wheel-frame interval longer than this many periods is a gap.
@@ -210,7 +260,8 @@ class FusionPipeline(Lifecycle):
         max_stamp_lead: with a ``clock``: an event stamped more than this many s after
             ``clock()`` is dropped as an invalid stamp (a live stamp cannot be in the future:
             a clock jump or a corrupt stamp); None (default) checks nothing.
-        on_sink_error: ``callback(sink, traceback_text)`` when a sink's ``write`` raises
+        on_sink_error: ``callback(sink, exception, traceback_text)`` when a sink's ``write``
+            raises
             (default: an error on the ``fusion.pipeline`` logger). That sink is aborted (a
             file sink leaves the old file, or none) and gets no more records; the others go
             on; :meth:`close` raises its error at the end.
@@ -239,6 +290,7 @@ class FusionPipeline(Lifecycle):
         sources: Sequence[str] = ("imu", "wheels"),
         imu_rate_hz: float = 100.0,
         tilt: bool = True,
+        attitude: Keel | Mahony | None = None,
         mahony: Mahony | None = None,
         clock: Callable[[], float] | None = None,
         gap_periods: float = 2.5,
@@ -247,16 +299,23 @@ class FusionPipeline(Lifecycle):
         state_rows: Sequence[str] = (),
         on_progress: Callable[[float], None] | None = None,
         max_stamp_lead: float | None = None,
-        on_sink_error: Callable[[Any, str], None] | None = None,
+        on_sink_error: Callable[[Any, BaseException, str], None] | None = None,
     ) -> None:
         if publish_rate_hz is not None and not (
             math.isfinite(publish_rate_hz) and publish_rate_hz > 0
         ):
             raise ValueError(f"publish_rate_hz must be > 0 Hz or None, got {publish_rate_hz!r}")
-        if not (math.isfinite(imu_rate_hz) and imu_rate_hz > 0):
-            raise ValueError(f"imu_rate_hz must be > 0 Hz, got {imu_rate_hz!r}")
-        if not gap_periods > 1:
-            raise ValueError(f"gap_periods must be > 1, got {gap_periods!r}")
+        if not (math.isfinite(imu_rate_hz) and MIN_IMU_RATE_HZ <= imu_rate_hz <= MAX_IMU_RATE_HZ):
+            raise ValueError(f"imu_rate_hz must be {MIN_IMU_RATE_HZ} .. {MAX_IMU_RATE_HZ} Hz, "
+                             f"got {imu_rate_hz!r}")
+        if not (math.isfinite(gap_periods) and gap_periods > 1):
+            raise ValueError(f"gap_periods must be finite and > 1, got {gap_periods!r}")
+        if isinstance(latency_window, bool) or not (isinstance(latency_window, int)
+                                                    and latency_window >= 1):
+            raise ValueError(f"latency_window must be a whole number >= 1, got "
+                             f"{latency_window!r}")
+        if not isinstance(robot, RobotConfig):
+            raise ValueError(f"robot must be a RobotConfig, got {type(robot).__name__}")
         self.robot = robot
         chassis = robot.chassis
         self.period = chassis.encode_sampling_time
@@ -283,8 +342,17 @@ class FusionPipeline(Lifecycle):
         self.publish_rate_hz = publish_rate_hz
         self.tilt = bool(tilt)
         self.ekf = PlanarEKF(chassis, robot.ekf)
-        self.mahony = mahony if mahony is not None else Mahony(axes=6,
-                                                               sample_period=1.0 / imu_rate_hz)
+        self.attitude = self._attitude_filter(robot.attitude, attitude, mahony, imu_rate_hz)
+        self._knows_wheels = robot.attitude.uses_wheels and isinstance(self.attitude, Keel)
+        self._quiet = (0.0, 0.0, 0.0)
+        if self._knows_wheels:
+            par = self.attitude.params
+            self._quiet = (par.bias_clip + par.rest_gyro_threshold, par.gravity,
+                           par.rest_accel_threshold)
+        # the newest motion known from the wheels (or twists): stamp s, v m/s, w rad/s,
+        # forward acceleration m/s^2; and each source's last (stamp, v) for the acceleration
+        self._known_motion = (-math.inf, math.nan, math.nan, math.nan)
+        self._last_speed = {"wheels": (-math.inf, 0.0), "twist": (-math.inf, 0.0)}
         self._mount = _matrix_or_none(robot.imu_to_base())
         self._sched = ev_core.new_sched(*(name in sources for name in _SOURCES))
         self._heap_f = np.empty((256, 4))
@@ -310,7 +378,33 @@ class FusionPipeline(Lifecycle):
         self._n_twists = 0
         self._state = "new"
         self._m_per_s = chassis.speed_ratio / self.period
+        self._m_per_turn = chassis.speed_ratio / chassis.wheel_distance  # rad per tick
         self._wheel_shift = 0.5 * self.period  # a frame's effective time: stamp - this - latency
+
+    @staticmethod
+    def _attitude_filter(config: AttitudeConfig, attitude: Keel | Mahony | None,
+                         mahony: Mahony | None, imu_rate_hz: float) -> Keel | Mahony:
+        """The attitude filter: ``attitude`` (or the old name ``mahony``) if given, else the
+        one ``robot.attitude`` describes."""
+        if mahony is not None:
+            if attitude is not None:
+                raise ValueError("give attitude= (mahony= is its old name), not both")
+            warnings.warn("FusionPipeline(mahony=) is deprecated: pass attitude=",
+                          DeprecationWarning, stacklevel=3)
+            attitude = mahony
+        if attitude is None:
+            return build_attitude_filter(config.filter, config.params,
+                                         sample_period=1.0 / imu_rate_hz)
+        if not isinstance(attitude, (Keel, Mahony)):
+            raise TypeError(f"attitude must be a Keel or a Mahony filter, got "
+                            f"{type(attitude).__name__}")
+        if (config.filter, config.params) != (AttitudeConfig.filter, AttitudeConfig.params):
+            raise ValueError(f"robot.attitude chooses the {config.filter} filter "
+                             f"{dict(config.params)} and attitude= passes a filter: give one")
+        if config.wheel_knowledge and not isinstance(attitude, Keel):
+            raise ValueError("robot.attitude.wheel_knowledge is a Keel input: the "
+                             f"{type(attitude).__name__} filter cannot use it")
+        return attitude
 
     # -- lifecycle (fusion.types.lifecycle.Lifecycle: open, close, abort, with) -------------
     def _reuse_error(self) -> Exception:
@@ -470,6 +564,22 @@ class FusionPipeline(Lifecycle):
         if self._clock is not None and self.max_stamp_lead is not None:
             limit = self._clock() + self.max_stamp_lead
         parts = []  # (stamp, kind, t_eff, a, b, ref) per source with events
+        # the other sources' accepted events first: the attitude filter is told what the
+        # wheels (or twists) that arrived before each IMU sample knew
+        if wheel_t is not None and wheel_t.size:
+            stats.events_in += wheel_t.size
+            bad, dropped, wheel_t, (ticks,) = _in_order(wheel_t, self._last_wheel_t, limit,
+                                                        ticks)
+            stats.wheel_invalid_stamp += bad
+            stats.wheel_out_of_order += dropped
+        if twist_t is not None and twist_t.size:
+            stats.events_in += twist_t.size
+            twist_t, (twist_v, twist_w) = self._finite_values(twist_t, twist_v, twist_w)
+            bad, dropped, twist_t, (twist_v, twist_w) = _in_order(
+                twist_t, self._last_twist_t, limit, twist_v, twist_w)
+            stats.twist_invalid_stamp += bad
+            stats.twist_out_of_order += dropped
+        motion = self._motion(wheel_t, ticks, twist_t, twist_v, twist_w)
         if imu_t is not None and imu_t.size:
             stats.events_in += imu_t.size
             imu_t, (gyro, accel) = self._finite_values(imu_t, gyro, accel)
@@ -481,42 +591,38 @@ class FusionPipeline(Lifecycle):
                 R = self._mount
                 if R is not None:
                     gyro, accel = imu_to_base(R, gyro), imu_to_base(R, accel)
-                q = self._attitude(imu_t, gyro, accel)
+                q = self._attitude(imu_t, gyro, accel, motion)
                 rate = vertical_rate(gyro, q) if self.tilt else gyro[:, 2].copy()
+                dt = _steps(imu_t, self._last_imu_t)
+                stats.gyro_turn = _add_up(stats.gyro_turn, rate * dt)
+                stats.gyro_time = _add_up(stats.gyro_time, dt)
                 self._last_imu_t = float(imu_t[-1])
                 stats.imu_samples += imu_t.size
                 ref0 = self._imu_rows.append(q, gyro, accel)
                 parts.append((imu_t, _EV_GYRO, imu_t, rate, np.zeros(imu_t.size),
                               np.arange(ref0, ref0 + imu_t.size)))
+        if motion is not None and motion[0].size:
+            self._known_motion = tuple(float(m[-1]) for m in motion)
         if wheel_t is not None and wheel_t.size:
-            stats.events_in += wheel_t.size
-            bad, dropped, wheel_t, (ticks,) = _in_order(wheel_t, self._last_wheel_t, limit,
-                                                        ticks)
-            stats.wheel_invalid_stamp += bad
-            stats.wheel_out_of_order += dropped
-            if wheel_t.size:
-                self._note_gaps(wheel_t)
-                self._last_wheel_t = float(wheel_t[-1])
-                stats.wheel_frames += wheel_t.size
-                ref0 = self._wheel_rows.append(ticks)
-                t_eff = wheel_t - self._wheel_shift - self.ekf.noise.wheel_latency
-                parts.append((wheel_t, _EV_WHEELS, t_eff, ticks[:, 0].astype(np.float64),
-                              ticks[:, 1].astype(np.float64),
-                              np.arange(ref0, ref0 + wheel_t.size)))
+            self._note_gaps(wheel_t)
+            self._last_wheel_t = float(wheel_t[-1])
+            stats.wheel_frames += wheel_t.size
+            stats.wheel_turn = _add_up(stats.wheel_turn,
+                                       (ticks[:, 1] - ticks[:, 0]) * self._m_per_turn)
+            ref0 = self._wheel_rows.append(ticks)
+            t_eff = wheel_t - self._wheel_shift - self.ekf.noise.wheel_latency
+            parts.append((wheel_t, _EV_WHEELS, t_eff, ticks[:, 0].astype(np.float64),
+                          ticks[:, 1].astype(np.float64),
+                          np.arange(ref0, ref0 + wheel_t.size)))
         if twist_t is not None and twist_t.size:
-            stats.events_in += twist_t.size
-            twist_t, (twist_v, twist_w) = self._finite_values(twist_t, twist_v, twist_w)
-            bad, dropped, twist_t, (twist_v, twist_w) = _in_order(
-                twist_t, self._last_twist_t, limit, twist_v, twist_w)
-            stats.twist_invalid_stamp += bad
-            stats.twist_out_of_order += dropped
-            if twist_t.size:
-                self._last_twist_t = float(twist_t[-1])
-                stats.twist_messages += twist_t.size
-                ref0 = self._n_twists
-                self._n_twists += twist_t.size
-                parts.append((twist_t, _EV_TWIST, twist_t, twist_v, twist_w,
-                              np.arange(ref0, ref0 + twist_t.size)))
+            stats.twist_turn = _add_up(stats.twist_turn,
+                                       twist_w * _steps(twist_t, self._last_twist_t))
+            self._last_twist_t = float(twist_t[-1])
+            stats.twist_messages += twist_t.size
+            ref0 = self._n_twists
+            self._n_twists += twist_t.size
+            parts.append((twist_t, _EV_TWIST, twist_t, twist_v, twist_w,
+                          np.arange(ref0, ref0 + twist_t.size)))
         if not parts:
             if flush:
                 self._run(*_NO_EVENTS, flush=True)
@@ -545,14 +651,118 @@ class FusionPipeline(Lifecycle):
         self.stats.invalid_values += int(t.size - ok.sum())
         return t[ok], tuple(c[ok] for c in cols)
 
+    def _motion(self, wheel_t, ticks, twist_t, twist_v, twist_w):
+        """``(stamp, v, w, a)`` arrays of the accepted wheel frames and twists of one call in
+        arrival order (at equal stamps wheels first), None when the attitude filter takes no
+        wheel knowledge. A frame's v (m/s) and w (rad/s) are its ticks over its period with
+        the nominal geometry; ``a`` (m/s^2) is the change of v from the source's previous
+        event over the wheel period (a twist: over the stamp difference), 0 after a gap
+        longer than ``gap_periods`` periods or for the first event."""
+        if not self._knows_wheels:
+            return None
+        streams = []
+        if wheel_t is not None and wheel_t.size:
+            v, w = ticks_to_twist(ticks[:, 0], ticks[:, 1], self.robot.chassis)
+            streams.append((wheel_t, v, w, self._forward_accel("wheels", wheel_t, v)))
+        if twist_t is not None and twist_t.size:
+            streams.append((twist_t, twist_v, twist_w,
+                            self._forward_accel("twist", twist_t, twist_v)))
+        if len(streams) < 2:
+            return streams[0] if streams else _NO_MOTION
+        stamp = np.concatenate([streams[0][0], streams[1][0]])
+        order = np.argsort(stamp, kind="stable")
+        return tuple(np.concatenate([streams[0][i], streams[1][i]])[order] for i in range(4))
+
+    def _forward_accel(self, source: str, t: NDArray[np.float64],
+                       v: NDArray[np.float64]) -> NDArray[np.float64]:
+        """dv/dt (m/s^2) of one source's accepted events (see :meth:`_motion`); remembers
+        the last (stamp, v)."""
+        t_prev, v_prev = self._last_speed[source]
+        self._last_speed[source] = (float(t[-1]), float(v[-1]))
+        tp = np.concatenate([[t_prev], t[:-1]])
+        dv = v - np.concatenate([[v_prev], v[:-1]])
+        dt = t - tp
+        a = dv / self.period if source == "wheels" else dv / dt
+        a[~(dt <= self._gap_periods * self.period)] = 0.0
+        return a
+
+    def _wheel_knowledge(self, t, gyro, accel, motion):
+        """What the wheels tell the attitude filter at each IMU sample (stamps ``t`` s,
+        base-frame ``gyro`` rad/s and ``accel`` m/s^2), from the newest wheel frame or twist
+        that arrived before it (an IMU sample arrives before a wheel frame of the same stamp),
+        if not older than ``gap_periods`` wheel periods:
+
+        - known acceleration (N, 3), m/s^2, base frame: the forward acceleration dv/dt along x
+          and the centripetal ``v*w`` along +y (to the left when turning left while driving
+          forward); the IMU's lever arm is left out (an IMU off the axle centre feels
+          ``w^2 r`` more); NaN rows where nothing is known;
+        - stillness (N,): 0 moving (v or w not zero), 1 known still (v = w = 0 and the IMU
+          quiet: ``|gyro|`` below Keel's ``bias_clip + rest_gyro_threshold`` and ``|accel|``
+          within ``rest_accel_threshold`` of gravity), NaN unknown (the filter's own rest
+          detector decides).
+        """
+        idx = np.searchsorted(motion[0], t, side="left") - 1
+        inside = idx >= 0
+        src_t, v, w, a = (np.where(inside, m[idx], last) if m.size else np.full(t.size, last)
+                          for m, last in zip(motion, self._known_motion))
+        fresh = t - src_t <= self._gap_periods * self.period
+        # the same operations as _knowledge_now, so one sample gets the same bits either way
+        v = np.where(fresh, v, math.nan)
+        w = np.where(fresh, w, math.nan)
+        known = np.zeros((t.size, 3))
+        known[:, 0] = a
+        known[:, 1] = v * w
+        known[~fresh] = math.nan
+        gyro_max, gravity, accel_tol = self._quiet
+        gx, gy, gz = gyro[:, 0], gyro[:, 1], gyro[:, 2]
+        ax, ay, az = accel[:, 0], accel[:, 1], accel[:, 2]
+        quiet = ((gx * gx + gy * gy + gz * gz < gyro_max * gyro_max)
+                 & (np.abs(np.sqrt(ax * ax + ay * ay + az * az) - gravity) < accel_tol))
+        moving = (v != 0.0) | (w != 0.0)
+        still = np.where(moving, 0.0, np.where(quiet, 1.0, math.nan))
+        still[~fresh] = math.nan
+        return still, known
+
+    def _knowledge_now(self, t: float, gyro: NDArray[np.float64], accel: NDArray[np.float64]):
+        """:meth:`_wheel_knowledge` of one IMU sample with no wheel frame or twist in the same
+        call (the streaming case), in scalars: ``(still, known_accel)`` as
+        :meth:`fusion.attitude.keel.Keel.update` takes them."""
+        src_t, v, w, a = self._known_motion
+        if not t - src_t <= self._gap_periods * self.period:
+            return None, None
+        if v != 0.0 or w != 0.0:
+            still = False
+        else:
+            gyro_max, gravity, accel_tol = self._quiet
+            gx, gy, gz = gyro.tolist()
+            ax, ay, az = accel.tolist()
+            still = ((gx * gx + gy * gy + gz * gz < gyro_max * gyro_max)
+                     and abs(math.sqrt(ax * ax + ay * ay + az * az) - gravity) < accel_tol)
+            still = True if still else None
+        return still, np.array([a, v * w, 0.0])
+
     def _attitude(self, t: NDArray[np.float64], gyro: NDArray[np.float64],
-                  accel: NDArray[np.float64]) -> NDArray[np.float64]:
+                  accel: NDArray[np.float64], motion) -> NDArray[np.float64]:
         """(N, 4) attitudes after each sample. One sample goes through the filter's streaming
         call, which costs a fraction of a batch call's set-up; both run the same compiled step
-        and give the same bits (the attitude filters' contract, tests/test_mahony.py)."""
+        and give the same bits (the attitude filters' contract, tests/test_mahony.py,
+        tests/test_keel.py), with the same wheel knowledge (:meth:`_wheel_knowledge`, computed
+        from the events that arrived before each sample in both paths)."""
+        f = self.attitude
+        if motion is None:
+            if t.size == 1:
+                return f.update(gyro[0], accel[0], timestamp=float(t[0]))[None, :]
+            return f.update_batch(gyro, accel, timestamps=t)
+        if t.size == 1 and not motion[0].size:
+            still, known = self._knowledge_now(float(t[0]), gyro[0], accel[0])
+            return f.update(gyro[0], accel[0], timestamp=float(t[0]), still=still,
+                            known_accel=known)[None, :]
+        still, known = self._wheel_knowledge(t, gyro, accel, motion)
         if t.size == 1:
-            return self.mahony.update(gyro[0], accel[0], timestamp=float(t[0]))[None, :]
-        return self.mahony.update_batch(gyro, accel, timestamps=t)
+            s = still[0]
+            return f.update(gyro[0], accel[0], timestamp=float(t[0]),
+                            still=None if s != s else bool(s), known_accel=known[0])[None, :]
+        return f.update_batch(gyro, accel, timestamps=t, still=still, known_accel=known)
 
     def _note_gaps(self, wheel_t: NDArray[np.float64]) -> None:
         """Record the wheel-frame gaps before each accepted frame (the first frame has none)."""
@@ -633,6 +843,11 @@ class FusionPipeline(Lifecycle):
             if on_record is not None:
                 on_record(rec)
 
+    @property
+    def working_sinks(self) -> list[Any]:
+        """The sinks still getting records (all but those whose write failed)."""
+        return list(self._active_sinks)
+
     def _sink_failed(self, sink: Any, exc: BaseException) -> None:
         """A sink's write raised: report it with its traceback, abort that sink (a file
         sink keeps the old file), and publish to the others only."""
@@ -644,7 +859,7 @@ class FusionPipeline(Lifecycle):
         except Exception:
             text += f"\nand aborting it failed:\n{traceback.format_exc()}"
         if self._on_sink_error is not None:
-            self._on_sink_error(sink, text)
+            self._on_sink_error(sink, exc, text)
         else:
             _log.error("sink %r failed; it gets no more records:\n%s", sink, text)
 
@@ -674,8 +889,8 @@ class FusionPipeline(Lifecycle):
         """The fused state now as a :class:`FusedOdometry` (frames from the config).
 
         ``angular_velocity`` is the last base-frame gyro sample's x and y with the EKF's
-        yaw rate as z (so /odom's twist carries the fused rate); ``orientation`` the Mahony
-        attitude of that sample; wheel speeds are the last frame's rim speeds (m/s).
+        yaw rate as z (so /odom's twist carries the fused rate); ``orientation`` the attitude
+        filter's attitude of that sample; wheel speeds are the last frame's rim speeds (m/s).
         """
         ekf = self.ekf
         row = np.empty((1, ev_core.PUB_WIDTH))
@@ -698,12 +913,16 @@ class FusionPipeline(Lifecycle):
         return self._trace_chunks[0]
 
     def finish_stats(self) -> PipelineStats:
-        """The counters, with the EKF's late/slip/ZUPT counters copied in."""
+        """The counters, with the EKF's (late, slip, ZUPT, speed reset, invalid) and the
+        attitude filter's (gaps) counters copied in."""
         s = self.ekf.stats
         self.stats.late_dropped = s["late_dropped"]
         self.stats.late_applied = s["late_applied"]
         self.stats.slips = s["slips"]
         self.stats.zupts = s["zupts"]
+        self.stats.speed_resets = s["speed_resets"]
+        self.stats.invalid = s["invalid"]
+        self.stats.attitude_gaps = self.attitude.counters.gaps
         return self.stats
 
     def ledger(self) -> dict[str, Any]:
@@ -739,6 +958,7 @@ class FusionPipeline(Lifecycle):
         return [float(v) for v in np.percentile(a, qs)]
 
 
+_NO_MOTION = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
 _NO_EVENTS = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
               np.zeros(0, dtype=np.int64))
 
@@ -774,6 +994,18 @@ class _RowStore:
 def _floats(values) -> NDArray[np.float64]:
     """``values`` as a 1-D float64 array (None: empty)."""
     return np.zeros(0) if values is None else np.asarray(values, dtype=np.float64).reshape(-1)
+
+
+def _steps(t: NDArray[np.float64], last: float) -> NDArray[np.float64]:
+    """Intervals before each stamp of ``t`` (s), the first from ``last`` (0 when ``last`` is
+    -inf: the first event of a source has no interval)."""
+    return np.diff(t, prepend=last if math.isfinite(last) else t[0])
+
+
+def _add_up(total: float, values: NDArray[np.float64]) -> float:
+    """``total`` plus ``values`` added one at a time, left to right (a cumulative sum, not
+    numpy's pairwise one): the same bits whether the events come one by one or in a batch."""
+    return float(np.cumsum(np.concatenate(([total], values)))[-1])
 
 
 def _in_order(t: NDArray[np.float64], last: float, limit: float,

@@ -69,7 +69,11 @@ P_TWIST_W_STD = 22
 P_TWIST_ZERO_V = 23
 P_TWIST_ZERO_W = 24
 P_GYRO_LIMIT = 25
-PAR_SIZE = 26
+P_HORIZON = 26
+P_SPEED_VAR0 = 27
+P_MAX_RATE = 28
+P_MAX_SPEED = 29
+PAR_SIZE = 30
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -81,7 +85,16 @@ A_LAST_D2 = 6
 A_UPDATES = 7
 A_ERROR = 8
 A_SATURATED = 9
-AUX_SIZE = 10
+# gap policy (see _advance), per speed state v (+0) and w (+1):
+A_V_T = 10  # filter time of the last measurement of v (NaN: forgotten)
+A_W_T = 11  # the same for w
+A_V_FORGOT = 12  # filter time at which v was forgotten
+A_W_FORGOT = 13
+A_V_RMS2 = 14  # second moment of v when forgotten, (m/s)^2
+A_W_RMS2 = 15  # the same for w, (rad/s)^2
+A_SPEED_RESETS = 16  # v or w forgotten after max_extrapolation without a measurement
+A_PREDICTIONS = 17  # predict_core calls
+AUX_SIZE = 18
 # event kinds
 EV_GYRO = 0
 EV_WHEELS = 1
@@ -269,11 +282,74 @@ def update_core(x, P, y, H, R, gate_index, gate, inflation):
 
 
 @njit
+def _forget_speed(x, P, aux, i, t, var0):
+    """Speed state ``i`` (3 = v, 4 = w) becomes unknown at filter time ``t``: mean 0, variance
+    its second moment ``x_i^2 + P_ii`` (at least the prior ``var0``), uncorrelated with the
+    rest (and kept so while forgotten, see :func:`_predict_step`)."""
+    var = x[i] * x[i] + P[i, i]
+    if not var >= var0:
+        var = var0
+    for j in range(NX):
+        P[i, j] = 0.0
+        P[j, i] = 0.0
+    P[i, i] = var
+    x[i] = 0.0
+    aux[A_V_T + i - 3] = math.nan
+    aux[A_V_FORGOT + i - 3] = t
+    aux[A_V_RMS2 + i - 3] = var
+    aux[A_ZERO_COUNT] = 0.0  # standing still is no longer known either
+    aux[A_SPEED_RESETS] += 1.0
+
+
+@njit
+def _predict_step(x, P, aux, par, t, h, q_v, q_w):
+    """One prediction over ``h`` s from filter time ``t``.
+
+    A forgotten speed (mean 0, uncorrelated) takes no part in the motion's covariance
+    propagation; instead the pose gets the envelope of an unknown motion at that speed's
+    second moment ``r``: ``r * s^2`` on the variance of x and y (v) or of yaw (w), ``s`` the
+    time since it was forgotten (added as ``r * ((s + h)^2 - s^2)``, so any split of an
+    interval into steps gives the same covariance). Nothing correlates the pose with it, so
+    a speed measured after a gap does not move the pose by the distance of the gap.
+    """
+    v_lost = math.isnan(aux[A_V_T])
+    w_lost = math.isnan(aux[A_W_T])
+    p_vv = P[3, 3]
+    p_ww = P[4, 4]
+    if v_lost:
+        P[3, 3] = 0.0
+    if w_lost:
+        P[4, 4] = 0.0
+    predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C])
+    aux[A_PREDICTIONS] += 1.0
+    if v_lost:
+        P[3, 3] += p_vv
+        s = t - aux[A_V_FORGOT]
+        grow = aux[A_V_RMS2] * (h * (2.0 * s + h))
+        P[0, 0] += grow
+        P[1, 1] += grow
+    if w_lost:
+        P[4, 4] += p_ww
+        s = t - aux[A_W_FORGOT]
+        P[2, 2] += aux[A_W_RMS2] * (h * (2.0 * s + h))
+
+
+@njit
 def _advance(x, P, aux, par, t):
-    """Bring the filter to time ``t``; returns False when the input is too late to use."""
+    """Bring the filter to time ``t``; returns False when the input is too late to use.
+
+    Gap policy (cost bounded for any interval): v and w are extrapolated at most
+    ``par[P_HORIZON]`` s past their last measurement (in steps of at most ``max_dt``); then
+    each is forgotten (:func:`_forget_speed`) until it is measured again: the pose stops
+    moving with it and its covariance grows by the envelope of :func:`_predict_step`.
+    While both are forgotten nothing moves and the covariance growth is in closed form, so
+    the rest of the interval is one step.
+    """
     t_now = aux[A_T]
     if math.isnan(t_now):
         aux[A_T] = t
+        aux[A_V_T] = t  # x0's speeds count as known at the first input
+        aux[A_W_T] = t
         return True
     dt = t - t_now
     if dt < 0.0:
@@ -283,18 +359,57 @@ def _advance(x, P, aux, par, t):
         aux[A_LATE_DROPPED] += 1.0
         return False
     max_dt = par[P_MAX_DT]
-    q_v = par[P_Q_V]
-    q_w = par[P_Q_W]
-    if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
-        # standing still: v and w stay (almost) where the ZUPT put them
-        q_v *= par[P_STILL_SCALE]
-        q_w *= par[P_STILL_SCALE]
+    horizon = par[P_HORIZON]
     while dt > 0.0:
-        h = dt if dt <= max_dt else max_dt
-        predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C])
-        dt -= h
+        q_v = par[P_Q_V]
+        q_w = par[P_Q_W]
+        if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
+            # standing still: v and w stay (almost) where the ZUPT put them
+            q_v *= par[P_STILL_SCALE]
+            q_w *= par[P_STILL_SCALE]
+        # up to the next moment a speed state is forgotten, if one falls in this interval
+        span = dt
+        to_v = aux[A_V_T] + horizon - t_now  # NaN once forgotten: never smaller
+        to_w = aux[A_W_T] + horizon - t_now
+        if to_v < span:
+            span = to_v if to_v > 0.0 else 0.0
+        if to_w < span:
+            span = to_w if to_w > 0.0 else 0.0
+        forget_v = to_v <= span
+        forget_w = to_w <= span
+        if math.isnan(aux[A_V_T]) and math.isnan(aux[A_W_T]):
+            if span > 0.0:  # nothing moves the mean any more: one step
+                _predict_step(x, P, aux, par, t_now, span, q_v, q_w)
+        else:
+            left = span
+            t_step = t_now
+            while left > 0.0:
+                h = left if left <= max_dt else max_dt
+                _predict_step(x, P, aux, par, t_step, h, q_v, q_w)
+                left -= h
+                t_step += h
+        dt -= span
+        t_now += span
+        if forget_v:
+            _forget_speed(x, P, aux, 3, t_now, par[P_SPEED_VAR0])
+        if forget_w:
+            _forget_speed(x, P, aux, 4, t_now, par[P_SPEED_VAR0])
     aux[A_T] = t
     return True
+
+
+@njit
+def _implausible(kind, a, b, par):
+    """True for an input no sensor of this robot can produce (a corrupt value): a rate above
+    ``max_rate`` rad/s or a (wheel) speed above ``max_speed`` m/s."""
+    if kind == 0:
+        return abs(a) > par[P_MAX_RATE]
+    if kind == 1:
+        k = par[P_SPEED_RATIO] / par[P_PERIOD]
+        return abs(a) * k > par[P_MAX_SPEED] or abs(b) * k > par[P_MAX_SPEED]
+    if kind == 3:
+        return abs(a) > par[P_MAX_SPEED] or abs(b) > par[P_MAX_RATE]
+    return False
 
 
 @njit
@@ -312,7 +427,8 @@ def step_core(x, P, aux, par, kind, t, a, b):
     sample skipped), 3 S not positive definite,
     4 zero-velocity update, 5 dropped as too late, 6 invalid input.
     """
-    if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)):
+    if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)) or _implausible(
+            kind, a, b, par):
         aux[A_ERROR] += 1.0
         return 6
     if not _advance(x, P, aux, par, t):
@@ -378,6 +494,13 @@ def step_core(x, P, aux, par, kind, t, a, b):
         return 6
     aux[A_LAST_D2] = d2
     aux[A_UPDATES] += 1.0
+    # measured speeds: extrapolated again for up to max_extrapolation (see _advance)
+    if kind == 0:
+        if status == 0:
+            aux[A_W_T] = aux[A_T]
+    elif kind != 2 and (status == 0 or status == 1 or status == 4):
+        aux[A_V_T] = aux[A_T]
+        aux[A_W_T] = aux[A_T]
     return status
 
 

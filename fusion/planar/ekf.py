@@ -26,10 +26,30 @@ Model:
 
 - Prediction over ``dt`` (constant twist): ``yaw += w*dt``,
   ``x += v*dt*cos(yaw + w*dt/2)``, ``y += v*dt*sin(yaw + w*dt/2)``; v, w and b are random
-  walks (``q_v``, ``q_w``, ``q_b``). Long gaps are split into steps of at most ``max_dt``.
+  walks (``q_v``, ``q_w``, ``q_b``), in steps of at most ``max_dt``.
+- Gap policy (bounded cost and bounded extrapolation for any interval without inputs): v and
+  w are extrapolated at most ``max_extrapolation`` s (default 3) past their last
+  measurement (v: a wheel frame, twist or ZUPT; w: those or a gyro sample). Then each is
+  *forgotten* until it is measured again: its mean becomes 0 and its variance its second
+  moment ``r = x_i^2 + P_ii`` (at least ``initial_speed_std^2``), it stays uncorrelated with
+  the rest, and the ZUPT's standing-still state ends. While forgotten it does not move the
+  pose; the pose's covariance grows instead by the envelope of an unknown motion at that
+  speed, ``r * s^2`` on the variances of x and y (v) or of yaw (w), ``s`` the time since it
+  was forgotten, whatever the steps. So after a gap of any length the pose has moved at most
+  ``|v| * max_extrapolation`` (the yaw ``|w| * max_extrapolation``), its standard deviation
+  covers the distance the last speed would have carried the robot, and a speed measured after
+  the gap does not move the pose by the gap's distance (nothing correlates them). Once both
+  are forgotten nothing moves and the growth is in closed form: the rest of the interval is a
+  single step. One input therefore costs at most about ``2 * max_extrapolation / max_dt + 1``
+  steps (a 1e5 s gap: 61, not 2 million); forgetting is counted in
+  ``stats["speed_resets"]``, steps in ``stats["predictions"]``. The speeds of ``x0`` count
+  as measured at the first input.
+- Implausible inputs (a rate above ``max_rate``, a speed above ``max_speed``: a corrupt
+  value, not a measurement) and non-finite ones are counted in ``stats["invalid"]`` and
+  never fused.
 - Gyro update: ``z = w + b`` where z is the rate about the *world* vertical. On a level robot
   that is ``gyro[2]``; on a tilted one :func:`vertical_rate` projects the body rate with the
-  Mahony attitude quaternion.
+  attitude quaternion (the pipeline's: Keel's).
 - Wheel update: one DATA-uart2 frame's ticks give the period's mean speed ``v = (dl+dr)/(2T)``
   and yaw rate ``w = (dr-dl)/(L T)`` (seed 000's names: ``speed_ratio`` m/tick,
   ``wheel_distance`` L, ``encode_sampling_time`` T), modelled as ``v + c*w*L^2/4`` and
@@ -91,6 +111,7 @@ from fusion.planar import _ekf_core as core
 from fusion.types.constants import UNOBSERVED_VARIANCE
 
 __all__ = [
+    "MAX_STEPS_PER_INPUT",
     "STATE_NAMES",
     "EkfNoise",
     "FusedTrack",
@@ -135,14 +156,32 @@ class EkfNoise:
         late_tolerance: inputs at most this much older than the filter time are fused at the
             filter time, s; older ones are dropped.
         max_dt: longest single prediction step, s.
+        max_extrapolation: how long v and w are extrapolated past their last measurement, s
+            (the gap policy in the module docstring). Set by hand, not tuned: a driven robot
+            keeps its speed for a few seconds (a chassis cable pulled for 2 s while the
+            firmware holds its target: tests/test_pipeline_live.py), while 100 s at
+            0.25 m/s would be 25 m; 3 s bounds that to 0.75 m.
         wheel_latency: transport delay from the end of a period to its host stamp, s.
         twist_v_std, twist_w_std: noise of an external odometry twist (nav_msgs/Odometry
             from a ROS bag), m/s and rad/s.
         twist_zero_v, twist_zero_w: below both (m/s, rad/s) a twist counts as standing still.
         gyro_limit: gyro samples with ``|rate| >= gyro_limit`` (rad/s) are saturated and
             skipped (set it a little below the full scale: 4.3 for the MPU6050's +-250 deg/s).
+        max_rate: a gyro sample or twist with a rate above this (rad/s) is corrupt: counted
+            as invalid, never fused. The default is above every MEMS gyro's full scale
+            (+-4000 deg/s = 70 rad/s).
+        max_speed: inputs with a speed above this (m/s: either wheel of a frame, a twist)
+            are corrupt: counted as invalid, never fused.
         initial_bias_std: prior standard deviation of the gyro bias, rad/s.
-        initial_speed_std: prior standard deviation of v (m/s) and w (rad/s).
+        initial_speed_std: prior standard deviation of v (m/s) and w (rad/s); also the least
+            variance of a speed forgotten by the gap policy.
+
+    Raises:
+        ValueError: a value that is not a number, a measurement noise, prior, time step or
+            limit that is not finite and > 0, any other value that is negative or not finite,
+            ``zupt_frames`` not a whole number >= 1, ``still_scale`` > 1, or more than
+            :data:`MAX_STEPS_PER_INPUT` prediction steps per input; the message names the
+            field and the value.
     """
 
     gyro_std: float = math.radians(0.005) * 10.0
@@ -165,28 +204,71 @@ class EkfNoise:
     slip_inflation: float = 1e4
     late_tolerance: float = 0.05
     max_dt: float = 0.05
+    max_extrapolation: float = 3.0
     wheel_latency: float = 0.0
     twist_v_std: float = 0.01
     twist_w_std: float = 0.01
     twist_zero_v: float = 1e-3
     twist_zero_w: float = 1e-3
     gyro_limit: float = math.inf
+    max_rate: float = 100.0
+    max_speed: float = 50.0
     initial_bias_std: float = math.radians(2.0)
     initial_speed_std: float = 0.05
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"EkfNoise.{name} must be a number, got {value!r}")
             if name == "gyro_limit":
-                if not (isinstance(value, (int, float)) and value > 0):
-                    raise ValueError(f"EkfNoise.gyro_limit must be > 0 rad/s (or inf), got "
-                                     f"{value!r}")
-                continue
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"EkfNoise.{name} must be finite and >= 0, got {value!r}")
-        if self.gyro_std <= 0 or self.max_dt <= 0 or self.zupt_frames < 1:
-            raise ValueError("EkfNoise gyro_std and max_dt must be > 0 and zupt_frames >= 1")
-        if self.zupt_v_std <= 0 or self.zupt_w_std <= 0:
-            raise ValueError("EkfNoise zupt_v_std and zupt_w_std must be > 0")
+                ok, need = value > 0, "> 0 rad/s (or inf)"
+            elif name == "zupt_frames":
+                ok, need = value >= 1 and float(value).is_integer(), "a whole number >= 1"
+            elif name in _POSITIVE:
+                ok, need = math.isfinite(value) and value > 0, "finite and > 0"
+            else:
+                ok, need = math.isfinite(value) and value >= 0, "finite and >= 0"
+            if not ok:
+                raise ValueError(f"EkfNoise.{name} must be {need}, got {value!r}")
+        if self.still_scale > 1:
+            raise ValueError(f"EkfNoise.still_scale must be <= 1 (it shrinks the random walks "
+                             f"while still), got {self.still_scale!r}")
+        steps = self.max_extrapolation / self.max_dt
+        if steps > MAX_STEPS_PER_INPUT:
+            raise ValueError(f"EkfNoise.max_dt = {self.max_dt!r} s is absurdly short for "
+                             f"max_extrapolation = {self.max_extrapolation!r} s: {steps:.3g} "
+                             f"prediction steps per input (at most {MAX_STEPS_PER_INPUT})")
+
+
+#: Fields of :class:`EkfNoise` that must be > 0: measurement noises (a zero one would make the
+#: innovation covariance singular), priors, time steps, gates and plausibility limits.
+_POSITIVE = frozenset({
+    "gyro_std", "tick_std", "zupt_v_std", "zupt_w_std", "twist_v_std", "twist_w_std",
+    "initial_bias_std", "initial_speed_std", "max_dt", "max_extrapolation", "slip_gate",
+    "max_rate", "max_speed",
+})
+#: Upper bound on ``max_extrapolation / max_dt``: the prediction steps one input may cost.
+MAX_STEPS_PER_INPUT = 10_000
+
+
+def _state_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """A finite (8,) state ``[x, y, yaw, v, w, b, k, c]``; ``ValueError`` naming ``name``."""
+    x = np.array(value, dtype=float).reshape(-1)
+    if x.shape != (8,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"{name} must be 8 finite values [x, y, yaw, v, w, b, k, c], got "
+                         f"{x.tolist()}")
+    return x
+
+
+def _covariance(name: str, value: ArrayLike) -> NDArray[np.float64]:
+    """A finite symmetric (8, 8) covariance with a non-negative diagonal; ``ValueError``."""
+    P = np.array(value, dtype=float)
+    if P.shape != (8, 8) or not np.all(np.isfinite(P)):
+        raise ValueError(f"{name} must be a finite 8 x 8 covariance, got shape {P.shape}")
+    if np.any(np.diag(P) < 0) or not np.allclose(P, P.T, rtol=1e-9, atol=1e-300):
+        raise ValueError(f"{name} must be symmetric with a non-negative diagonal, got "
+                         f"diagonal {np.diag(P).tolist()}")
+    return P
 
 
 def odometry_covariances(P: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -320,6 +402,9 @@ class ReorderBuffer:
         self._count = 0
 
     def push(self, t: float, event) -> None:
+        """Hold ``event`` with time ``t`` s (finite, else ``ValueError``)."""
+        if not math.isfinite(t):
+            raise ValueError(f"ReorderBuffer.push needs a finite time in s, got {t!r}")
         heapq.heappush(self._heap, (float(t), self._count, event))
         self._count += 1
         self._newest = max(self._newest, float(t))
@@ -374,7 +459,9 @@ class PlanarEKF(ExtendedKalmanFilter):
     Attributes:
         t: filter time, s (None before the first input).
         stats: counters: ``slips``, ``zupts``, ``late_dropped``, ``late_applied``,
-            ``invalid``, ``gyro_saturated``, ``updates``.
+            ``invalid`` (non-finite or implausible inputs), ``gyro_saturated``, ``updates``,
+            ``speed_resets`` (v or w forgotten by the gap policy), ``predictions``
+            (prediction steps).
     """
 
     def __init__(
@@ -388,17 +475,21 @@ class PlanarEKF(ExtendedKalmanFilter):
         super().__init__(dim_x=8, dim_z=2)
         if backend is not None:
             _check_backend(backend)
+        if not isinstance(robot, DiffDriveParams):
+            raise ValueError(f"robot must be a DiffDriveParams, got {type(robot).__name__}")
+        if noise is not None and not isinstance(noise, EkfNoise):
+            raise ValueError(f"noise must be an EkfNoise, got {type(noise).__name__}")
         self.robot = robot
         self.noise = noise if noise is not None else EkfNoise()
         n = self.noise
-        self.x = np.zeros(8) if x0 is None else np.array(x0, dtype=float).reshape(8)
+        self.x = np.zeros(8) if x0 is None else _state_vector("x0", x0)
         if P0 is None:
             s = n.initial_speed_std
             # the odom origin is the start pose; 1e-9 (m^2, rad^2) keeps P positive definite
             self.P = np.diag([1e-9, 1e-9, 1e-9, s * s, s * s, n.initial_bias_std ** 2,
                               n.calib_k_std ** 2, n.calib_c_std ** 2])
         else:
-            self.P = np.array(P0, dtype=float).reshape(8, 8)
+            self.P = _covariance("P0", P0)
         self._par = np.zeros(core.PAR_SIZE)
         par = self._par
         par[core.P_SPEED_RATIO] = robot.speed_ratio
@@ -427,6 +518,10 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_TWIST_ZERO_V] = n.twist_zero_v
         par[core.P_TWIST_ZERO_W] = n.twist_zero_w
         par[core.P_GYRO_LIMIT] = n.gyro_limit
+        par[core.P_HORIZON] = n.max_extrapolation
+        par[core.P_SPEED_VAR0] = n.initial_speed_std ** 2
+        par[core.P_MAX_RATE] = n.max_rate
+        par[core.P_MAX_SPEED] = n.max_speed
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
 
@@ -447,6 +542,8 @@ class PlanarEKF(ExtendedKalmanFilter):
             "invalid": int(a[core.A_ERROR]),
             "gyro_saturated": int(a[core.A_SATURATED]),
             "updates": int(a[core.A_UPDATES]),
+            "speed_resets": int(a[core.A_SPEED_RESETS]),
+            "predictions": int(a[core.A_PREDICTIONS]),
         }
 
     @property
@@ -464,9 +561,16 @@ class PlanarEKF(ExtendedKalmanFilter):
         return {"x": self.x.copy(), "P": self.P.copy(), "aux": self._aux.copy()}
 
     def set_state(self, state: dict) -> None:
-        self.x = np.array(state["x"], dtype=float).reshape(8)
-        self.P = np.array(state["P"], dtype=float).reshape(8, 8)
-        self._aux = np.array(state["aux"], dtype=float).reshape(core.AUX_SIZE)
+        """Restore a snapshot of :meth:`get_state`; ``ValueError`` (the filter unchanged) for
+        a non-finite state, a covariance that is not symmetric with a non-negative diagonal,
+        or bookkeeping of the wrong size."""
+        x = _state_vector("state['x']", state["x"])
+        P = _covariance("state['P']", state["P"])
+        aux = np.array(state["aux"], dtype=float).reshape(-1)
+        if aux.shape != (core.AUX_SIZE,) or np.any(np.isinf(aux)):
+            raise ValueError(f"state['aux'] must be {core.AUX_SIZE} values from get_state, got "
+                             f"{aux.tolist()}")
+        self.x, self.P, self._aux = x, P, aux
 
     def covariances_ros(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(pose_covariance, twist_covariance)`` in nav_msgs/Odometry layout."""
@@ -502,8 +606,8 @@ class PlanarEKF(ExtendedKalmanFilter):
 
     def update_yaw(self, t: float, yaw: float, std: float) -> int:
         """Fuse an absolute yaw (rad, in odom) with standard deviation ``std`` (rad)."""
-        if not std > 0:
-            raise ValueError(f"yaw std must be > 0 rad, got {std!r}")
+        if not (math.isfinite(std) and std > 0):
+            raise ValueError(f"yaw std must be finite and > 0 rad, got {std!r}")
         return self._step(core.EV_YAW, t, yaw, std)
 
     def predict(self, u=0, dt: float | None = None) -> None:
@@ -524,7 +628,11 @@ class PlanarEKF(ExtendedKalmanFilter):
         self.predict_to(t + dt)
 
     def predict_to(self, t: float) -> None:
-        """Propagate to time ``t`` s without a measurement (ignored if ``t`` is not newer)."""
+        """Propagate to time ``t`` s without a measurement (ignored if ``t`` is not newer).
+
+        The gap policy of the module docstring applies (bounded cost and extrapolation)."""
+        if not math.isfinite(t):
+            raise ValueError(f"predict_to needs a finite time in s, got {t!r}")
         if self.t is None or t <= self.t:
             return
         self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)

@@ -19,7 +19,7 @@ from fusion.geometry.angles import wrap_angle_scalar
 from fusion.io.atomic import AtomicFile
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, format_fused_row
 from fusion.io.incremental import DEFAULT_SYNC_INTERVAL, IncrementalFile
-from fusion.sinks.base import Sink
+from fusion.sinks.base import Sink, SinkError
 from fusion.types.fused import FusedOdometry
 
 __all__ = ["CsvSink", "JsonLinesSink"]
@@ -99,12 +99,13 @@ class JsonLinesSink(_FileOutput):
         self._synced()
 
     def write_status(self, status: dict) -> None:
-        """A status line ``{"status": {...}}`` between the records (``fusion run --status``:
-        the ledger of events, sources' health, latency); a record line has ``"t"`` instead.
-        NaN and infinite numbers are written as null."""
-        if self._state != "open":
-            return
-        assert self._stream is not None
+        """One status line ``{"status": status}`` (a record has no ``status`` key, so a
+        reader tells the two apart by it; NaN and infinite numbers become null): what
+        ``fusion run`` and ``fusion replay`` write after the last record (counters and trust
+        warnings, :mod:`fusion.jobs.status`), and ``fusion run --status S`` every S seconds
+        (the ledger of events, sources' health, latency)."""
+        if self._state != "open" or self._stream is None:
+            raise SinkError(f"{self!r} is not open (state {self._state})")
         self._stream.write(json.dumps({"status": _json_safe(status)}, allow_nan=False,
                                       separators=(",", ":")) + "\n")
         if self._flush:

@@ -1,6 +1,9 @@
-"""Leave-one-trial-out cross-validation over a precomputed table of per-trial errors.
+"""Cross-validation across runs (trials, logs): folds, and selection from a table of errors.
 
-Shared by the tuning scripts (run them as ``python benchmarks/NAME.py``).
+- :func:`kfold_splits`: k folds of run indices, each held out once (``fusion tune``).
+- :func:`leave_one_out`: for a precomputed table of per-trial errors (a grid of
+  configurations), each trial scored by the configuration best on the others (the tuning
+  scripts in ``benchmarks/``).
 """
 
 from __future__ import annotations
@@ -9,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["CvResult", "leave_one_out"]
+__all__ = ["CvResult", "kfold_splits", "leave_one_out"]
 
 
 @dataclass
@@ -47,3 +50,22 @@ def leave_one_out(table: np.ndarray) -> CvResult:
     means = table.mean(axis=1)
     best = int(np.argmin(means))
     return CvResult(held_out, chosen, best, float(means[best]))
+
+
+def kfold_splits(n: int, k: int) -> list[tuple[list[int], list[int]]]:
+    """``k`` folds of ``range(n)``: ``(train, test)`` index lists, every index in exactly one
+    ``test``. Runs are dealt round-robin (fold ``i`` tests ``i, i + k, ...``), so folds
+    differ in size by at most one and neighbouring runs (often alike) fall in different
+    folds; ``k == n`` is leave-one-out.
+
+    Raises:
+        ValueError: ``k`` < 2 or ``k`` > ``n``.
+    """
+    if not 2 <= k <= n:
+        raise ValueError(f"k-fold cross-validation needs 2 <= k <= runs; got k = {k} for "
+                         f"{n} run{'s' if n != 1 else ''}")
+    folds = []
+    for i in range(k):
+        test = list(range(i, n, k))
+        folds.append(([j for j in range(n) if j % k != i], test))
+    return folds

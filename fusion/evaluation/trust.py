@@ -1,0 +1,124 @@
+"""Trust signals: do a run's inputs agree within what the fusion model explains?
+
+The EKF always returns an answer; these checks say when that answer should not be trusted
+because its inputs disagree beyond the model (wheel/twist odometry and the gyro describe
+different motions, or the gyro's bias estimate left the sensor's physical range). They look
+only at a run's counters (:meth:`fusion.pipeline.core.PipelineStats.as_dict`: ``wheel_frames``,
+``twist_messages``, ``slips``, ``gyro_turn``, ``gyro_time``, ``wheel_turn``, ``twist_turn``)
+and the EKF's final gyro bias estimate, so ``fusion replay`` and ``fusion run`` use the same
+checks, and a script can run them on a finished pipeline.
+
+Checks (each a :class:`TrustWarning` with its figures):
+
+``slip``
+    More than :data:`SLIP_FRACTION_LIMIT` of the odometry frames (wheel frames or twists)
+    were flagged as slip (their yaw rate disagreed with the gyro's): slip is an exception
+    the model down-weights, not the normal state; most frames flagged means the two sources
+    describe different motions (a wrong wheel_distance, an IMU on another body, a wrong mount).
+``gyro_bias``
+    The EKF's gyro bias estimate beyond :data:`GYRO_BIAS_LIMIT`: the MPU-6050's initial
+    zero-rate output tolerance, +-20 deg/s at 25 C (InvenSense MPU-6000/MPU-6050 Product
+    Specification rev. 3.4, section 6.1, "Initial ZRO Tolerance"). A larger "bias" is a
+    disagreement the filter folded into its bias state.
+``heading_divergence``
+    The odometry's heading change (wheel frames and twists) and the gyro's (its bias
+    estimate taken out) differ by more than
+    ``HEADING_FLOOR + HEADING_FRACTION * |larger turn| + HEADING_RATE * gyro_time``: a few
+    degrees of noise, a wheel scale error of up to :data:`HEADING_FRACTION` (the EKF's wheel
+    yaw-rate scale state explains it), and on average :data:`HEADING_RATE` for what the
+    model explains over time (bias wander, the short slip events the EKF gates out). On
+    ``degraded_mission`` runs (:mod:`fusion.evaluation.synthetic`: 3 % wheel_distance error,
+    0.5 deg/s bias, three one-second 30 % slip patches) the divergence is at most 0.62 of
+    this allowance (seeds 0-9, 60 s and 300 s; the constants were set by reasoning, then
+    checked on these runs); on the bundled Jackal bag (odometry +2044 deg, gyro +271 deg
+    raw in 61 s) it is 7.5 times the allowance.
+
+Angles in rad and rates in rad/s inside; messages print degrees.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = [
+    "GYRO_BIAS_LIMIT",
+    "HEADING_FLOOR",
+    "HEADING_FRACTION",
+    "HEADING_RATE",
+    "SLIP_FRACTION_LIMIT",
+    "TrustWarning",
+    "trust_warnings",
+]
+
+#: Fraction of odometry frames flagged as slip above which the inputs disagree ("most").
+SLIP_FRACTION_LIMIT = 0.5
+#: rad/s: the MPU-6050's initial ZRO tolerance, +-20 deg/s (datasheet rev. 3.4, 6.1).
+GYRO_BIAS_LIMIT = math.radians(20.0)
+#: rad: heading disagreement always allowed (noise, start-up).
+HEADING_FLOOR = math.radians(15.0)
+#: Heading disagreement allowed per radian turned (a wheel_distance error up to 10 %).
+HEADING_FRACTION = 0.10
+#: rad/s: average heading disagreement allowed over the run (bias wander on top of the final
+#: estimate, slip events the EKF gates out).
+HEADING_RATE = math.radians(0.5)
+
+
+@dataclass(frozen=True)
+class TrustWarning:
+    """One failed check: ``name`` (``slip``, ``gyro_bias``, ``heading_divergence``), a
+    sentence for the user with the figures, and the figures (SI: rad, rad/s, s, fractions)."""
+
+    name: str
+    message: str
+    figures: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: ``{"name", "message", **figures}``."""
+        return {"name": self.name, "message": self.message, **self.figures}
+
+
+def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None) -> list[TrustWarning]:
+    """The checks of the module docstring over a run's counters ``stats`` (the keys of
+    :meth:`fusion.pipeline.core.PipelineStats.as_dict`; missing keys count as 0) and the EKF's
+    final gyro bias estimate (rad/s; None without an IMU). Empty when nothing disagrees."""
+    out: list[TrustWarning] = []
+    frames = int(stats.get("wheel_frames", 0)) + int(stats.get("twist_messages", 0))
+    slips = int(stats.get("slips", 0))
+    if frames and slips / frames > SLIP_FRACTION_LIMIT:
+        out.append(TrustWarning(
+            "slip",
+            f"{100 * slips / frames:.0f} % of the {frames} odometry frames were flagged as "
+            f"slip (their yaw rate disagrees with the gyro's; more than "
+            f"{100 * SLIP_FRACTION_LIMIT:.0f} % means the two inputs describe different "
+            "motions: check wheel_distance, the IMU mount and the topics)",
+            {"slip_fraction": slips / frames, "slips": float(slips), "frames": float(frames)}))
+    gyro_time = float(stats.get("gyro_time", 0.0))
+    if gyro_bias is None or not gyro_time > 0:
+        return out
+    if not abs(gyro_bias) <= GYRO_BIAS_LIMIT:
+        out.append(TrustWarning(
+            "gyro_bias",
+            f"the gyro bias estimate {math.degrees(gyro_bias):+.2f} deg/s is beyond the "
+            f"MPU-6050's zero-rate tolerance (+-{math.degrees(GYRO_BIAS_LIMIT):.0f} deg/s): "
+            "the filter absorbed a disagreement into its bias",
+            {"gyro_bias": gyro_bias, "limit": GYRO_BIAS_LIMIT}))
+    if not frames:
+        return out
+    odometry = float(stats.get("wheel_turn", 0.0)) + float(stats.get("twist_turn", 0.0))
+    gyro = float(stats.get("gyro_turn", 0.0)) - gyro_bias * gyro_time
+    divergence = abs(odometry - gyro)
+    allowed = (HEADING_FLOOR + HEADING_FRACTION * max(abs(odometry), abs(gyro))
+               + HEADING_RATE * gyro_time)
+    if divergence > allowed:
+        out.append(TrustWarning(
+            "heading_divergence",
+            f"odometry and gyro headings diverge: the odometry turned "
+            f"{math.degrees(odometry):+.0f} deg, the gyro {math.degrees(gyro):+.0f} deg "
+            f"(bias estimate removed) over {gyro_time:.1f} s; {math.degrees(divergence):.0f} "
+            f"deg apart, more than the {math.degrees(allowed):.0f} deg the model explains",
+            {"odometry_turn": odometry, "gyro_turn": gyro, "divergence": divergence,
+             "allowed": allowed, "gyro_time": gyro_time}))
+    return out

@@ -1,0 +1,250 @@
+"""Trust signals (:mod:`fusion.evaluation.trust`): ``fusion replay`` and ``fusion run`` say when
+the inputs disagree beyond what the model explains, and exit 3 with ``--strict``.
+
+Oracles: the checks on hand-made counters (each limit from its stated source); on the bundled
+Jackal bag the bag's own records, read independently of the pipeline: the heading change of
+its nav_msgs/Odometry pose quaternions and of its sensor_msgs/Imu orientation quaternions
+(unwrapped, scipy), which the pipeline's integrated twist and gyro rates must match; a
+synthetic log replayed with the robot.toml it was made with (no warning) and with a
+wheel_distance half the true one (the odometry turns twice as far: a warning).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fusion.cli import main
+from fusion.evaluation.trust import (
+    GYRO_BIAS_LIMIT,
+    HEADING_FLOOR,
+    SLIP_FRACTION_LIMIT,
+    trust_warnings,
+)
+from fusion.jobs.status import STRICT_EXIT_STATUS
+
+IMU_TOPIC = "/imu/data"
+ODOM_TOPIC = "/jackal_velocity_controller/odom"
+
+
+def _split(path: Path) -> tuple[list[dict], list[dict]]:
+    """(records, status records) of a JSON lines output."""
+    lines = [json.loads(x) for x in path.read_text().splitlines()]
+    return [d for d in lines if "status" not in d], [d["status"] for d in lines if "status" in d]
+
+
+def test_slip_check_is_about_most_frames() -> None:
+    assert SLIP_FRACTION_LIMIT == 0.5  # "most frames"
+    base = {"wheel_frames": 1000}
+    assert trust_warnings({**base, "slips": 500}, None) == []
+    (w,) = trust_warnings({**base, "slips": 501}, None)
+    assert w.name == "slip" and w.figures["slip_fraction"] == pytest.approx(0.501)
+    assert "50 % of the 1000 odometry frames" in w.message
+    # twists count as odometry frames too (a bag)
+    assert trust_warnings({"twist_messages": 1000, "slips": 400}, None) == []
+
+
+def test_bias_check_uses_the_mpu6050_zero_rate_tolerance() -> None:
+    # MPU-6000/6050 Product Specification rev. 3.4, 6.1: initial ZRO tolerance +-20 deg/s
+    assert math.degrees(GYRO_BIAS_LIMIT) == pytest.approx(20.0)
+    stats = {"gyro_time": 10.0, "imu_samples": 1000}
+    assert trust_warnings(stats, math.radians(19.9)) == []
+    (w,) = trust_warnings(stats, math.radians(-20.5))
+    assert w.name == "gyro_bias" and "-20.50 deg/s" in w.message
+    assert trust_warnings(stats, None) == []  # no IMU: no bias to judge
+
+
+def test_heading_check_removes_the_bias_estimate() -> None:
+    # 60 s turning 5 rad with a 0.05 rad/s gyro bias: the raw gyro turns 3 rad further,
+    # which the estimated bias explains exactly
+    stats = {"wheel_frames": 1500, "gyro_time": 60.0, "wheel_turn": 5.0, "gyro_turn": 8.0}
+    assert trust_warnings(stats, 0.05) == []
+    (w,) = trust_warnings(stats, 0.0)  # without the bias: 3 rad apart
+    assert w.name == "heading_divergence"
+    assert w.figures["divergence"] == pytest.approx(3.0)
+    # allowed: the floor, 10 % of the larger turn, 0.5 deg/s over the 60 s
+    assert w.figures["allowed"] == pytest.approx(HEADING_FLOOR + 0.8 + math.radians(30))
+    # a small turn: the floor (and 10 % of the turn) allowed
+    small = {"twist_messages": 10, "gyro_time": 1e-3, "twist_turn": 0.0}
+    assert trust_warnings({**small, "gyro_turn": HEADING_FLOOR}, 0.0) == []
+    assert [w.name for w in trust_warnings({**small, "gyro_turn": 1.2 * HEADING_FLOOR},
+                                           0.0)] == ["heading_divergence"]
+
+
+def _unwrapped_turn(yaw: np.ndarray) -> float:
+    yaw = np.unwrap(yaw[np.isfinite(yaw)])
+    return float(yaw[-1] - yaw[0])
+
+
+def test_the_jackal_bag_warns_and_strict_fails(datasets_dir, tmp_path, capsys) -> None:
+    pytest.importorskip("rosbags")
+    from scipy.spatial.transform import Rotation
+
+    from fusion.io.bags import read_bag
+
+    bag = datasets_dir / "rosbag" / "jackal_sim_test2.bag"
+    out = tmp_path / "f.jsonl"
+    rc = main(["replay", str(bag), "--imu-topic", IMU_TOPIC, "--odom-topic", ODOM_TOPIC,
+               "-o", str(out), "--strict"])
+    printed = capsys.readouterr().out
+    assert rc == STRICT_EXIT_STATUS
+    assert "warning: inputs disagree (slip)" in printed
+    assert "warning: inputs disagree (heading_divergence)" in printed
+    records, (status,) = _split(out)
+    assert len(records) == 3060  # one per odometry message, the status after them
+    names = [w["name"] for w in status["warnings"]]
+    assert names == ["slip", "heading_divergence"]
+    c = status["counters"]
+    assert c["slips"] / c["twist_messages"] > 0.8  # the issue: 81 % of the frames
+
+    # the figures against the bag's own records
+    msgs = read_bag(bag, imu_topic=IMU_TOPIC, odom_topic=ODOM_TOPIC)
+    odom_turn = _unwrapped_turn(msgs.odometry.yaw)
+    q = msgs.imu.orientation  # [w, x, y, z]
+    imu_yaw = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_euler("ZYX")[:, 0]
+    imu_turn = _unwrapped_turn(imu_yaw)
+    # the issue's figures (2044 deg, from the twists; 274 deg)
+    assert math.degrees(odom_turn) == pytest.approx(2044, abs=3)
+    assert math.degrees(imu_turn) == pytest.approx(274, abs=1)
+    # the twist's yaw rate integrated = the pose's heading change (50 Hz, 2 %)
+    assert c["twist_turn"] == pytest.approx(odom_turn, rel=0.02) and c["wheel_turn"] == 0
+    # the gyro's z rate integrated is the issue's 275 deg; the counter integrates the
+    # tilt-compensated vertical rate the EKF fuses (the attitude filter's tilt: within 3 %;
+    # exactly the z rate with --level: test_turn_counters_integrate_what_is_fused)
+    gz = msgs.imu.gyro[:, 2]
+    raw = float(np.sum(gz[1:] * np.diff(msgs.imu.t)))
+    assert math.degrees(raw) == pytest.approx(275, abs=0.5)
+    assert c["gyro_turn"] == pytest.approx(raw, rel=0.03)
+    (hd,) = [w for w in status["warnings"] if w["name"] == "heading_divergence"]
+    assert hd["divergence"] > 5 * hd["allowed"]
+
+
+@pytest.fixture(scope="module")
+def logdir(tmp_path_factory):
+    from fusion.evaluation.synthetic import degraded_mission
+    from fusion.io.logdir import write_synthetic_run
+
+    return write_synthetic_run(tmp_path_factory.mktemp("trust") / "run4",
+                               degraded_mission(seed=4, duration=60.0))
+
+
+def test_a_simulated_replay_does_not_warn(logdir, tmp_path, capsys) -> None:
+    out = tmp_path / "f.jsonl"
+    assert main(["replay", str(logdir), "-o", str(out), "--strict"]) == 0
+    assert "inputs disagree" not in capsys.readouterr().out
+    records, (status,) = _split(out)
+    assert status["warnings"] == [] and status["counters"]["records"] == len(records)
+    # the gyro's turn, its bias estimate removed, is the true heading change (the wheels'
+    # is not: the mission's slip patches and 3 % wheel_distance error, which the model
+    # explains)
+    truth = np.loadtxt(logdir / "truth.csv", delimiter=",", skiprows=1)
+    c = status["counters"]
+    gyro = c["gyro_turn"] - status["gyro_bias"] * c["gyro_time"]
+    assert math.degrees(abs(gyro - _unwrapped_turn(truth[:, 3]))) < 2
+
+
+def test_a_gyro_turning_the_other_way_makes_the_headings_diverge(logdir, tmp_path,
+                                                                  capsys) -> None:
+    # the same log with the gyro's z axis negated (an IMU axis wired the other way: nothing
+    # in the model explains it; a wrong wheel_distance would be, by the EKF's k state)
+    bad = tmp_path / "run4"
+    shutil.copytree(logdir, bad)
+    lines = (bad / "imu.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    gz = head.index("gz")
+    rows = [x.split(",") for x in lines[1:]]
+    for r in rows:
+        r[gz] = repr(-float(r[gz]))
+    (bad / "imu.csv").write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    argv = ["replay", str(bad), "-o", str(tmp_path / "f.csv"), "--level"]
+    assert main(argv) == 0  # without --strict: warned, not failed
+    assert "warning: inputs disagree (heading_divergence)" in capsys.readouterr().out
+    assert main([*argv, "--strict"]) == STRICT_EXIT_STATUS
+
+
+def test_run_writes_the_status_record_last(tmp_path, capsys, monkeypatch) -> None:
+    monkeypatch.chdir(tmp_path)
+    rc = main(["run", "--imu", "sim", "--chassis", "sim", "--duration", "2", "--speed", "4",
+               "--status", "0", "--publish", "jsonl:f.jsonl", "--strict"])
+    err = capsys.readouterr().err
+    assert rc == 0, err
+    assert "inputs disagree" not in err
+    lines = (tmp_path / "f.jsonl").read_text().splitlines()
+    status = json.loads(lines[-1])["status"]
+    assert all("status" not in json.loads(x) for x in lines[:-1])
+    assert status["warnings"] == [] and status["counters"]["records"] == len(lines) - 1
+    assert status["counters"]["imu_samples"] > 0 and status["counters"]["wheel_frames"] > 0
+
+
+def test_the_plot_names_each_trace_and_unwraps_yaw(tmp_path, monkeypatch) -> None:
+    """The yaw panel without truth: each trace's label says what it is, and a robot turning
+    three times shows a line climbing to 1080 deg, not walls at +-180 deg."""
+    pytest.importorskip("matplotlib")
+    from matplotlib.figure import Figure
+
+    from fusion.jobs.plots import FUSED_LABEL, WHEEL_LABEL, plot_replay
+
+    figures = []
+    real_savefig = Figure.savefig
+
+    def keep(self, *args, **kwargs):
+        figures.append(self)
+        return real_savefig(self, *args, **kwargs)
+
+    monkeypatch.setattr(Figure, "savefig", keep)
+    t = np.linspace(0.0, 60.0, 601)
+    yaw = np.angle(np.exp(1j * t * (6 * np.pi / 60)))  # three turns, wrapped
+    pose = np.column_stack([np.cos(yaw), np.sin(yaw), yaw])
+    imu_yaw = yaw.copy()
+    imu_yaw[5] = np.nan  # a message without orientation
+    plot_replay(tmp_path / "p.png", "three turns", t, pose, t, pose, None, None,
+                more_yaw=[("the bag's own IMU orientation (/imu)", t, imu_yaw)])
+    assert (tmp_path / "p.png").read_bytes()[:4] == b"\x89PNG"
+    (fig,) = figures
+    _, ax2 = fig.axes
+    lines = {ln.get_label(): ln.get_ydata() for ln in ax2.get_lines()}
+    assert set(lines) == {WHEEL_LABEL, FUSED_LABEL, "the bag's own IMU orientation (/imu)"}
+    assert WHEEL_LABEL == "wheel odometry alone (dead reckoning)"
+    for y in lines.values():
+        assert np.max(np.abs(np.diff(y))) < 10  # degrees per 0.1 s: no wrap jumps
+        assert y[-1] == pytest.approx(1080, abs=1)
+
+
+def test_turn_counters_integrate_what_is_fused() -> None:
+    """The pipeline's turn counters against sums over the inputs (--level: the fused rate is
+    the gyro's z): the gyro rate times each sample's interval, (right - left) ticks times
+    speed_ratio / wheel_distance, and the same bits one event at a time or in one batch."""
+    from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+    from fusion.pipeline.core import FusionPipeline
+    from fusion.planar.robot import RobotConfig
+    from fusion.types.samples import ImuSample, WheelTicks
+
+    run = degraded_mission(seed=3, duration=20.0)
+    robot = RobotConfig(chassis=EXAMPLE_ROBOT)
+    batch = FusionPipeline(robot, tilt=False)
+    with batch:
+        batch.push_arrays(run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
+    s = batch.finish_stats()
+    gz = run.gyro[:, 2]
+    assert s.gyro_turn == pytest.approx(float(np.sum(gz[1:] * np.diff(run.imu_t))), abs=1e-12)
+    assert s.gyro_time == pytest.approx(run.imu_t[-1] - run.imu_t[0], abs=1e-9)
+    d_ticks = int(np.sum(run.ticks[:, 1] - run.ticks[:, 0]))
+    assert s.wheel_turn == pytest.approx(
+        d_ticks * EXAMPLE_ROBOT.speed_ratio / EXAMPLE_ROBOT.wheel_distance, abs=1e-12)
+    stream = FusionPipeline(robot, tilt=False)
+    events = sorted([(t, 0, i) for i, t in enumerate(run.imu_t.tolist())]
+                    + [(t, 1, i) for i, t in enumerate(run.wheel_t.tolist())])
+    with stream:
+        for t, kind, i in events:
+            if kind == 0:
+                stream.push(ImuSample(t, run.gyro[i], run.accel[i]))
+            else:
+                stream.push(WheelTicks(t, int(run.ticks[i, 0]), int(run.ticks[i, 1])))
+    one = stream.finish_stats()
+    assert (one.gyro_turn, one.gyro_time, one.wheel_turn) == (s.gyro_turn, s.gyro_time,
+                                                               s.wheel_turn)
