@@ -7,10 +7,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from sim_hardware import NackBursts, sim_hardware  # tests/sim_hardware.py
 
-from drivers.mpu6050 import MPU6050
-from drivers.serial_link import ChassisLink
-from drivers.sim.robot import ScaledClock, SimRobot, SimRobotParams, send_twist
+from drivers.sim.robot import ScaledClock, SimRobotParams, send_twist
 from fusion.cli.demo import freeze_heap, nominal_config, warm_up
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.live import LiveRunner
@@ -27,14 +26,8 @@ class Live:
         warm_up(self.cfg)
         freeze_heap()  # as the commands do: no long GC pauses of the source threads
         self.clock = ScaledClock(SPEED)
-        self.robot = SimRobot(self.clock, params, data_link=link_path)
-        ch = self.cfg.robot.chassis
-        self.link = ChassisLink(self.robot.port, period=ch.encode_sampling_time,
-                                clock=self.clock, command_timeout=0.5,
-                                reconnect_interval=0.02)
-        self.link.start(wait=5.0)
-        self.imu = MPU6050(self.robot.bus, clock=self.clock, sample_rate_hz=100.0,
-                           gyro_range_dps=500, accel_range_g=4)
+        self.robot, self.link, self.imu = sim_hardware(self.clock, params, self.cfg,
+                                                       link_path=link_path)
         self.records = []
         self.pipe = FusionPipeline(self.cfg.robot, reorder_window=0.06, clock=self.clock,
                                    on_record=self.records.append).open()
@@ -108,23 +101,14 @@ def test_serial_port_pulled_and_restored_mid_run(tmp_path):
 
 def test_i2c_error_bursts_are_retried_or_reported_and_the_pipeline_goes_on(tmp_path):
     live = Live(tmp_path)
-    bursts = {"short": 0, "long": 0}
-
-    def hook(t: float) -> None:
-        # every 0.5 s a burst of 2 NACKs (within the driver's 3 retries); at 4 s one of 12
-        if t > 1.0 and int(t * 2) > bursts["short"] + 2:
-            live.robot.bus.inject_nack(2)
-            bursts["short"] += 1
-        if t > 4.0 and not bursts["long"]:
-            live.robot.bus.inject_nack(12, errno=5)  # EIO
-            bursts["long"] = 1
+    hook = NackBursts(live.robot.bus, long_at=4.0)
 
     try:
         live.drive_until(7.0, hook)
     finally:
         live.close()
-    assert bursts["short"] >= 8 and bursts["long"] == 1
-    assert live.imu.stats.retries >= 2 * bursts["short"]
+    assert hook.short >= 8 and hook.long_t is not None
+    assert live.imu.stats.retries >= 2 * hook.short
     # the long burst outlasts the retries: reported, the loop goes on
     assert live.runner.imu_errors >= 1
     msg = live.runner.last_imu_error

@@ -27,11 +27,17 @@ def _mcap_counts(path) -> dict[str, int]:
     return counts
 
 
-def _records(path) -> list[dict]:
+def _lines(path) -> list[dict]:
+    """Every line, records and status records."""
     text = path.read_text()
     assert text.endswith("\n")
-    lines = [json.loads(line) for line in text.splitlines()]
-    return [d for d in lines if "status" not in d]  # the status record after the records
+    return [json.loads(line) for line in text.splitlines()]
+
+
+def _records(path) -> list[dict]:
+    """The record lines (``--status`` puts status lines between them, and the final status
+    record comes after the last)."""
+    return [r for r in _lines(path) if "status" not in r]
 
 
 def test_ctrl_c_stops_cleanly_with_complete_files(tmp_path):
@@ -60,6 +66,14 @@ def test_ctrl_c_stops_cleanly_with_complete_files(tmp_path):
     assert "stopping" in err and "done after" in err
     recs = _records(jsonl)  # every line complete
     assert len(recs) > 150
+    # status records every 0.5 s, the last after the final flush: every event accounted for
+    status = [r["status"] for r in _lines(jsonl) if "status" in r]
+    assert len(status) >= 2 and status[-1]["final"] and not any(s["final"] for s in status[:-1])
+    led = status[-1]["ledger"]
+    assert led["unaccounted"] == 0 and led["held"] == led["queued"] == 0
+    assert led["in"] == led["fused"] + sum(led["dropped"].values()) > 5 * len(recs) * 0.9
+    assert all(s["ledger"]["unaccounted"] == 0 for s in status)
+    assert "unaccounted 0" in err.splitlines()[-1]  # the summary line on stderr
     counts = _mcap_counts(mcap)  # a readable MCAP with every record
     assert counts["/odom"] == counts["/tf"] == len(recs)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.jsonl", "run.mcap"]
@@ -259,3 +273,34 @@ def test_ros1_cmd_vel_drives_the_simulated_chassis_and_odom_comes_back(tmp_path)
     # 0.3 m/s for 3 s, minus the ramp: the simulated robot drove forward, not sideways
     assert 0.5 < x - res["x_before"] < 1.2 and abs(y) < 0.1
     assert "stopping" in node_err
+
+
+def test_a_source_that_keeps_failing_stops_the_run_with_its_traceback(tmp_path, capsys,
+                                                                     monkeypatch):
+    from fusion.pipeline.live import ImuFifoSource
+
+    calls = {"n": 0}
+    real_read = ImuFifoSource.read
+
+    def read(self):
+        calls["n"] += 1
+        if calls["n"] > 50:  # the I2C adapter's driver crashes after a while
+            raise ZeroDivisionError("injected: a bug in the IMU's read path")
+        return real_read(self)
+
+    monkeypatch.setattr(ImuFifoSource, "read", read)
+    out = tmp_path / "run.jsonl"
+    assert main(["run", "--imu", "sim", "--chassis", "sim", "--publish", f"jsonl:{out}",
+                 "--speed", "4", "--status", "0.5", "--duration", "60"]) == 2
+    err = capsys.readouterr().err
+    # each failure reported with its traceback, then one line naming the source
+    assert err.count("Traceback (most recent call last)") == 6
+    assert "ZeroDivisionError: injected" in err
+    assert err.strip().splitlines()[-1].startswith(
+        "fusion run: error: source 'imu' failed 6 times in a row, last: ZeroDivisionError")
+    # the run stopped (no 60 s), and the file is complete with every record fused before
+    lines = _lines(out)
+    final = lines[-1]["status"]
+    assert final["final"] and final["ledger"]["unaccounted"] == 0
+    assert final["sources"]["imu"]["failed"] and final["sources"]["imu"]["restarts"] == 5
+    assert len(_records(out)) > 10

@@ -1,7 +1,15 @@
 """Soak test: the demo's live pipeline at 2x real time for a bounded 30 s of wall time
 (1 minute of robot time: ~1500 wheel frames, ~6000 IMU samples through the real pty,
 link, driver, Keel, EKF and a JSON lines file sink), checking that memory stays flat
-(tracemalloc, after a warm-up) and that latency does not creep up."""
+(tracemalloc, after a warm-up), that latency does not creep up and that every event is
+accounted for (fused or counted by reason).
+
+Figures over time (printed with ``-s``): per window (``FUSION_SOAK_WINDOW`` wall s; default a
+quarter of the soak, at most 300 s) the traced Python memory, the process's resident memory,
+the latency p50/p99 of the window's records (robot time) and the events so far; at the end the
+memory slope (least squares over the windows, bytes per hour of wall time). An hour:
+``FUSION_SOAK_SECONDS=3600 python3 -m pytest tests/test_soak.py -s`` (at 2x: two hours of
+robot time)."""
 
 from __future__ import annotations
 
@@ -26,6 +34,16 @@ SPEED = float(os.environ.get("FUSION_SOAK_SPEED", "2"))
 # release: FUSION_SOAK_SECONDS=1800 FUSION_SOAK_SPEED=4 pytest tests/test_soak.py -s
 WARM_S = 6.0
 SOAK_S = float(os.environ.get("FUSION_SOAK_SECONDS", "24"))
+WINDOW_S = float(os.environ.get("FUSION_SOAK_WINDOW", min(300.0, SOAK_S / 4)))
+
+
+def _rss_bytes() -> int:
+    """Resident memory of this process (Linux /proc; 0 elsewhere)."""
+    try:
+        with open("/proc/self/statm") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+    except (OSError, ValueError):
+        return 0
 
 
 @pytest.mark.slow
@@ -50,20 +68,30 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     mission = LoopingMission(link, ch, clock, t0)
     state = {"mark": None}
     wall0 = time.monotonic()
-    marks = []
+    marks = []  # (traced bytes, latencies kept, records, queued, wall s, rss bytes)
+
+    def mark(elapsed: float) -> None:
+        state["mark"] = elapsed
+        marks.append((tracemalloc.get_traced_memory()[0], len(pipe.latencies),
+                      pipe.stats.records, runner.queued, elapsed, _rss_bytes()))
+        if len(marks) > 1:
+            new = marks[-1][2] - marks[-2][2]  # the window's records: the newest latencies
+            lat = np.fromiter(pipe.latencies, dtype=float)[-new:] if new else np.zeros(1)
+            p50, p99 = np.percentile(lat, [50, 99])
+            led = runner.ledger()
+            print(f"soak {elapsed - WARM_S:7.0f} s: traced {marks[-1][0] / 1e6:7.3f} MB, rss "
+                  f"{marks[-1][5] / 1e6:7.1f} MB, latency p50/p99 {p50 * 1e3:5.0f}/"
+                  f"{p99 * 1e3:5.0f} ms, records {marks[-1][2]}, events in {led['in']}, "
+                  f"unaccounted {led['unaccounted']}, queued {marks[-1][3]}", flush=True)
 
     def tick() -> bool:
         mission()
         elapsed = time.monotonic() - wall0
         if state["mark"] is None and elapsed >= WARM_S:
             tracemalloc.start()
-            state["mark"] = elapsed
-            marks.append((tracemalloc.get_traced_memory()[0], len(pipe.latencies),
-                          pipe.stats.records, runner._q.qsize()))
-        elif state["mark"] is not None and elapsed >= state["mark"] + 6.0:
-            state["mark"] = elapsed
-            marks.append((tracemalloc.get_traced_memory()[0], len(pipe.latencies),
-                          pipe.stats.records, runner._q.qsize()))
+            mark(elapsed)
+        elif state["mark"] is not None and elapsed >= state["mark"] + WINDOW_S:
+            mark(elapsed)
         return elapsed >= WARM_S + SOAK_S
 
     try:
@@ -82,6 +110,9 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     assert stats.wheel_frames > 0.8 * robot_s / 0.04 and stats.imu_samples > 0.8 * robot_s * 100
     assert stats.records == stats.wheel_frames
     assert sum(1 for _ in out.open()) == stats.records  # the file sink got every record
+    led = runner.ledger()
+    print(f"ledger {led}")
+    assert led["unaccounted"] == 0 and led["held"] == led["queued"] == 0
 
     # memory: traced Python memory from the second mark to the end grows by less than
     # 100 kB + 20 bytes per event. The latency history alone takes ~30 bytes per frame (~6 per
@@ -91,8 +122,19 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     assert len(mem) >= 4, marks
     growth = mem[-1] - mem[1]
     events = (marks[-1][2] - marks[1][2]) * 5  # records ~ frames; 4 IMU samples per frame
+    wall_h = np.array([m[4] for m in marks[1:]]) / 3600.0
+    slope = np.polyfit(wall_h, np.array(mem[1:], dtype=float), 1)[0] if len(mem) > 2 else 0.0
+    rss = np.array([m[5] for m in marks[1:]], dtype=float)
+    rss_slope = np.polyfit(wall_h, rss, 1)[0] if len(mem) > 2 else 0.0
     print(f"traced memory at the marks: {[round(m / 1e6, 2) for m in mem]} MB; growth "
-          f"{growth / 1e3:.0f} kB over ~{events} events")
+          f"{growth / 1e3:.0f} kB over ~{events} events; slope {slope / 1e3:.1f} kB/h traced, "
+          f"{rss_slope / 1e6:.2f} MB/h resident (wall hours; {SOAK_S:g} s soak at {SPEED:g}x)")
+    half = len(wall_h) // 2
+    if len(wall_h) - half > 2:  # the second half: after the latency history is full
+        late = np.polyfit(wall_h[half:], np.array(mem[1:], dtype=float)[half:], 1)[0]
+        late_rss = np.polyfit(wall_h[half:], rss[half:], 1)[0]
+        print(f"second half: slope {late / 1e3:.1f} kB/h traced, {late_rss / 1e6:.2f} MB/h "
+              "resident")
     assert growth < 100_000 + 20 * events
 
     # latency: the last third is not slower than the first (robot time, s)

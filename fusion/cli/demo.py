@@ -44,6 +44,7 @@ from drivers.sim.robot import (
     mission_duration,
     send_twist,
 )
+from fusion.cli import CommandError
 
 __all__ = ["DemoReport", "freeze_heap", "register", "run_demo", "warm_up"]
 
@@ -390,7 +391,7 @@ def register(subparsers) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if not 0.5 <= args.speed <= 20:
-        raise ValueError(f"--speed must be within 0.5..20, got {args.speed}")
+        raise CommandError(f"--speed must be within 0.5..20, got {args.speed}")
     report = run_demo(args.out, speed=args.speed, plot=not args.no_plot,
                       log=lambda s: print(s, file=sys.stderr, flush=True))
     for line in report.lines():

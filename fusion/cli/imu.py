@@ -31,6 +31,7 @@ from typing import Any, TextIO
 
 import numpy as np
 
+from fusion.cli import CommandError
 from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = ["register", "run", "run_calibrate"]
@@ -162,11 +163,11 @@ def run(args: argparse.Namespace) -> int:
     from fusion.attitude.mahony import Mahony
 
     if args.count is not None and args.count < 1:
-        raise ValueError(f"--count must be >= 1; got {args.count}")
+        raise CommandError(f"--count must be >= 1; got {args.count}")
     if args.realtime and not args.sim:
-        raise ValueError("--realtime only applies to --sim")
+        raise CommandError("--realtime only applies to --sim")
     if args.raw and args.calibration:
-        raise ValueError("--calibration does not apply to --raw (raw counts are written "
+        raise CommandError("--calibration does not apply to --raw (raw counts are written "
                          "uncalibrated; --save-calibration keeps a --calibrate result)")
     from fusion.io.atomic import AtomicFile, check_target
     from fusion.io.imu_calibration import save_imu_calibration
@@ -181,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
             _calibrate(imu, args.calibrate_seconds, status)
         if args.save_calibration:
             if imu.calibration is None:
-                raise ValueError("--save-calibration needs --calibrate or --calibration")
+                raise CommandError("--save-calibration needs --calibrate or --calibration")
             save_imu_calibration(imu.calibration, args.save_calibration)
             print(f"calibration written to {args.save_calibration}", file=status)
         mahony = Mahony(sample_period=1.0 / imu.sample_rate_hz)

@@ -31,7 +31,6 @@ complete. Status lines go to standard error.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import math
 import signal
 import sys
@@ -76,7 +75,9 @@ def register(subparsers: Any) -> None:
     p.add_argument("--speed", type=float,
                    help="with --chassis sim: robot time per wall second (default 1)")
     p.add_argument("--status", type=float, metavar="S",
-                   help="seconds between status lines on stderr (0: none; default 10)")
+                   help="seconds between status lines on stderr and {\"status\": ...} "
+                        "records in JSON lines outputs: events in, fused, dropped by reason, "
+                        "unaccounted, source faults (0: none; default 10)")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 3 when the inputs disagree beyond what the model "
                         "explains (most frames slip, an implausible gyro bias, odometry and "
@@ -160,6 +161,10 @@ def _sinks_for(cfg, cmd_vel) -> list:
     return sinks
 
 
+#: s a live stamp may be ahead of the host clock before it counts as invalid (a clock jump).
+MAX_STAMP_LEAD = 1.0
+
+
 class _Stop(Exception):
     """SIGTERM, turned into a clean stop like Ctrl-C."""
 
@@ -170,7 +175,7 @@ def run(args: argparse.Namespace) -> int:
     from drivers.sim.robot import LoopingMission, ScaledClock, SimRobot, SimRobotParams, send_twist
     from fusion.cli.demo import freeze_heap, warm_up
     from fusion.pipeline.core import FusionPipeline
-    from fusion.pipeline.live import LiveRunner
+    from fusion.pipeline.live import LiveRunner, SourceFailedError
 
     cfg = _config(args)
     _refuse_options_without_effect(args, cfg)
@@ -203,12 +208,15 @@ def run(args: argparse.Namespace) -> int:
     window = 0.5 * chassis.encode_sampling_time + cfg.fifo_interval + 0.02
     pipe = FusionPipeline(cfg.robot, sinks, publish_rate_hz=cfg.publish_rate_hz,
                           reorder_window=cfg.reorder_window or window, imu_rate_hz=cfg.imu_rate_hz,
-                          tilt=cfg.tilt, clock=clock,
+                          tilt=cfg.tilt, clock=clock, max_stamp_lead=MAX_STAMP_LEAD,
+                          on_sink_error=lambda sink, exc, text: _sink_failed(sink, exc, text,
+                                                                             err),
                           sources=[name for name, on in (("imu", cfg.imu != "none"),
                                                          ("wheels", cfg.chassis != "none"))
                                    if on])
     robot = link = imu = runner = None
     complete = False
+    failure: BaseException | None = None
     warnings: list = []
     previous = signal.getsignal(signal.SIGTERM)
     if threading.current_thread() is threading.main_thread():
@@ -253,7 +261,8 @@ def run(args: argparse.Namespace) -> int:
             imu = _open_imu(cfg, robot, clock)
         if robot is not None:
             robot.start()
-        runner = LiveRunner(pipe, link=link, imu=imu, fifo_interval=cfg.fifo_interval).start()
+        runner = LiveRunner(pipe, link=link, imu=imu, fifo_interval=cfg.fifo_interval,
+                            on_fault=lambda name, text: err(text)).start()
         t0 = clock()
         drive = sim and not any(s.strip().lower() in ("ros1", "ros2") for s in cfg.publish)
         state = {"status": time.monotonic()}
@@ -264,7 +273,10 @@ def run(args: argparse.Namespace) -> int:
                 mission()
             if status and time.monotonic() - state["status"] >= status:
                 state["status"] = time.monotonic()
-                err(_status(pipe, runner))
+                _report_status(pipe, runner, err)
+            if not pipe.working_sinks and sinks:  # every output failed: nothing to run for
+                err("stopping: every output failed")
+                return True
             return duration is not None and time.monotonic() - wall0 >= duration
 
         err(f"running: imu {cfg.imu}, chassis {port if cfg.chassis != 'none' else 'none'}, "
@@ -273,45 +285,60 @@ def run(args: argparse.Namespace) -> int:
             runner.run(until=tick, poll=0.02)
         except (KeyboardInterrupt, _Stop):
             err("stopping")
+        except SourceFailedError as exc:  # the files still get what was fused
+            err(f"stopping: {exc}")
+            failure = exc
         complete = True
     finally:
-        with contextlib.suppress(Exception):
+        try:
             if runner is not None:
-                runner.stop()
-        if link is not None:
-            link.close()
-        if robot is not None:
-            robot.close()
-        if imu is not None:
-            imu.close()
-        if complete:
-            warnings = _close_with_status(pipe)  # files complete, the status record last
-        else:
-            pipe.abort()
-        if threading.current_thread() is threading.main_thread():
-            signal.signal(signal.SIGTERM, previous)
-        sys.setswitchinterval(switch)
-        import gc
+                runner.stop()  # pushes what the sources had queued: never suppressed
+        except BaseException:
+            complete = False
+            raise
+        finally:
+            try:
+                for device in (link, robot, imu):
+                    if device is not None:
+                        device.close()
+            finally:
+                try:
+                    if complete:  # files complete, the final status record last
+                        warnings = _close_with_status(pipe, runner)
+                    else:
+                        pipe.abort()
+                finally:
+                    if threading.current_thread() is threading.main_thread():
+                        signal.signal(signal.SIGTERM, previous)
+                    sys.setswitchinterval(switch)
+                    import gc
 
-        gc.unfreeze()
+                    gc.unfreeze()
     err(_status(pipe, runner) + f"; done after {time.monotonic() - wall0:.1f} s")
     for w in warnings:
         err(f"warning: inputs disagree ({w.name}): {w.message}")
+    if failure is not None:
+        raise failure
     from fusion.jobs.status import STRICT_EXIT_STATUS
 
     return STRICT_EXIT_STATUS if cfg.strict and warnings else 0
 
 
-def _close_with_status(pipe) -> list:
-    """Fuse what the pipeline holds, write the status record (counters and trust warnings,
-    :mod:`fusion.jobs.status`) to the JSON lines sinks after the last record, close; the
-    warnings."""
+def _close_with_status(pipe, runner) -> list:
+    """Fuse what the pipeline holds, write the final status record to the JSON lines sinks
+    after the last record (counters and trust warnings, :mod:`fusion.jobs.status`, with the
+    runner's ledger and sources' health: :meth:`LiveRunner.status`, ``"final": true``),
+    close; the warnings."""
     from fusion.jobs.status import pipeline_warnings, status_record, write_status
 
     try:
         pipe.flush()
         warnings = pipeline_warnings(pipe)
-        write_status(pipe, status_record(pipe, warnings))
+        record = status_record(pipe, warnings)
+        if runner is not None:
+            record.update(runner.status())
+        record["final"] = True
+        write_status(pipe, record)
     except BaseException:
         pipe.abort()
         raise
@@ -350,6 +377,33 @@ def _open_imu(cfg, robot, clock):
     return MPU6050(int(cfg.imu.split(":")[1]), cfg.imu_address, **kw)
 
 
+def _sink_failed(sink, exc: BaseException, text: str, err) -> None:
+    """A sink's write failed: say so with the traceback; the run goes on with the others
+    (it stops when none is left). Standard output whose reader went away (``fusion run |
+    head``) is no error to report: the run ends quietly (exit status 1)."""
+    if isinstance(exc, BrokenPipeError):
+        return
+    err(f"sink {sink!r} failed; the others go on:\n{text}")
+
+
+def _report_status(pipe, runner, err) -> None:
+    """A status line on stderr and a status record in the JSON lines sinks (the final one:
+    :func:`_close_with_status`)."""
+    err(_status(pipe, runner))
+    if runner is None:
+        return
+    from fusion.jobs.status import write_status
+
+    write_status(pipe, {**runner.status(), "final": False})
+
+
+def _ledger_text(led: dict) -> str:
+    """``events in N: fused F, held H, queued Q, dropped r1 n1, ...; unaccounted U``."""
+    dropped = ", ".join(f"{k} {v}" for k, v in led["dropped"].items() if v) or "none"
+    return (f"events in {led['in']}: fused {led['fused']}, held {led['held']}, queued "
+            f"{led['queued']}, dropped: {dropped}; unaccounted {led['unaccounted']}")
+
+
 def _status(pipe, runner) -> str:
     s = pipe.finish_stats()
     p50, p99 = pipe.latency_percentiles(50, 99)
@@ -357,8 +411,16 @@ def _status(pipe, runner) -> str:
              f"{s.gap_count} wheel gaps ({s.frames_missing} frames missing), "
              f"{s.attitude_gaps} IMU gaps, {s.speed_resets} speeds forgotten after a gap",
              f"{s.slips} slips, {s.zupts} ZUPTs"]
+    if runner is not None:
+        parts.append(_ledger_text(runner.ledger()))
+        faults = {n: h for n, h in runner.health.items() if h.faults}
+        parts.extend(f"source {n}: {h.faults} faults, {h.restarts} restarts"
+                     for n, h in faults.items())
     if runner is not None and (runner.imu_errors or runner.imu_lost):
         parts.append(f"{runner.imu_errors} failed IMU reads, {runner.imu_lost} samples lost")
+    for sink, exc, missed in pipe.sink_failures:
+        parts.append(f"sink {sink!r} failed ({type(exc).__name__}: {exc}); {missed} records "
+                     "not written to it")
     if p50 == p50:
         parts.append(f"latency p50 {p50 * 1e3:.1f} ms p99 {p99 * 1e3:.1f} ms")
     from fusion.jobs.status import pipeline_warnings

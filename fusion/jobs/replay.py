@@ -130,8 +130,9 @@ class ReplayResult:
             an IMU); records: pipeline records (one per wheel frame or twist).
         final: last fused pose (x m, y m, yaw rad wrapped); distance: integral of |v|, m.
         gyro_bias: rad/s; k (1), c (rad/m): the EKF's wheel yaw-rate calibration states.
-        stats: the pipeline's counters (:meth:`fusion.pipeline.core.PipelineStats.as_dict`)
-            and the EKF's ``invalid`` count.
+        stats: the pipeline's counters (:meth:`fusion.pipeline.core.PipelineStats.as_dict`),
+            the EKF's ``invalid`` count and the ``ledger`` (every event fused or counted by
+            reason: :meth:`fusion.pipeline.core.FusionPipeline.ledger`).
         wheel_distance: robot.toml's wheel separation, m.
         truth: with truth, ``distance`` m and the fused/wheel-only final position error (% of
             distance) and yaw RMSE (deg); else None.
@@ -352,7 +353,7 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
         final=(float(last[1]), float(last[2]), float(last[3])),
         distance=_distance(t_out, table[:, 4]), gyro_bias=float(ekf.gyro_bias),
         k=float(ekf.x[6]), c=float(ekf.x[7]),
-        stats={**stats.as_dict(), "invalid": ekf.stats["invalid"]},
+        stats={**stats.as_dict(), "invalid": ekf.stats["invalid"], "ledger": pipe.ledger()},
         wheel_distance=chassis.wheel_distance, truth=truth_res, notes=notes,
         warnings=warnings)
 

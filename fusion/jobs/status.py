@@ -38,5 +38,5 @@ def write_status(pipe: FusionPipeline, status: dict[str, Any]) -> None:
     sink); call after the last record (:meth:`FusionPipeline.flush`) and before closing."""
     for sink in pipe.sinks:
         write = getattr(sink, "write_status", None)
-        if write is not None:
+        if write is not None and sink.is_open:  # not a sink whose write failed (aborted)
             write(status)

@@ -68,7 +68,9 @@ stamped as the live link stamps), :func:`imu_csv_events`. Live sources are
 from __future__ import annotations
 
 import collections
+import logging
 import math
+import traceback
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -93,7 +95,27 @@ from fusion.types.fused import FusedOdometry
 from fusion.types.lifecycle import Lifecycle
 from fusion.types.samples import ImuSample, WheelTicks
 
-__all__ = ["FusionPipeline", "PipelineStats", "WheelGap"]
+__all__ = ["DROP_REASONS", "FusionPipeline", "PipelineStats", "SinkFailures", "WheelGap"]
+
+_log = logging.getLogger("fusion.pipeline")
+
+#: Why an input event was not fused (the keys of :meth:`FusionPipeline.ledger`'s
+#: ``dropped``): too late for the EKF; a stamp not after its source's previous one; a stamp
+#: that is NaN, infinite or ahead of the host clock by more than ``max_stamp_lead``; a NaN or
+#: infinite value; a gyro sample at full scale (saturated: not the rate); dropped by a gap
+#: policy (none at this level yet: the attitude filters' and the EKF's gap policies add theirs).
+DROP_REASONS = ("late", "out_of_order", "invalid_stamp", "invalid_value", "gyro_saturated",
+                "gap_reset")
+
+
+class SinkFailures(Exception):
+    """Several sinks failed (writes or close); the message names each sink and its error,
+    :attr:`errors` holds ``(sink, exception)`` pairs (each exception keeps its traceback)."""
+
+    def __init__(self, errors: list[tuple[Any, BaseException]]) -> None:
+        self.errors = errors
+        super().__init__(f"{len(errors)} sink errors: " + "; ".join(
+            f"{sink!r}: {type(exc).__name__}: {exc}" for sink, exc in errors))
 
 
 _EV_GYRO = core.EV_GYRO
@@ -131,8 +153,13 @@ class PipelineStats:
     """Counters of a :class:`FusionPipeline` (monotonic).
 
     Attributes:
+        events_in: events handed to the pipeline (every push, every row of push_arrays).
         imu_samples: IMU samples accepted (pushed in time order).
         imu_out_of_order: IMU samples dropped because their stamp did not increase.
+        imu_invalid_stamp, wheel_invalid_stamp, twist_invalid_stamp: events dropped because
+            their stamp was NaN, infinite or ahead of the host clock by more than
+            ``max_stamp_lead`` s.
+        invalid_values: IMU samples and twists dropped for a NaN or infinite value.
         wheel_frames: wheel frames accepted.
         wheel_out_of_order: wheel frames dropped because their stamp did not increase.
         twist_messages: external odometry twists accepted (:meth:`FusionPipeline.push_twist`).
@@ -156,8 +183,13 @@ class PipelineStats:
         invalid: inputs the EKF refused as non-finite or implausible (a corrupt value).
     """
 
+    events_in: int = 0
     imu_samples: int = 0
     imu_out_of_order: int = 0
+    imu_invalid_stamp: int = 0
+    wheel_invalid_stamp: int = 0
+    twist_invalid_stamp: int = 0
+    invalid_values: int = 0
     wheel_frames: int = 0
     wheel_out_of_order: int = 0
     twist_messages: int = 0
@@ -229,6 +261,17 @@ class FusionPipeline(Lifecycle):
             state is kept for :attr:`state_rows` (the replay CSV: after every IMU sample).
         on_progress: ``callback(t)`` with the filter's effective time (s) after each chunk of
             :data:`BATCH_CHUNK` events of :meth:`push_arrays` (progress bars).
+        max_stamp_lead: with a ``clock``: an event stamped more than this many s after
+            ``clock()`` is dropped as an invalid stamp (a live stamp cannot be in the future:
+            a clock jump or a corrupt stamp); None (default) checks nothing.
+        on_sink_error: ``callback(sink, exception, traceback_text)`` when a sink's ``write``
+            raises
+            (default: an error on the ``fusion.pipeline`` logger). That sink is aborted (a
+            file sink leaves the old file, or none) and gets no more records; the others go
+            on; :meth:`close` raises its error at the end.
+
+    Nothing is dropped silently: :meth:`ledger` accounts for every event handed in (fused,
+    held for reordering, or dropped for one of :data:`DROP_REASONS`).
 
     One path for every input: :meth:`push` (and :meth:`push_imu`, :meth:`push_wheels`,
     :meth:`push_twist`) hand one event, :meth:`push_arrays` whole streams, to the same
@@ -259,6 +302,8 @@ class FusionPipeline(Lifecycle):
         latency_window: int = 100_000,
         state_rows: Sequence[str] = (),
         on_progress: Callable[[float], None] | None = None,
+        max_stamp_lead: float | None = None,
+        on_sink_error: Callable[[Any, BaseException, str], None] | None = None,
     ) -> None:
         if publish_rate_hz is not None and not (
             math.isfinite(publish_rate_hz) and publish_rate_hz > 0
@@ -290,7 +335,14 @@ class FusionPipeline(Lifecycle):
         if bad:
             raise ValueError(f"state_rows must be some of {list(TRACE_KINDS)}, got "
                              f"{list(state_rows)}")
+        if max_stamp_lead is not None and not max_stamp_lead >= 0:
+            raise ValueError(f"max_stamp_lead must be >= 0 s or None, got {max_stamp_lead!r}")
+        self.max_stamp_lead = max_stamp_lead
         self.sinks = list(sinks)
+        self._active_sinks = list(self.sinks)  # minus those whose write failed
+        #: sinks whose write failed: ``(sink, exception, records not written to it)``
+        self.sink_failures: list[list[Any]] = []
+        self._on_sink_error = on_sink_error
         self.publish_rate_hz = publish_rate_hz
         self.tilt = bool(tilt)
         self.ekf = PlanarEKF(chassis, robot.ekf)
@@ -381,26 +433,28 @@ class FusionPipeline(Lifecycle):
         self.flush()
 
     def _close(self) -> None:
-        """Close every sink, then raise the first error (the others noted on it)."""
-        errors = []
-        for sink in self.sinks:
+        """Close every sink still working, then report every sink error: the write errors
+        (sinks aborted on the way) and the close errors. One error is raised as itself;
+        several as :class:`SinkFailures` naming each."""
+        errors: list[tuple[Any, BaseException]] = [(sink, exc)
+                                                    for sink, exc, _ in self.sink_failures]
+        for sink in self._active_sinks:
             try:
                 sink.close()
             except Exception as exc:  # close every sink, then report
-                errors.append(exc)
+                errors.append((sink, exc))
+        if len(errors) == 1:
+            raise errors[0][1]
         if errors:
-            if hasattr(errors[0], "add_note"):  # Python >= 3.11
-                for other in errors[1:]:
-                    errors[0].add_note(f"also failed to close: {other!r}")
-            raise errors[0]
+            raise SinkFailures(errors) from errors[0][1]
 
     def _abort(self) -> None:
         """Abort every sink (file sinks discard partial output)."""
         for sink in self.sinks:
             try:
                 sink.abort()
-            except Exception:  # aborting: keep going
-                continue
+            except Exception:  # aborting: report and keep going
+                _log.error("aborting %r failed:\n%s", sink, traceback.format_exc())
 
     def _check_open(self) -> None:
         if self._state != "open":
@@ -512,19 +566,32 @@ class FusionPipeline(Lifecycle):
                 twist_t=None, twist_v=None, twist_w=None, flush: bool = False) -> None:
         """Events of each source in their arrival order -> the compiled event core."""
         stats = self.stats
+        limit = math.inf
+        if self._clock is not None and self.max_stamp_lead is not None:
+            limit = self._clock() + self.max_stamp_lead
         parts = []  # (stamp, kind, t_eff, a, b, ref) per source with events
         # the other sources' accepted events first: the attitude filter is told what the
         # wheels (or twists) that arrived before each IMU sample knew
         if wheel_t is not None and wheel_t.size:
-            dropped, wheel_t, (ticks,) = _in_order(wheel_t, self._last_wheel_t, ticks)
+            stats.events_in += wheel_t.size
+            bad, dropped, wheel_t, (ticks,) = _in_order(wheel_t, self._last_wheel_t, limit,
+                                                        ticks)
+            stats.wheel_invalid_stamp += bad
             stats.wheel_out_of_order += dropped
         if twist_t is not None and twist_t.size:
-            dropped, twist_t, (twist_v, twist_w) = _in_order(twist_t, self._last_twist_t,
-                                                             twist_v, twist_w)
+            stats.events_in += twist_t.size
+            twist_t, (twist_v, twist_w) = self._finite_values(twist_t, twist_v, twist_w)
+            bad, dropped, twist_t, (twist_v, twist_w) = _in_order(
+                twist_t, self._last_twist_t, limit, twist_v, twist_w)
+            stats.twist_invalid_stamp += bad
             stats.twist_out_of_order += dropped
         motion = self._motion(wheel_t, ticks, twist_t, twist_v, twist_w)
         if imu_t is not None and imu_t.size:
-            dropped, imu_t, (gyro, accel) = _in_order(imu_t, self._last_imu_t, gyro, accel)
+            stats.events_in += imu_t.size
+            imu_t, (gyro, accel) = self._finite_values(imu_t, gyro, accel)
+            bad, dropped, imu_t, (gyro, accel) = _in_order(imu_t, self._last_imu_t, limit,
+                                                           gyro, accel)
+            stats.imu_invalid_stamp += bad
             stats.imu_out_of_order += dropped
             if imu_t.size:
                 R = self._mount
@@ -579,6 +646,17 @@ class FusionPipeline(Lifecycle):
         self._run(kinds[order], *(np.concatenate([p[i] for p in parts])[order]
                                   for i in (2, 3, 4)),
                   stamp[order], np.concatenate([p[5] for p in parts])[order], flush=flush)
+
+    def _finite_values(self, t: NDArray[np.float64], *cols: NDArray) -> tuple[NDArray, tuple]:
+        """Drop (and count) the events with a NaN or infinite value in any column (they
+        would poison the attitude filter or the EKF)."""
+        ok = np.ones(t.size, dtype=bool)
+        for c in cols:
+            ok &= np.isfinite(c).reshape(t.size, -1).all(axis=1)
+        if ok.all():
+            return t, cols
+        self.stats.invalid_values += int(t.size - ok.sum())
+        return t[ok], tuple(c[ok] for c in cols)
 
     def _motion(self, wheel_t, ticks, twist_t, twist_v, twist_w):
         """``(stamp, v, w, a)`` arrays of the accepted wheel frames and twists of one call in
@@ -751,20 +829,46 @@ class FusionPipeline(Lifecycle):
 
     # -- output -----------------------------------------------------------------------------
     def _publish_rows(self, pub: NDArray[np.float64]) -> None:
-        sinks = self.sinks
+        sinks = self._active_sinks
         clock = self._clock
         on_record = self._on_record
         stats = self.stats
         for row in pub.tolist():
             rec = self._record(row)
             for sink in sinks:
-                sink.write(rec)
+                try:
+                    sink.write(rec)
+                except Exception as exc:
+                    self._sink_failed(sink, exc)
+                    sinks = self._active_sinks
+            for failure in self.sink_failures:
+                failure[2] += 1
             stats.records += 1
             stamp = row[ev_core.U_STAMP]
             if clock is not None and stamp == stamp:
                 self.latencies.append(clock() - stamp)
             if on_record is not None:
                 on_record(rec)
+
+    @property
+    def working_sinks(self) -> list[Any]:
+        """The sinks still getting records (all but those whose write failed)."""
+        return list(self._active_sinks)
+
+    def _sink_failed(self, sink: Any, exc: BaseException) -> None:
+        """A sink's write raised: report it with its traceback, abort that sink (a file
+        sink keeps the old file), and publish to the others only."""
+        text = traceback.format_exc()
+        self._active_sinks = [s for s in self._active_sinks if s is not sink]
+        self.sink_failures.append([sink, exc, 0])
+        try:
+            sink.abort()
+        except Exception:
+            text += f"\nand aborting it failed:\n{traceback.format_exc()}"
+        if self._on_sink_error is not None:
+            self._on_sink_error(sink, exc, text)
+        else:
+            _log.error("sink %r failed; it gets no more records:\n%s", sink, text)
 
     def _record(self, row: list[float]) -> FusedOdometry:
         gi = int(row[ev_core.U_LAST_GYRO])
@@ -830,6 +934,30 @@ class FusionPipeline(Lifecycle):
         self.stats.attitude_gaps = self.attitude.counters.gaps
         return self.stats
 
+    def ledger(self) -> dict[str, Any]:
+        """Where every event handed in went: ``{"in", "fused", "held", "dropped":
+        {reason: n}, "unaccounted"}``. ``held`` waits in the reorder buffer (0 after
+        :meth:`flush` or :meth:`close`); ``dropped`` counts each of :data:`DROP_REASONS`;
+        ``fused`` is what the EKF applied (its own count of updates; IMU samples also went
+        through the attitude filter); ``unaccounted = in - fused - held - sum(dropped)`` is
+        0 unless a count is missing (tests/test_live_faults.py)."""
+        s = self.stats
+        e = self.ekf.stats
+        dropped = {
+            "late": e["late_dropped"],
+            "out_of_order": s.imu_out_of_order + s.wheel_out_of_order + s.twist_out_of_order,
+            "invalid_stamp": s.imu_invalid_stamp + s.wheel_invalid_stamp
+            + s.twist_invalid_stamp,
+            "invalid_value": s.invalid_values + e["invalid"],
+            "gyro_saturated": e["gyro_saturated"],
+            "gap_reset": e.get("gap_resets", 0),  # the EKF's gap policy, where it has one
+        }
+        held = int(self._sched[ev_core.S_HEAP_N])
+        fused = e["updates"]  # counted by the EKF core itself, independently of the above
+        unaccounted = s.events_in - fused - held - sum(dropped.values())
+        return {"in": s.events_in, "fused": fused, "held": held, "dropped": dropped,
+                "unaccounted": unaccounted}
+
     def latency_percentiles(self, *qs: float) -> list[float]:
         """Percentiles (0..100) of the measured wheel-frame -> record latencies, s (NaN if
         none were measured)."""
@@ -889,19 +1017,23 @@ def _add_up(total: float, values: NDArray[np.float64]) -> float:
     return float(np.cumsum(np.concatenate(([total], values)))[-1])
 
 
-def _in_order(t: NDArray[np.float64], last: float, *cols: NDArray) -> tuple[int, NDArray, tuple]:
-    """``(dropped, t, cols)``: the events of one source that pushing them one at a time
-    accepts (:func:`_increasing`), with their columns, and how many were dropped."""
-    keep = _increasing(t, last)
+def _in_order(t: NDArray[np.float64], last: float, limit: float,
+              *cols: NDArray) -> tuple[int, int, NDArray, tuple]:
+    """``(invalid, out_of_order, t, cols)``: the events of one source that pushing them one
+    at a time accepts (:func:`_increasing`), with their columns, and how many were dropped
+    for an invalid stamp (NaN, infinite, after ``limit``) and for not increasing."""
+    finite = np.isfinite(t) & (t <= limit)
+    keep = _increasing(t, last, finite)
     if keep.all():
-        return 0, t, cols
-    return int(t.size - keep.sum()), t[keep], tuple(c[keep] for c in cols)
+        return 0, 0, t, cols
+    invalid = int(t.size - finite.sum())
+    return invalid, int(t.size - keep.sum()) - invalid, t[keep], tuple(c[keep] for c in cols)
 
 
-def _increasing(t: NDArray[np.float64], last: float) -> NDArray[np.bool_]:
-    """Mask of the stamps accepted in arrival order: finite and greater than ``last`` and
-    every earlier accepted one (what pushing them one at a time accepts)."""
-    finite = np.isfinite(t)
+def _increasing(t: NDArray[np.float64], last: float,
+                finite: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Mask of the stamps accepted in arrival order: valid (``finite``) and greater than
+    ``last`` and every earlier accepted one (what pushing them one at a time accepts)."""
     if t.size == 1:
         return finite & (t > last)
     prev = np.fmax.accumulate(np.concatenate([[last], np.where(finite, t, -np.inf)[:-1]]))

@@ -99,17 +99,29 @@ class JsonLinesSink(_FileOutput):
         self._synced()
 
     def write_status(self, status: dict) -> None:
-        """One status line ``{"status": status}`` (JSON-ready values; a record has no
-        ``status`` key, so a reader tells the two apart by it): what ``fusion run`` and
-        ``fusion replay`` write after the last record (counters and trust warnings,
-        :mod:`fusion.jobs.status`)."""
+        """One status line ``{"status": status}`` (a record has no ``status`` key, so a
+        reader tells the two apart by it; NaN and infinite numbers become null): what
+        ``fusion run`` and ``fusion replay`` write after the last record (counters and trust
+        warnings, :mod:`fusion.jobs.status`), and ``fusion run --status S`` every S seconds
+        (the ledger of events, sources' health, latency)."""
         if self._state != "open" or self._stream is None:
             raise SinkError(f"{self!r} is not open (state {self._state})")
-        self._stream.write(json.dumps({"status": status}, allow_nan=False,
+        self._stream.write(json.dumps({"status": _json_safe(status)}, allow_nan=False,
                                       separators=(",", ":")) + "\n")
         if self._flush:
             self._stream.flush()
         self._synced()
+
+
+def _json_safe(value):
+    """``value`` with NaN and infinite floats replaced by None (JSON has neither)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {str(k): _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    return value
 
 
 class CsvSink(_FileOutput):

@@ -1,0 +1,100 @@
+"""How ``fusion`` reports errors (issue 12): one line for errors a user can act on, the
+traceback for internal errors (or for any error with ``--debug``), every sink's close error."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import pytest
+
+from drivers.sim.robot import SimRobotParams
+from fusion.cli import CommandError, is_user_error, main
+from fusion.cli.demo import nominal_config
+from fusion.io.errors import LogFormatError
+from fusion.pipeline.core import FusionPipeline, SinkFailures
+from fusion.sinks.base import Sink
+from fusion.types.samples import ImuSample, WheelTicks
+
+
+def _fail_with(monkeypatch, exc: BaseException) -> None:
+    """``fusion synth`` raises ``exc`` (its handler replaced; parsing stays real)."""
+    import fusion.cli.synth as synth
+
+    def boom(args: argparse.Namespace) -> int:
+        raise exc
+
+    monkeypatch.setattr(synth, "run", boom)
+
+
+def test_user_errors_are_one_line(monkeypatch, capsys, tmp_path):
+    _fail_with(monkeypatch, LogFormatError(f"{tmp_path}/imu.csv:7: expected 7 columns, got 3"))
+    assert main(["synth", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"fusion synth: error: {tmp_path}/imu.csv:7: expected 7 columns, got 3\n"
+
+
+def test_internal_errors_keep_their_traceback(monkeypatch, capsys, tmp_path):
+    _fail_with(monkeypatch, KeyError("x_state"))
+    assert main(["synth", str(tmp_path / "x")]) == 1
+    err = capsys.readouterr().err
+    assert "Traceback (most recent call last)" in err and "in boom" in err
+    assert "internal error: KeyError: 'x_state'" in err
+
+
+def test_debug_prints_the_traceback_of_user_errors_too(monkeypatch, capsys, tmp_path):
+    _fail_with(monkeypatch, CommandError("--duration must be > 0 s, got -1"))
+    assert main(["--debug", "synth", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "CommandError: --duration must be > 0 s" in err
+
+
+def test_a_value_error_from_inside_numpy_is_internal_one_from_the_project_is_not():
+    with pytest.raises(ValueError) as numpy_error:
+        np.zeros(3) + np.zeros(4)
+    assert not is_user_error(numpy_error.value)
+    with pytest.raises(ValueError) as ours:
+        FusionPipeline(nominal_config(SimRobotParams()).robot, imu_rate_hz=-5)
+    assert is_user_error(ours.value)
+    assert is_user_error(OSError(2, "No such file or directory", "/dev/ttyUSB9"))
+
+
+class _CloseFails(Sink):
+    def __init__(self, name: str) -> None:
+        super().__init__()
+        self.name = name
+
+    def __repr__(self) -> str:
+        return f"_CloseFails({self.name})"
+
+    def _write(self, record) -> None:
+        pass
+
+    def _close(self) -> None:
+        raise OSError(28, f"No space left on device: {self.name}")
+
+
+class _Fine(Sink):
+    closed = False
+
+    def _write(self, record) -> None:
+        pass
+
+    def _close(self) -> None:
+        self.closed = True
+
+
+def test_every_sinks_close_error_is_reported():
+    fine = _Fine()
+    pipe = FusionPipeline(nominal_config(SimRobotParams()).robot,
+                          [_CloseFails("a"), fine, _CloseFails("b")])
+    pipe.open()
+    pipe.push(ImuSample(0.01, np.zeros(3), np.array([0.0, 0.0, 9.81])))
+    pipe.push(WheelTicks(0.04, 0, 0))
+    with pytest.raises(SinkFailures) as info:
+        pipe.close()
+    msg = str(info.value)
+    assert "_CloseFails(a)" in msg and "_CloseFails(b)" in msg and "No space left" in msg
+    assert fine.closed  # the others are closed all the same
+    assert [s.name for s, _ in info.value.errors] == ["a", "b"]
+    assert is_user_error(info.value)  # disk full: one line, naming both
