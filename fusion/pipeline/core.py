@@ -102,10 +102,12 @@ _log = logging.getLogger("fusion.pipeline")
 #: Why an input event was not fused (the keys of :meth:`FusionPipeline.ledger`'s
 #: ``dropped``): too late for the EKF; a stamp not after its source's previous one; a stamp
 #: that is NaN, infinite or ahead of the host clock by more than ``max_stamp_lead``; a NaN or
-#: infinite value; a gyro sample at full scale (saturated: not the rate); dropped by a gap
-#: policy (none at this level yet: the attitude filters' and the EKF's gap policies add theirs).
+#: infinite value; a gyro sample at full scale (saturated: not the rate); a wheel frame or
+#: twist with zero speed while the IMU shows motion (an encoder fault: flagged, not fused).
+#: A gap drops no event: the EKF's gap policy forgets speeds (``speed_resets``), the attitude
+#: filters count theirs (``attitude_gaps``), and every event after a gap is fused.
 DROP_REASONS = ("late", "out_of_order", "invalid_stamp", "invalid_value", "gyro_saturated",
-                "gap_reset")
+                "encoder_fault")
 
 
 class SinkFailures(Exception):
@@ -950,7 +952,8 @@ class FusionPipeline(Lifecycle):
             + s.twist_invalid_stamp,
             "invalid_value": s.invalid_values + e["invalid"],
             "gyro_saturated": e["gyro_saturated"],
-            "gap_reset": e.get("gap_resets", 0),  # the EKF's gap policy, where it has one
+            # zero ticks while the IMU shows motion: flagged, not fused (the pose coasts)
+            "encoder_fault": e["encoder_faults"],
         }
         held = int(self._sched[ev_core.S_HEAP_N])
         fused = e["updates"]  # counted by the EKF core itself, independently of the above
