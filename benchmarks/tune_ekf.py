@@ -35,8 +35,8 @@ import math
 import time
 
 import numpy as np
-from _cv import leave_one_out  # benchmarks/_cv.py (scripts run from benchmarks/)
 
+from fusion.evaluation.crossval import leave_one_out
 from fusion.evaluation.physics_sim import (
     all_errors,
     indoor_mission,
