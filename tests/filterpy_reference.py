@@ -61,7 +61,8 @@ class FilterpyReference:
         f = n.still_scale if still else 1.0
         kf.F = model.transition_jacobian(kf.x, dt)
         kf.Q = model.process_noise(dt, n.accel_psd * f, n.angular_accel_psd * f, n.bias_psd,
-                                   n.calib_k_psd, n.calib_c_psd, n.gyro_scale_psd)
+                                   n.calib_k_psd, n.calib_c_psd, n.gyro_scale_psd,
+                                   n.distance_scale_psd)
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
 

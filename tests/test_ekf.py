@@ -130,7 +130,8 @@ def test_every_jacobian_matches_central_differences():
     # >= 1e-3 at these states).
     L = ROBOT.wheel_distance
     rng = np.random.default_rng(7)
-    states = rng.normal(size=(200, model.NX)) * [3.0, 3.0, 3.0, 0.5, 1.0, 0.01, 0.05, 0.05, 0.03]
+    states = rng.normal(size=(200, model.NX)) * [3.0, 3.0, 3.0, 0.5, 1.0, 0.01, 0.05, 0.05, 0.03,
+                                                 0.01]
     for x in states:
         dt = rng.uniform(0.001, 0.05)
         cases = [
@@ -167,8 +168,8 @@ def test_wheel_noise_is_the_propagated_tick_noise():
 
 
 def test_process_noise_and_the_wrapped_yaw_residual():
-    Q = model.process_noise(0.02, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0)
-    np.testing.assert_allclose(Q, np.diag([0, 0, 0, 0.02, 0.04, 0.06, 0.08, 0.1, 0.12]),
+    Q = model.process_noise(0.02, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0)
+    np.testing.assert_allclose(Q, np.diag([0, 0, 0, 0.02, 0.04, 0.06, 0.08, 0.1, 0.12, 0.14]),
                                rtol=1e-15)
     r = model.yaw_residual(np.array([math.radians(-179.0)]), np.array([math.radians(179.0)]))
     assert math.degrees(r[0]) == pytest.approx(2.0, abs=1e-12)
@@ -283,7 +284,7 @@ def test_reorder_buffer_releases_in_time_order():
 def test_absolute_yaw_residual_is_wrapped():
     x0 = np.zeros(model.NX)
     x0[2] = math.radians(179.0)
-    P0 = np.diag([0, 0, math.radians(2.0) ** 2, 1e-4, 1e-4, 1e-6, 1e-4, 1e-4, 1e-4])
+    P0 = np.diag([0, 0, math.radians(2.0) ** 2, 1e-4, 1e-4, 1e-6, 1e-4, 1e-4, 1e-4, 1e-4])
     ekf = PlanarEKF(ROBOT, x0=x0, P0=P0)
     ekf.update_yaw(0.0, math.radians(-179.0), math.radians(2.0))
     # equal variances: the estimate moves halfway, to 180 deg, not to ~0 deg
@@ -448,7 +449,7 @@ def test_filterpy_api_fuses_a_custom_measurement():
     # filterpy's own update() on the same state: a position fix (x, y) with 0.1 m noise
     # pulls a 1 m-uncertain position halfway-ish, by the Kalman weights computed by hand.
     x0 = np.zeros(model.NX)
-    P0 = np.diag([1.0, 1.0, 0.01, 0.01, 0.01, 1e-6, 1e-4, 1e-4, 1e-4])
+    P0 = np.diag([1.0, 1.0, 0.01, 0.01, 0.01, 1e-6, 1e-4, 1e-4, 1e-4, 1e-4])
     ekf = PlanarEKF(ROBOT, x0=x0, P0=P0)
     H = np.zeros((2, model.NX))
     H[0, 0] = H[1, 1] = 1.0

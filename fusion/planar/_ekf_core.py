@@ -8,7 +8,7 @@ results. One function, :func:`step_core`, handles one input event (time bookkeep
 prediction, update); the streaming methods and the batch loop of
 :class:`fusion.planar.ekf.PlanarEKF` both call it, so they agree exactly.
 
-State ``x = [x, y, yaw, v, w, b, k, c, g]``. Parameter vector ``par`` and bookkeeping vector
+State ``x = [x, y, yaw, v, w, b, k, c, g, s]``. Parameter vector ``par`` and bookkeeping vector
 ``aux`` use the index constants below.
 """
 
@@ -80,7 +80,8 @@ P_SPEED_VAR0 = 32
 P_MAX_RATE = 33
 P_MAX_SPEED = 34
 P_Q_G = 35
-PAR_SIZE = 36
+P_Q_S = 36
+PAR_SIZE = 37
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -129,14 +130,16 @@ ROW_WIDTH = 2 * NX + 3
 
 
 @njit
-def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c, q_g):
+def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s):
     """Propagate ``x`` and ``P`` (in place) by ``dt`` s: ``x = f(x, dt)``,
     ``P <- F P F^T + Q`` with ``F`` the Jacobian at the prior state
-    (:func:`fusion.planar.model.motion_terms`) and ``Q`` the random walks of v, w, b, k, c, g
-    with intensities ``q_v`` ((m/s)^2/s), ``q_w``, ``q_b`` ((rad/s)^2/s), ``q_k`` (1/s),
-    ``q_c`` ((rad/m)^2/s), ``q_g`` (1/s) (:func:`fusion.planar.model.process_noise_diagonal`).
+    (:func:`fusion.planar.model.motion_terms`) and ``Q`` the random walks of v, w, b, k, c, g,
+    s with intensities ``q_v`` ((m/s)^2/s), ``q_w``, ``q_b`` ((rad/s)^2/s), ``q_k`` (1/s),
+    ``q_c`` ((rad/m)^2/s), ``q_g``, ``q_s`` (1/s)
+    (:func:`fusion.planar.model.process_noise_diagonal`).
     """
-    dx, dy, dyaw, f02, f03, f04, f08, f12, f13, f14, f18, f24, f28 = motion_terms(x, dt)
+    (dx, dy, dyaw, f02, f03, f04, f08, f09, f12, f13, f14, f18, f19, f24,
+     f28) = motion_terms(x, dt)
     x[0] += dx
     x[1] += dy
     x[2] += dyaw
@@ -144,17 +147,21 @@ def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c, q_g):
     # A = F P (only rows 0, 1, 2 differ from P)
     A = P.copy()
     for j in range(NX):
-        A[0, j] = P[0, j] + f02 * P[2, j] + f03 * P[3, j] + f04 * P[4, j] + f08 * P[8, j]
-        A[1, j] = P[1, j] + f12 * P[2, j] + f13 * P[3, j] + f14 * P[4, j] + f18 * P[8, j]
+        A[0, j] = (P[0, j] + f02 * P[2, j] + f03 * P[3, j] + f04 * P[4, j] + f08 * P[8, j]
+                   + f09 * P[9, j])
+        A[1, j] = (P[1, j] + f12 * P[2, j] + f13 * P[3, j] + f14 * P[4, j] + f18 * P[8, j]
+                   + f19 * P[9, j])
         A[2, j] = P[2, j] + f24 * P[4, j] + f28 * P[8, j]
     # P = A F^T (only columns 0, 1, 2 differ from A)
     for i in range(NX):
-        P[i, 0] = A[i, 0] + f02 * A[i, 2] + f03 * A[i, 3] + f04 * A[i, 4] + f08 * A[i, 8]
-        P[i, 1] = A[i, 1] + f12 * A[i, 2] + f13 * A[i, 3] + f14 * A[i, 4] + f18 * A[i, 8]
+        P[i, 0] = (A[i, 0] + f02 * A[i, 2] + f03 * A[i, 3] + f04 * A[i, 4] + f08 * A[i, 8]
+                   + f09 * A[i, 9])
+        P[i, 1] = (A[i, 1] + f12 * A[i, 2] + f13 * A[i, 3] + f14 * A[i, 4] + f18 * A[i, 8]
+                   + f19 * A[i, 9])
         P[i, 2] = A[i, 2] + f24 * A[i, 4] + f28 * A[i, 8]
         for j in range(3, NX):
             P[i, j] = A[i, j]
-    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c, q_g)
+    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s)
     for i in range(NX):
         P[i, i] += q[i]
 
@@ -363,7 +370,8 @@ def _predict_step(x, P, aux, par, t, h, q_v, q_w):
         P[3, 3] = 0.0
     if w_lost:
         P[4, 4] = 0.0
-    predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G])
+    predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G],
+                 par[P_Q_S])
     aux[A_PREDICTIONS] += 1.0
     if v_lost:
         P[3, 3] += p_vv
@@ -607,7 +615,7 @@ def step_core(x, P, aux, par, kind, t, a, b):
     odometry (nav_msgs/Odometry twist), taken as instantaneous at ``t``.
 
     Only the absolute yaw corrects the pose directly; the rate measurements (gyro, wheels,
-    twist, ZUPT) correct v, w, b, k, c, g, and the pose follows through the motion model.
+    twist, ZUPT) correct v, w, b, k, c, and the pose follows through the motion model.
 
     Status: 0 applied, 1 slip (speed fused down-weighted, yaw rate not fused), 2 gated out
     (or a saturated gyro sample skipped), 3 S not positive definite,

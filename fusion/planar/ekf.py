@@ -5,7 +5,7 @@ rad (CCW from the odom x axis; kept continuous inside, wrapped to (-pi, pi] on o
 v forward speed m/s, w yaw rate rad/s (in the gyro's scale, see g), b the gyro's bias about
 the vertical axis, rad/s.
 
-State ``x = [x, y, yaw, v, w, b, k, c, g]``, covariance ``P`` (9x9). ``k`` (dimensionless) and
+State ``x = [x, y, yaw, v, w, b, k, c, g, s]``, covariance ``P`` (10x10). ``k`` (dimensionless) and
 ``c`` (rad/m) describe how the wheels' yaw rate departs from the gyro's:
 ``w_wheels = (1 + k)*w + c*v``. A wheel-separation error shows up as ``k``
 (``k ~ L_true/L_nominal - 1``), a left/right radius mismatch as ``c``
@@ -21,7 +21,10 @@ of their scales (``k``), never the common one, so the state ``w`` is the rate in
 scale and the heading integrates ``w/(1 + g)`` (:mod:`fusion.planar.model`): no rate
 measurement depends on g, only an absolute yaw corrects it. The state is there for an honest
 covariance, not for accuracy: without absolute yaws g stays 0 and the estimate is that of
-the filter without it. The class is a
+the filter without it. ``s`` (dimensionless) is the common distance scale error of the wheels
+(``speed_ratio`` wrong on both alike), unobservable too: ``v`` is the speed in the wheels'
+scale and the position integrates ``v/(1 + s)``; its prior makes the position covariance grow
+with the distance driven, along the track. The class is a
 :class:`filterpy.kalman.ExtendedKalmanFilter`: ``x``, ``P``, ``y``, ``S``, ``K`` keep filterpy's
 meaning and filterpy's own ``update(z, HJacobian, Hx, R, residual=...)`` can fuse any extra
 measurement (a beacon, a scan match) into the same state. The model below is written once, in
@@ -35,8 +38,9 @@ model's functions as the reference.
 Model:
 
 - Prediction over ``dt`` (constant twist): ``yaw += u*dt`` with ``u = w/(1 + g)`` the true
-  yaw rate, ``x += v*dt*cos(yaw + u*dt/2)``, ``y += v*dt*sin(yaw + u*dt/2)``; v, w, b, k, c and
-  g are random walks (``q_v``, ``q_w``, ``q_b``, ...), in steps of at most ``max_dt``.
+  yaw rate, ``x += d*cos(yaw + u*dt/2)``, ``y += d*sin(yaw + u*dt/2)`` with ``d = v*dt/(1 + s)``;
+  v, w, b, k, c, g and s are random walks (``q_v``, ``q_w``, ``q_b``, ...), in steps of at most
+  ``max_dt``.
 - Gap policy (bounded cost and bounded extrapolation for any interval without inputs): v and
   w are extrapolated at most ``max_extrapolation`` s (default 3) past their last
   measurement (v: a wheel frame, twist or ZUPT, or an encoder-fault frame while the IMU shows
@@ -138,7 +142,7 @@ __all__ = [
 ]
 
 STATE_NAMES = ("x", "y", "yaw", "v", "w", "gyro_bias_z", "wheel_rate_scale", "wheel_rate_per_speed",
-               "gyro_scale")
+               "gyro_scale", "distance_scale")
 
 
 @dataclass(frozen=True)
@@ -207,6 +211,10 @@ class EkfNoise:
             tuned).
         gyro_scale_psd: random walk of ``g``, 1/s (sensitivity drifts with temperature;
             small).
+        distance_scale_std: prior standard deviation of the wheels' common distance scale
+            error ``s`` (1): 1 % (tyre wear, pressure and load change the rolling radius;
+            a value set by hand from that, not tuned on any run).
+        distance_scale_psd: random walk of ``s``, 1/s.
         initial_speed_std: prior standard deviation of v (m/s) and w (rad/s); also the least
             variance of a speed forgotten by the gap policy.
 
@@ -255,6 +263,8 @@ class EkfNoise:
     initial_bias_std: float = math.radians(2.0)
     gyro_scale_std: float = 0.03
     gyro_scale_psd: float = 1e-9
+    distance_scale_std: float = 0.01
+    distance_scale_psd: float = 1e-9
     initial_speed_std: float = 0.05
 
     def __post_init__(self) -> None:
@@ -293,10 +303,11 @@ MAX_STEPS_PER_INPUT = 10_000
 
 
 def _state_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    """A finite (NX,) state ``[x, y, yaw, v, w, b, k, c, g]``; ``ValueError`` naming ``name``."""
+    """A finite (NX,) state ``[x, y, yaw, v, w, b, k, c, g, s]``; ``ValueError`` naming
+    ``name``."""
     x = np.array(value, dtype=float).reshape(-1)
     if x.shape != (NX,) or not np.all(np.isfinite(x)):
-        raise ValueError(f"{name} must be {NX} finite values [x, y, yaw, v, w, b, k, c, g], "
+        raise ValueError(f"{name} must be {NX} finite values [x, y, yaw, v, w, b, k, c, g, s], "
                          f"got {x.tolist()}")
     return x
 
@@ -499,8 +510,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         robot: chassis parameters (``wheel_distance`` m, ``speed_ratio`` m/tick,
             ``encode_sampling_time`` s).
         noise: :class:`EkfNoise`.
-        x0: initial state ``[x, y, yaw, v, w, b, k, c, g]`` (default zeros).
-        P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c/g from ``noise``).
+        x0: initial state ``[x, y, yaw, v, w, b, k, c, g, s]`` (default zeros).
+        P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c/g/s from ``noise``).
         backend: deprecated, leave it out. There is one implementation, the core
             (:mod:`fusion.planar._ekf_core` over :mod:`fusion.planar.model`): compiled by numba
             when installed, interpreted otherwise, with the same results. ``"core"`` and
@@ -538,7 +549,8 @@ class PlanarEKF(ExtendedKalmanFilter):
             s = n.initial_speed_std
             # the odom origin is the start pose; 1e-9 (m^2, rad^2) keeps P positive definite
             self.P = np.diag([1e-9, 1e-9, 1e-9, s * s, s * s, n.initial_bias_std ** 2,
-                              n.calib_k_std ** 2, n.calib_c_std ** 2, n.gyro_scale_std ** 2])
+                              n.calib_k_std ** 2, n.calib_c_std ** 2, n.gyro_scale_std ** 2,
+                              n.distance_scale_std ** 2])
         else:
             self.P = _covariance("P0", P0)
         self._par = np.zeros(core.PAR_SIZE)
@@ -579,6 +591,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_MAX_RATE] = n.max_rate
         par[core.P_MAX_SPEED] = n.max_speed
         par[core.P_Q_G] = n.gyro_scale_psd
+        par[core.P_Q_S] = n.distance_scale_psd
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan
@@ -704,9 +717,9 @@ class PlanarEKF(ExtendedKalmanFilter):
     def process_batch(self, kinds, t_eff, a, b) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Run a merged event list (see :func:`merge_events`) through the filter.
 
-        Returns ``(states, status)``: ``states[k, :9]`` is ``[x, y, yaw, v, w, b, k, c, g]``
-        after event k (yaw continuous), ``states[k, 9:18]`` the diagonal of P and
-        ``states[k, 18:21]`` its pose cross terms ``P[x,y], P[x,yaw], P[y,yaw]`` (see
+        Returns ``(states, status)``: ``states[k, :NX]`` is ``[x, y, yaw, v, w, b, k, c, g, s]``
+        after event k (yaw continuous), ``states[k, NX:2*NX]`` the diagonal of P and
+        ``states[k, 2*NX:2*NX+3]`` its pose cross terms ``P[x,y], P[x,yaw], P[y,yaw]`` (see
         :func:`pose_covariances`);
         ``status[k]`` the update status. Exactly equal to calling the streaming methods one
         event at a time.
@@ -733,7 +746,7 @@ class FusedTrack:
     Attributes:
         t: (N,) host stamp of each event, s (a wheel frame's own stamp, not its effective time).
         kind: (N,) 0 gyro, 1 wheels, 2 absolute yaw, 3 twist.
-        states: (N, 21) rows of :meth:`PlanarEKF.process_batch` (state, diag(P), pose cross
+        states: (N, ROW_WIDTH) rows of :meth:`PlanarEKF.process_batch` (state, diag(P), pose cross
             terms); yaw is continuous.
         status: (N,) update status codes.
         stats: the filter's counters at the end.

@@ -1,6 +1,6 @@
 """The planar EKF's model, written once: motion, process noise and every measurement.
 
-State ``x = [x, y, yaw, v, w, b, k, c, g]`` (m, m, rad, m/s, rad/s, rad/s, 1, rad/m, 1; see
+State ``x = [x, y, yaw, v, w, b, k, c, g, s]`` (m, m, rad, m/s, rad/s, rad/s, 1, rad/m, 1, 1; see
 :mod:`fusion.planar.ekf` for their meaning). Each function is plain arithmetic in numba's
 subset: the compiled core (:mod:`fusion.planar._ekf_core`) calls these very functions, they
 run interpreted when numba is absent, and the tests drive filterpy's own
@@ -8,10 +8,10 @@ run interpreted when numba is absent, and the tests drive filterpy's own
 the project restates this algebra.
 
 - Motion (constant twist over ``dt`` s): ``yaw += w*dt/(1 + g)``,
-  ``x += v*dt*cos(yaw + w*dt/(2*(1 + g)))``, ``y += v*dt*sin(...)`` likewise; v, w, b, k, c, g
-  stay. :func:`transition` (f),
-  :func:`transition_jacobian` (F); both from :func:`motion_terms`.
-- Process noise: random walks of v, w, b, k, c, g, :func:`process_noise` (Q).
+  ``x += v*dt/(1 + s)*cos(yaw + w*dt/(2*(1 + g)))``, ``y += v*dt/(1 + s)*sin(...)`` likewise;
+  v, w, b, k, c, g, s stay. :func:`transition` (f), :func:`transition_jacobian` (F); both from
+  :func:`motion_terms`.
+- Process noise: random walks of v, w, b, k, c, g, s, :func:`process_noise` (Q).
 - Gyro: ``z = w + b`` (rad/s about the world vertical). ``w`` is the yaw rate *in the gyro's
   scale*: the true rate is ``w/(1 + g)``, with ``g`` the gyro's scale error (MPU6050 datasheet:
   sensitivity tolerance +-3 %). This is ``z = (1 + g)*w_true + b`` with the variables changed
@@ -23,7 +23,10 @@ the project restates this algebra.
   can represent it).
 - Wheel frame or external twist: ``v_m = v + c*w*L^2/4``, ``w_m = (1 + k)*w + c*v``
   (m/s, rad/s), with ``L`` the wheel distance (m); ``k`` is the wheels' yaw-rate scale
-  relative to the gyro's.
+  relative to the gyro's. ``v`` is the speed *in the wheels' scale*: the true speed is
+  ``v/(1 + s)``, ``s`` the common distance scale error of both wheels (``speed_ratio``), which
+  no sensor here observes either (the same change of variables as for g): the position's
+  covariance grows with the distance driven, along the track.
 - Zero-velocity update (ZUPT): ``z = [v, w] = [0, 0]``.
 - Absolute yaw: ``z = yaw``, the residual wrapped to (-pi, pi].
 
@@ -63,7 +66,7 @@ __all__ = [
     "zupt_noise",
 ]
 
-NX = 9  # state size
+NX = 10  # state size
 
 
 # -- motion --------------------------------------------------------------------------------------
@@ -71,7 +74,7 @@ NX = 9  # state size
 def motion_terms(x, dt):
     """Increments and Jacobian entries of the constant-twist motion over ``dt`` s.
 
-    Returns ``(dx, dy, dyaw, f02, f03, f04, f08, f12, f13, f14, f18, f24, f28)``: the
+    Returns ``(dx, dy, dyaw, f02, f03, f04, f08, f09, f12, f13, f14, f18, f19, f24, f28)``: the
     increments of x (m), y (m) and yaw (rad), and the non-zero off-diagonal entries
     ``F[i, j] = f_ij`` of the Jacobian ``F = I + ...`` (every other entry of ``F`` is that of
     the identity).
@@ -80,14 +83,17 @@ def motion_terms(x, dt):
     v = x[3]
     w = x[4]
     r = 1.0 / (1.0 + x[8])  # true rate per gyro-scale rate
+    rv = 1.0 / (1.0 + x[9])  # true speed per wheel-scale speed
     dyaw = w * dt * r
     dyaw_dg = -dyaw * r
     phi = yaw + 0.5 * dyaw
-    c = math.cos(phi)
-    s = math.sin(phi)
-    return (v * dt * c, v * dt * s, dyaw,
-            -v * dt * s, dt * c, -0.5 * v * dt * s * dt * r, -0.5 * v * dt * s * dyaw_dg,
-            v * dt * c, dt * s, 0.5 * v * dt * c * dt * r, 0.5 * v * dt * c * dyaw_dg,
+    c = dt * rv * math.cos(phi)  # dx/dv
+    s = dt * rv * math.sin(phi)  # dy/dv
+    dx = v * c
+    dy = v * s
+    return (dx, dy, dyaw,
+            -dy, c, -0.5 * dy * dt * r, -0.5 * dy * dyaw_dg, -dx * rv,
+            dx, s, 0.5 * dx * dt * r, 0.5 * dx * dyaw_dg, -dy * rv,
             dt * r, dyaw_dg)
 
 
@@ -111,26 +117,30 @@ def transition_jacobian(x, dt):
     F[0, 3] = t[4]
     F[0, 4] = t[5]
     F[0, 8] = t[6]
-    F[1, 2] = t[7]
-    F[1, 3] = t[8]
-    F[1, 4] = t[9]
-    F[1, 8] = t[10]
-    F[2, 4] = t[11]
-    F[2, 8] = t[12]
+    F[0, 9] = t[7]
+    F[1, 2] = t[8]
+    F[1, 3] = t[9]
+    F[1, 4] = t[10]
+    F[1, 8] = t[11]
+    F[1, 9] = t[12]
+    F[2, 4] = t[13]
+    F[2, 8] = t[14]
     return F
 
 
 @njit
-def process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c, q_g):
+def process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s):
     """Diagonal of Q over ``dt`` s (a tuple of NX): random walks of v ((m/s)^2/s), w and b
-    ((rad/s)^2/s), k (1/s), c ((rad/m)^2/s) and g (1/s); the pose gets no noise of its own."""
-    return (0.0, 0.0, 0.0, q_v * dt, q_w * dt, q_b * dt, q_k * dt, q_c * dt, q_g * dt)
+    ((rad/s)^2/s), k (1/s), c ((rad/m)^2/s), g and s (1/s); the pose gets no noise of its
+    own."""
+    return (0.0, 0.0, 0.0, q_v * dt, q_w * dt, q_b * dt, q_k * dt, q_c * dt, q_g * dt,
+            q_s * dt)
 
 
 @njit
-def process_noise(dt, q_v, q_w, q_b, q_k, q_c, q_g):
+def process_noise(dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s):
     """Q(dt) (NX, NX), diagonal: see :func:`process_noise_diagonal`."""
-    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c, q_g)
+    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s)
     Q = np.zeros((NX, NX))
     for i in range(NX):
         Q[i, i] = q[i]
