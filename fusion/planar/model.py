@@ -113,16 +113,10 @@ def transition_jacobian(x, dt):
     """F(x, dt) = df/dx (NX, NX) at the prior state ``x``."""
     t = motion_terms(x, dt)
     F = np.eye(NX)
-    F[0, 2] = t[3]
-    F[0, 3] = t[4]
-    F[0, 4] = t[5]
-    F[0, 8] = t[6]
-    F[0, 9] = t[7]
-    F[1, 2] = t[8]
-    F[1, 3] = t[9]
-    F[1, 4] = t[10]
-    F[1, 8] = t[11]
-    F[1, 9] = t[12]
+    cols = (2, 3, 4, 8, 9)  # the columns of rows x and y that motion_terms returns
+    for row in range(2):
+        for n in range(5):
+            F[row, cols[n]] = t[3 + 5 * row + n]
     F[2, 4] = t[13]
     F[2, 8] = t[14]
     return F
