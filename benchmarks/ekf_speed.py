@@ -8,7 +8,7 @@ Rows (same events: a 60 s degraded mission, gyro 100 Hz + wheel frames 25 Hz, ZU
 - ``PlanarEKF.update_*`` streaming: one Python call per event into the same compiled step.
 - the same step run interpreted (what runs when numba is absent, or with
   ``FUSION_DISABLE_JIT=1``), in a child process;
-- filterpy's own ``ExtendedKalmanFilter`` (numpy 8x8 matrices, ``inv(S)``) driven by
+- filterpy's own ``ExtendedKalmanFilter`` (numpy NX x NX matrices, ``inv(S)``) driven by
   fusion.planar.model's functions and the same filter logic: tests/filterpy_reference.py,
   the reference of tests/test_ekf.py (equal to the core to 1e-11).
 """

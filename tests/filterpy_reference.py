@@ -39,7 +39,7 @@ class FilterpyReference:
     def __init__(self, robot: DiffDriveParams, noise: EkfNoise, x0, P0) -> None:
         self.robot = robot
         self.noise = noise
-        self.kf = ExtendedKalmanFilter(dim_x=8, dim_z=2)
+        self.kf = ExtendedKalmanFilter(dim_x=model.NX, dim_z=2)
         self.kf.x = np.array(x0, dtype=float)
         self.kf.P = np.array(P0, dtype=float)
         self.t: float | None = None
@@ -61,7 +61,8 @@ class FilterpyReference:
         f = n.still_scale if still else 1.0
         kf.F = model.transition_jacobian(kf.x, dt)
         kf.Q = model.process_noise(dt, n.accel_psd * f, n.angular_accel_psd * f, n.bias_psd,
-                                   n.calib_k_psd, n.calib_c_psd)
+                                   n.calib_k_psd, n.calib_c_psd, n.gyro_scale_psd,
+                                   n.distance_scale_psd)
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
 
@@ -144,7 +145,7 @@ class FilterpyReference:
             K[2] *= self.yaw_budget / abs(dyaw)
         yaw = kf.x[2]
         kf.x = kf.x + K @ y
-        IKH = np.eye(8) - K @ H
+        IKH = np.eye(model.NX) - K @ H
         kf.P = IKH @ kf.P @ IKH.T + K @ R @ K.T
         self.yaw_budget = max(self.yaw_budget - abs(kf.x[2] - yaw), 0.0)
 

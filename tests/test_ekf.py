@@ -49,7 +49,9 @@ def _events(run, **kw):
 
 def _every_kind_of_event(run):
     """Gyro (a few saturated), wheel frames in the first half (slips, ZUPTs), the same frames as
-    external twists in the second half, absolute yaw across the +-pi seam, a late input
+    external twists in the second half, absolute yaws (the true yaw, some of them a turn away:
+    the residual must wrap; contradictory yaws would drive the gyro scale state away), a late
+    input
     fused at the filter time, one too late to use, a non-finite one, an implausible one, an
     unknown kind, a gap longer than max_dt and one longer than max_extrapolation."""
     T, L, sr = ROBOT.encode_sampling_time, ROBOT.wheel_distance, ROBOT.speed_ratio
@@ -57,10 +59,11 @@ def _every_kind_of_event(run):
     late = run.wheel_t > 0.5 * run.duration
     gyro = run.gyro[:, 2].copy()
     gyro[::97] = 5.0
+    yaw_t = np.arange(3.0, run.duration, 4.0)
+    turns = np.resize([0.0, 2 * math.pi, -2 * math.pi, 4 * math.pi], yaw_t.size)
     kinds, t, a, b, _ = merge_events(
         run.imu_t, gyro, run.wheel_t[~late], run.ticks[~late], T,
-        yaw_t=np.arange(3.0, run.duration, 4.0), yaw_std=0.05,
-        yaw=np.resize([0.1, math.pi - 0.01, -math.pi + 0.02, 3.0], math.ceil(run.duration / 4)),
+        yaw_t=yaw_t, yaw_std=0.05, yaw=run.truth_at(yaw_t)[:, 2] + turns,
         twist_t=run.wheel_t[late] - 0.5 * T, twist_v=(0.5 * (dl + dr) / T)[late],
         twist_w=((dr - dl) / (L * T))[late])
     t, a = t.copy(), a.copy()
@@ -88,8 +91,8 @@ def test_core_equals_filterpy_driven_by_the_model(short_run, noise):
     ref = FilterpyReference(ROBOT, noise, fast.x, fast.P)
     out, status = fast.process_batch(kinds, t, a, b)
     ref_status = np.empty_like(status)
-    ref_x = np.empty((kinds.size, 8))
-    ref_var = np.empty((kinds.size, 8))
+    ref_x = np.empty((kinds.size, model.NX))
+    ref_var = np.empty((kinds.size, model.NX))
     for k in range(kinds.size):
         ref_status[k] = ref.step(kinds[k], t[k], a[k], b[k])
         ref_x[k] = ref.kf.x
@@ -102,8 +105,8 @@ def test_core_equals_filterpy_driven_by_the_model(short_run, noise):
     assert fast.stats["speed_resets"] >= 2 and fast.stats["invalid"] == 3  # NaN, 1e200, kind 7
     assert (kinds == core.EV_TWIST).sum() > 400 and (kinds == core.EV_YAW).sum() >= 9
     # measured: states within 5e-15, variances within 1.4e-12 (relative)
-    np.testing.assert_allclose(out[:, :8], ref_x, rtol=0, atol=1e-11)
-    np.testing.assert_allclose(out[:, 8:16], ref_var, rtol=1e-9, atol=0)
+    np.testing.assert_allclose(out[:, :model.NX], ref_x, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(out[:, model.NX:2 * model.NX], ref_var, rtol=1e-9, atol=0)
     np.testing.assert_allclose(fast.P, ref.kf.P, rtol=1e-9, atol=1e-18)
 
 
@@ -121,12 +124,14 @@ def _central_difference(f, x, step=1e-6):
 
 def test_every_jacobian_matches_central_differences():
     # Random states (pose within metres and radians, up to 1.5 m/s and 3 rad/s, calibration
-    # states of a few %), 200 of them. Central differences err by ~ h^2 |f'''| / 6 ~ 1e-12
-    # (truncation) plus ~ eps |f| / h ~ 1e-9 (rounding) here: a tolerance of 1e-7 passes
-    # them and fails any wrong entry (a missing or wrong term is >= 1e-3 at these states).
+    # states and the gyro scale of a few %), 200 of them. Central differences err by
+    # ~ h^2 |f'''| / 6 ~ 1e-12 (truncation) plus ~ eps |f| / h ~ 1e-9 (rounding) here: a
+    # tolerance of 1e-7 passes them and fails any wrong entry (a missing or wrong term is
+    # >= 1e-3 at these states).
     L = ROBOT.wheel_distance
     rng = np.random.default_rng(7)
-    states = rng.normal(size=(200, 8)) * [3.0, 3.0, 3.0, 0.5, 1.0, 0.01, 0.05, 0.05]
+    states = rng.normal(size=(200, model.NX)) * [3.0, 3.0, 3.0, 0.5, 1.0, 0.01, 0.05, 0.05, 0.03,
+                                                 0.01]
     for x in states:
         dt = rng.uniform(0.001, 0.05)
         cases = [
@@ -163,8 +168,9 @@ def test_wheel_noise_is_the_propagated_tick_noise():
 
 
 def test_process_noise_and_the_wrapped_yaw_residual():
-    Q = model.process_noise(0.02, 1.0, 2.0, 3.0, 4.0, 5.0)
-    np.testing.assert_allclose(Q, np.diag([0, 0, 0, 0.02, 0.04, 0.06, 0.08, 0.1]), rtol=1e-15)
+    Q = model.process_noise(0.02, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0)
+    np.testing.assert_allclose(Q, np.diag([0, 0, 0, 0.02, 0.04, 0.06, 0.08, 0.1, 0.12, 0.14]),
+                               rtol=1e-15)
     r = model.yaw_residual(np.array([math.radians(-179.0)]), np.array([math.radians(179.0)]))
     assert math.degrees(r[0]) == pytest.approx(2.0, abs=1e-12)
 
@@ -184,7 +190,7 @@ def test_streaming_equals_batch_and_split_run(short_run):
             stream.update_gyro(stamp[k], a[k])
         else:
             stream.update_wheels(stamp[k], int(a[k]), int(b[k]))
-    np.testing.assert_array_equal(stream.x, out[-1, :8])
+    np.testing.assert_array_equal(stream.x, out[-1, :model.NX])
     np.testing.assert_array_equal(stream.x, batch.x)
     np.testing.assert_array_equal(stream.P, batch.P)
 
@@ -276,9 +282,9 @@ def test_reorder_buffer_releases_in_time_order():
 
 
 def test_absolute_yaw_residual_is_wrapped():
-    x0 = np.zeros(8)
+    x0 = np.zeros(model.NX)
     x0[2] = math.radians(179.0)
-    P0 = np.diag([0, 0, math.radians(2.0) ** 2, 1e-4, 1e-4, 1e-6, 1e-4, 1e-4])
+    P0 = np.diag([0, 0, math.radians(2.0) ** 2, 1e-4, 1e-4, 1e-6, 1e-4, 1e-4, 1e-4, 1e-4])
     ekf = PlanarEKF(ROBOT, x0=x0, P0=P0)
     ekf.update_yaw(0.0, math.radians(-179.0), math.radians(2.0))
     # equal variances: the estimate moves halfway, to 180 deg, not to ~0 deg
@@ -301,7 +307,7 @@ def test_vertical_rate_matches_scipy_rotation():
 
 
 def test_nav_msgs_odometry_covariance_layout():
-    A = np.arange(64, dtype=float).reshape(8, 8)
+    A = np.arange(model.NX ** 2, dtype=float).reshape(model.NX, model.NX)
     P = A @ A.T
     pose, twist = odometry_covariances(P)
     pose = pose.reshape(6, 6)
@@ -332,7 +338,7 @@ def test_covariance_stays_symmetric_positive_definite_over_a_million_steps():
         out, status = ekf.process_batch(kinds, t + r * span, a, b)
         total += kinds.size
         assert np.all(status != 3)  # never a non-positive-definite S
-        assert np.all(out[:, 8:16] > 0)  # every variance positive after every step
+        assert np.all(out[:, model.NX:2 * model.NX] > 0)  # every variance positive after every step
         np.testing.assert_array_equal(ekf.P, ekf.P.T)
         np.linalg.cholesky(ekf.P)  # raises if not positive definite
         assert np.all(np.isfinite(out))
@@ -427,7 +433,7 @@ def test_live_arrival_order_through_a_reorder_buffer_equals_the_batch():
 
 
 def test_predict_to_moves_the_pose_with_the_speed():
-    x0 = np.zeros(8)
+    x0 = np.zeros(model.NX)
     x0[3], x0[4] = 0.5, 0.0
     ekf = PlanarEKF(ROBOT, x0=x0)
     ekf.update_gyro(0.0, 0.0)
@@ -442,10 +448,10 @@ def test_predict_to_moves_the_pose_with_the_speed():
 def test_filterpy_api_fuses_a_custom_measurement():
     # filterpy's own update() on the same state: a position fix (x, y) with 0.1 m noise
     # pulls a 1 m-uncertain position halfway-ish, by the Kalman weights computed by hand.
-    x0 = np.zeros(8)
-    P0 = np.diag([1.0, 1.0, 0.01, 0.01, 0.01, 1e-6, 1e-4, 1e-4])
+    x0 = np.zeros(model.NX)
+    P0 = np.diag([1.0, 1.0, 0.01, 0.01, 0.01, 1e-6, 1e-4, 1e-4, 1e-4, 1e-4])
     ekf = PlanarEKF(ROBOT, x0=x0, P0=P0)
-    H = np.zeros((2, 8))
+    H = np.zeros((2, model.NX))
     H[0, 0] = H[1, 1] = 1.0
     ekf.update(np.array([0.5, -0.2]), lambda x: H, lambda x: H @ x, R=np.eye(2) * 0.01)
     gain = 1.0 / (1.0 + 0.01)

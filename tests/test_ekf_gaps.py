@@ -11,6 +11,7 @@ import pytest
 
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT
 from fusion.planar.ekf import EkfNoise, PlanarEKF
+from fusion.planar.model import NX
 
 ROBOT = EXAMPLE_ROBOT
 NOISE = EkfNoise()
@@ -21,7 +22,7 @@ W = 0.0
 def moving_filter() -> PlanarEKF:
     """A filter driving straight at V m/s, speeds measured at t = 0 (x0 counts as measured
     at the first input)."""
-    x0 = np.zeros(8)
+    x0 = np.zeros(NX)
     x0[3], x0[4] = V, W
     ekf = PlanarEKF(ROBOT, NOISE, x0=x0)
     ekf.update_gyro(0.0, W)

@@ -34,6 +34,7 @@ from fusion.planar.imu_motion import (
     MotionThresholds,
     imu_motion_codes,
 )
+from fusion.planar.model import NX
 
 BAG = Path(__file__).resolve().parent.parent / "datasets" / "rosbag" / "jackal_sim_test2.bag"
 
@@ -57,8 +58,10 @@ def test_worst_case_no_pose_jump():
                    EncoderModel(separation_error=0.05, slip_patches=patches), seed=3)
     noise = EkfNoise()
     P0 = np.diag([1e-9, 1e-9, math.radians(30.0) ** 2, 0.25, 0.25, math.radians(5.0) ** 2,
-                  0.1 ** 2, 0.1 ** 2])
-    ekf = PlanarEKF(EXAMPLE_ROBOT, noise, x0=np.array([0, 0, 0, 0.5, 0, 0, 0, 0.0]), P0=P0)
+                  0.1 ** 2, 0.1 ** 2, noise.gyro_scale_std ** 2, noise.distance_scale_std ** 2])
+    x0 = np.zeros(NX)
+    x0[3] = 0.5
+    ekf = PlanarEKF(EXAMPLE_ROBOT, noise, x0=x0, P0=P0)
     kinds, t, a, b, _ = merge_events(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
                                      EXAMPLE_ROBOT.encode_sampling_time,
                                      imu_motion=imu_motion_codes(run.imu_t, run.gyro,
@@ -141,7 +144,7 @@ def test_dead_encoder_is_flagged_not_fused_and_the_pose_coasts(dead_run):
     assert moved_true > 1.0
     assert abs(moved_est - moved_true) < 0.25 * moved_true
     # and its position variance grew meanwhile
-    assert track.states[g][at[1], 8] > track.states[g][at[0], 8]
+    assert track.states[g][at[1], NX] > track.states[g][at[0], NX]
 
 
 def test_bias_is_learnt_within_a_minute_from_a_moving_start():

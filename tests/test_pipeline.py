@@ -25,6 +25,7 @@ from fusion.pipeline.sources import capture_events, logdir_events, merge_by_time
 from fusion.planar import _ekf_core as core
 from fusion.planar.ekf import EkfNoise, fuse, vertical_rate
 from fusion.planar.imu_motion import imu_motion_codes
+from fusion.planar.model import NX
 from fusion.planar.robot import RobotConfig
 from fusion.sinks.text import JsonLinesSink
 from fusion.types.fused import FusedOdometry
@@ -71,7 +72,7 @@ def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
                      r.pose_covariance[5, 5], r.twist_covariance[5, 5]] for r in records])
     want = np.column_stack([t_rows, rows[:, 0], rows[:, 1],
                             np.pi - np.mod(np.pi - rows[:, 2], 2 * np.pi), rows[:, 3],
-                            rows[:, 4], rows[:, 8], rows[:, 10], rows[:, 12]])
+                            rows[:, 4], rows[:, NX], rows[:, NX + 2], rows[:, NX + 4]])
     np.testing.assert_array_equal(got, want)
     assert stats.slips == ekf.stats["slips"] > 0 and stats.zupts == ekf.stats["zupts"] > 0
     assert stats.late_dropped == 0 and stats.imu_samples == run.imu_t.size
@@ -325,7 +326,7 @@ def test_twists_stream_into_the_ekfs_own_twist_update(run):
                      r.twist_covariance[0, 0]] for r in recs])
     want = np.column_stack([t_rows, rows[:, 0], rows[:, 1],
                             np.pi - np.mod(np.pi - rows[:, 2], 2 * np.pi), rows[:, 3],
-                            rows[:, 4], rows[:, 8], rows[:, 11]])
+                            rows[:, 4], rows[:, NX], rows[:, NX + 3]])
     np.testing.assert_array_equal(got, want)
     assert stats.slips == ekf.stats["slips"] and stats.zupts == ekf.stats["zupts"] > 0
     assert stats.late_dropped == 0 and stats.wheel_frames == 0

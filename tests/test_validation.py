@@ -23,6 +23,7 @@ from fusion.io.robot_toml import read_robot_toml
 from fusion.io.run_config import ConfigError, RunConfig, load_config
 from fusion.pipeline.core import FusionPipeline
 from fusion.planar.ekf import EkfNoise, PlanarEKF
+from fusion.planar.model import NX
 from fusion.planar.robot import RobotConfig
 from fusion.types.constants import STANDARD_GRAVITY as G
 from fusion.types.samples import ImuSample, WheelTicks
@@ -346,12 +347,12 @@ def _bad_state(key: str, value) -> dict:
     ("call", "words"),
     [
         (lambda e: PlanarEKF(EXAMPLE_ROBOT, x0=[0, 0, 0, NAN, 0, 0, 0, 0]), ["x0", "nan"]),
-        (lambda e: PlanarEKF(EXAMPLE_ROBOT, P0=np.full((8, 8), INF)), ["P0", "finite"]),
-        (lambda e: PlanarEKF(EXAMPLE_ROBOT, P0=np.triu(np.ones((8, 8)))), ["P0", "symmetric"]),
-        (lambda e: PlanarEKF(EXAMPLE_ROBOT, P0=-np.eye(8)), ["P0", "non-negative"]),
+        (lambda e: PlanarEKF(EXAMPLE_ROBOT, P0=np.full((NX, NX), INF)), ["P0", "finite"]),
+        (lambda e: PlanarEKF(EXAMPLE_ROBOT, P0=np.triu(np.ones((NX, NX)))), ["P0", "symmetric"]),
+        (lambda e: PlanarEKF(EXAMPLE_ROBOT, P0=-np.eye(NX)), ["P0", "non-negative"]),
         (lambda e: PlanarEKF(EXAMPLE_ROBOT, noise={"gyro_std": 1.0}), ["noise", "EkfNoise"]),
-        (lambda e: e.set_state(_bad_state("x", np.full(8, NAN))), ["state['x']", "nan"]),
-        (lambda e: e.set_state(_bad_state("P", np.eye(8) * NAN)), ["state['P']"]),
+        (lambda e: e.set_state(_bad_state("x", np.full(NX, NAN))), ["state['x']", "nan"]),
+        (lambda e: e.set_state(_bad_state("P", np.eye(NX) * NAN)), ["state['P']"]),
         (lambda e: e.set_state(_bad_state("aux", np.zeros(3))), ["state['aux']"]),
         (lambda e: e.update_yaw(0.1, 0.0, INF), ["yaw std", "inf"]),
         (lambda e: e.update_yaw(0.1, 0.0, 0.0), ["yaw std", "0.0"]),

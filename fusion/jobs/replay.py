@@ -36,6 +36,7 @@ from fusion.io.uart2 import read_uart2_capture
 from fusion.jobs.engine import run_tasks
 from fusion.jobs.status import pipeline_warnings, status_record, write_status
 from fusion.pipeline.core import FusionPipeline, PipelineStats
+from fusion.planar.model import NX
 from fusion.planar.odometry import WheelOdometry
 from fusion.planar.robot import RobotConfig
 from fusion.sinks.registry import open_sink
@@ -227,19 +228,21 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
 
 
 def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.float64]:
-    """Fused CSV rows (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`) from (N, 23) rows of
+    """Fused CSV rows (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`) from the rows of
     :attr:`FusionPipeline.state_rows` (yaw wrapped; wheel ticks times ``m_per_tick_s``,
-    m/tick/s, give rim speeds in m/s)."""
+    m/tick/s, give rim speeds in m/s). The gyro scale state g is not a CSV column."""
+    var = 1 + NX  # diag(P) columns
+    cross = 1 + 2 * NX  # P[x,y], P[x,yaw], P[y,yaw], then left, right ticks, flags
     out = np.empty((rows.shape[0], len(FUSED_CSV_COLUMNS)))
     out[:, 0] = rows[:, 0]  # t
     out[:, 1:3] = rows[:, 1:3]  # x, y
     out[:, 3] = wrap_angle(rows[:, 3])
     out[:, 4:9] = rows[:, 4:9]  # v, w, b, k, c
-    out[:, 9:12] = rows[:, 9:12]  # var x, y, yaw
-    out[:, 12:15] = rows[:, 17:20]  # cov xy, x yaw, y yaw
-    out[:, 15:17] = rows[:, 12:14]  # var v, w
-    out[:, 17:19] = rows[:, 20:22] * m_per_tick_s
-    flags = rows[:, 22].astype(np.int64)
+    out[:, 9:12] = rows[:, var:var + 3]  # var x, y, yaw
+    out[:, 12:15] = rows[:, cross:cross + 3]  # cov xy, x yaw, y yaw
+    out[:, 15:17] = rows[:, var + 3:var + 5]  # var v, w
+    out[:, 17:19] = rows[:, cross + 3:cross + 5] * m_per_tick_s
+    flags = rows[:, cross + 5].astype(np.int64)
     for i, bit in enumerate((1, 2, 4)):  # zupt, slip, encoder fault
         out[:, 19 + i] = (flags & bit) != 0
     return out

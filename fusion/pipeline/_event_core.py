@@ -30,8 +30,9 @@ call: the heap size plus the new events):
   (NaN for a rate tick), the EKF status of the triggering event and the flags of the last wheel
   frame or twist (:data:`fusion.planar._ekf_core.FLAG_ZUPT`, ``FLAG_SLIP``, ``FLAG_FAULT``);
 - ``trace`` rows for every applied event whose kind is in ``trace_mask`` (bit ``1 << kind``):
-  the event's effective time, the 19 columns of
-  :meth:`fusion.planar.ekf.PlanarEKF.process_batch` (state, diag(P), pose cross terms) and
+  the event's effective time, the state row of
+  :meth:`fusion.planar.ekf.PlanarEKF.process_batch` (state, diag(P), pose cross terms;
+  :data:`fusion.planar._ekf_core.ROW_WIDTH` columns) and
   the left and right ticks of the last applied wheel frame (NaN before the first) and the
   flags of the last wheel frame or twist.
 """
@@ -43,10 +44,20 @@ import math
 import numpy as np
 
 from fusion._jit import njit
-from fusion.planar._ekf_core import A_FLAGS, A_T, EV_GYRO, EV_TWIST, EV_WHEELS, NX, step_core
+from fusion.planar._ekf_core import (
+    A_FLAGS,
+    A_T,
+    EV_GYRO,
+    EV_TWIST,
+    EV_WHEELS,
+    NX,
+    ROW_WIDTH,
+    step_core,
+    write_state_row,
+)
 
-__all__ = ["PUB_WIDTH", "SCHED_SIZE", "TRACE_WIDTH", "new_sched", "run_events", "source_of",
-           "write_pub_row"]
+__all__ = ["PUB_WIDTH", "SCHED_SIZE", "TRACE_WIDTH", "T_FLAGS", "T_LEFT", "T_RIGHT", "new_sched",
+           "run_events", "source_of", "write_pub_row"]
 
 # sched indices
 S_HEAP_N = 0
@@ -81,7 +92,11 @@ U_STATUS = U_STAMP + 1
 U_FLAGS = U_STATUS + 1
 PUB_WIDTH = U_FLAGS + 1
 
-TRACE_WIDTH = 1 + 2 * NX + 3 + 2 + 1
+# trace columns: effective time, the state row, left and right ticks, flags
+T_LEFT = 1 + ROW_WIDTH
+T_RIGHT = T_LEFT + 1
+T_FLAGS = T_RIGHT + 1
+TRACE_WIDTH = T_FLAGS + 1
 
 
 def new_sched(use_imu: bool, use_wheels: bool, use_twist: bool) -> np.ndarray:
@@ -226,15 +241,10 @@ def _apply(heap_f, heap_i, row, x, P, aux, par, sched, rate, trace_mask, pub, n_
     if (trace_mask >> kind) & 1:
         out = trace[n_trace]
         out[0] = t
-        for i in range(NX):
-            out[1 + i] = x[i]
-            out[1 + NX + i] = P[i, i]
-        out[1 + 2 * NX] = P[0, 1]
-        out[2 + 2 * NX] = P[0, 2]
-        out[3 + 2 * NX] = P[1, 2]
-        out[4 + 2 * NX] = sched[S_LAST_LEFT]
-        out[5 + 2 * NX] = sched[S_LAST_RIGHT]
-        out[6 + 2 * NX] = aux[A_FLAGS]
+        write_state_row(out, 1, x, P)
+        out[T_LEFT] = sched[S_LAST_LEFT]
+        out[T_RIGHT] = sched[S_LAST_RIGHT]
+        out[T_FLAGS] = aux[A_FLAGS]
         n_trace += 1
     return n_pub, n_trace
 

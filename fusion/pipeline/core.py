@@ -809,7 +809,7 @@ class FusionPipeline(Lifecycle):
             if not (type(ekf.x) is np.ndarray and ekf.x.flags.c_contiguous
                     and ekf.x.dtype == np.float64 and ekf.P.flags.c_contiguous):
                 # a user may have set x or P through filterpy's API
-                ekf.x = np.ascontiguousarray(ekf.x, dtype=np.float64).reshape(8)
+                ekf.x = np.ascontiguousarray(ekf.x, dtype=np.float64).reshape(-1)
                 ekf.P = np.ascontiguousarray(ekf.P, dtype=np.float64)
             n_pub, n_trace = ev_core.run_events(
                 kinds[start:stop], t_eff[start:stop], a[start:stop], b[start:stop],
@@ -910,12 +910,13 @@ class FusionPipeline(Lifecycle):
 
     @property
     def state_rows(self) -> NDArray[np.float64]:
-        """(N, 23) EKF state after each event of the ``state_rows`` kinds so far: the event's
-        effective time (s), the 19 columns of
+        """(N, TRACE_WIDTH) EKF state after each event of the ``state_rows`` kinds so far: the
+        event's effective time (s), the state row of
         :meth:`fusion.planar.ekf.PlanarEKF.process_batch` (state with continuous yaw,
         diag(P), pose cross terms), the left and right ticks of the last wheel frame
         fused (NaN before the first) and the EKF's flags of the last wheel frame or twist
-        (bits 1 ZUPT, 2 slip, 4 encoder fault)."""
+        (bits 1 ZUPT, 2 slip, 4 encoder fault); column indices
+        :data:`fusion.pipeline._event_core.T_LEFT`, ``T_RIGHT``, ``T_FLAGS``."""
         if not self._trace_chunks:
             return np.zeros((0, ev_core.TRACE_WIDTH))
         if len(self._trace_chunks) > 1:

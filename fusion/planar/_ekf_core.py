@@ -2,14 +2,14 @@
 
 The algebra (motion, process noise, each measurement's h, Jacobian and R) is that of
 :mod:`fusion.planar.model`; this module adds the Kalman equations and the filter's logic (time
-bookkeeping, ZUPTs, slip gating, the late-input policy). Plain loops over 8x8 matrices in the
+bookkeeping, ZUPTs, slip gating, the late-input policy). Plain loops over NX x NX matrices in the
 numba subset: numba compiles them (``fast`` extra), or they run interpreted with identical IEEE
 results. One function, :func:`step_core`, handles one input event (time bookkeeping,
 prediction, update); the streaming methods and the batch loop of
 :class:`fusion.planar.ekf.PlanarEKF` both call it, so they agree exactly.
 
-State ``x = [x, y, yaw, v, w, b, k, c]``. Parameter vector ``par`` and bookkeeping vector ``aux``
-use the index constants below.
+State ``x = [x, y, yaw, v, w, b, k, c, g, s]``. Parameter vector ``par`` and bookkeeping vector
+``aux`` use the index constants below.
 """
 
 from __future__ import annotations
@@ -40,7 +40,8 @@ from fusion.planar.model import (
     zupt_noise,
 )
 
-__all__ = ["AUX_SIZE", "PAR_SIZE", "batch_core", "predict_core", "step_core", "update_core"]
+__all__ = ["AUX_SIZE", "PAR_SIZE", "ROW_WIDTH", "batch_core", "predict_core", "step_core",
+           "update_core"]
 
 # par indices
 P_SPEED_RATIO = 0
@@ -78,7 +79,9 @@ P_HORIZON = 31
 P_SPEED_VAR0 = 32
 P_MAX_RATE = 33
 P_MAX_SPEED = 34
-PAR_SIZE = 35
+P_Q_G = 35
+P_Q_S = 36
+PAR_SIZE = 37
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -122,17 +125,21 @@ EV_GYRO = 0
 EV_WHEELS = 1
 EV_YAW = 2
 EV_TWIST = 3
+# a state row (batch output, pipeline trace): x (NX), diag(P) (NX), P[x,y], P[x,yaw], P[y,yaw]
+ROW_WIDTH = 2 * NX + 3
 
 
 @njit
-def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c):
+def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s):
     """Propagate ``x`` and ``P`` (in place) by ``dt`` s: ``x = f(x, dt)``,
     ``P <- F P F^T + Q`` with ``F`` the Jacobian at the prior state
-    (:func:`fusion.planar.model.motion_terms`) and ``Q`` the random walks of v, w, b, k, c
-    with intensities ``q_v`` ((m/s)^2/s), ``q_w``, ``q_b`` ((rad/s)^2/s), ``q_k`` (1/s),
-    ``q_c`` ((rad/m)^2/s) (:func:`fusion.planar.model.process_noise_diagonal`).
+    (:func:`fusion.planar.model.motion_terms`) and ``Q`` the random walks of v, w, b, k, c, g,
+    s with intensities ``q_v`` ((m/s)^2/s), ``q_w``, ``q_b`` ((rad/s)^2/s), ``q_k`` (1/s),
+    ``q_c`` ((rad/m)^2/s), ``q_g``, ``q_s`` (1/s)
+    (:func:`fusion.planar.model.process_noise_diagonal`).
     """
-    dx, dy, dyaw, f02, f03, f04, f12, f13, f14, f24 = motion_terms(x, dt)
+    (dx, dy, dyaw, f02, f03, f04, f08, f09, f12, f13, f14, f18, f19, f24,
+     f28) = motion_terms(x, dt)
     x[0] += dx
     x[1] += dy
     x[2] += dyaw
@@ -140,17 +147,21 @@ def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c):
     # A = F P (only rows 0, 1, 2 differ from P)
     A = P.copy()
     for j in range(NX):
-        A[0, j] = P[0, j] + f02 * P[2, j] + f03 * P[3, j] + f04 * P[4, j]
-        A[1, j] = P[1, j] + f12 * P[2, j] + f13 * P[3, j] + f14 * P[4, j]
-        A[2, j] = P[2, j] + f24 * P[4, j]
+        A[0, j] = (P[0, j] + f02 * P[2, j] + f03 * P[3, j] + f04 * P[4, j] + f08 * P[8, j]
+                   + f09 * P[9, j])
+        A[1, j] = (P[1, j] + f12 * P[2, j] + f13 * P[3, j] + f14 * P[4, j] + f18 * P[8, j]
+                   + f19 * P[9, j])
+        A[2, j] = P[2, j] + f24 * P[4, j] + f28 * P[8, j]
     # P = A F^T (only columns 0, 1, 2 differ from A)
     for i in range(NX):
-        P[i, 0] = A[i, 0] + f02 * A[i, 2] + f03 * A[i, 3] + f04 * A[i, 4]
-        P[i, 1] = A[i, 1] + f12 * A[i, 2] + f13 * A[i, 3] + f14 * A[i, 4]
-        P[i, 2] = A[i, 2] + f24 * A[i, 4]
+        P[i, 0] = (A[i, 0] + f02 * A[i, 2] + f03 * A[i, 3] + f04 * A[i, 4] + f08 * A[i, 8]
+                   + f09 * A[i, 9])
+        P[i, 1] = (A[i, 1] + f12 * A[i, 2] + f13 * A[i, 3] + f14 * A[i, 4] + f18 * A[i, 8]
+                   + f19 * A[i, 9])
+        P[i, 2] = A[i, 2] + f24 * A[i, 4] + f28 * A[i, 8]
         for j in range(3, NX):
             P[i, j] = A[i, j]
-    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c)
+    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s)
     for i in range(NX):
         P[i, i] += q[i]
 
@@ -158,7 +169,7 @@ def predict_core(x, P, dt, q_v, q_w, q_b, q_k, q_c):
 @njit
 def innovation_variance(P, H, R, i):
     """Variance (``S[i, i]``, ``S = H P H^T + R``) of component ``i`` of the innovation
-    ``z - h(x)`` of a measurement with Jacobian ``H`` (m, 8) and noise ``R`` (m, m)."""
+    ``z - h(x)`` of a measurement with Jacobian ``H`` (m, NX) and noise ``R`` (m, m)."""
     acc = R[i, i]
     for k in range(NX):
         if H[i, k] != 0.0:
@@ -206,10 +217,10 @@ def _cholesky_solve_rows(S, B, m, out):
 
 @njit
 def update_core(x, P, y, H, R, gate_index, gate, inflation, first, yaw_cap):
-    """Kalman update (in place) with innovation ``y`` (m,), Jacobian ``H`` (m, 8), noise ``R``.
+    """Kalman update (in place) with innovation ``y`` (m,), Jacobian ``H`` (m, NX), noise ``R``.
 
     Joseph form ``P = (I-KH) P (I-KH)^T + K R K^T``, gain by a Cholesky solve of ``S``.
-    Only the states ``first..7`` are corrected: the gain rows of the states before ``first``
+    Only the states ``first..NX-1`` are corrected: the gain rows of the states before ``first``
     are zero (a Schmidt "consider" update; the Joseph form keeps ``P`` the covariance of the
     estimate for that gain). Rate measurements pass ``first = FIRST_RATE_STATE`` so that
     they never move the position (x, y) except through the motion model. The yaw row of the
@@ -359,7 +370,8 @@ def _predict_step(x, P, aux, par, t, h, q_v, q_w):
         P[3, 3] = 0.0
     if w_lost:
         P[4, 4] = 0.0
-    predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C])
+    predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G],
+                 par[P_Q_S])
     aux[A_PREDICTIONS] += 1.0
     if v_lost:
         P[3, 3] += p_vv
@@ -669,14 +681,21 @@ def step_core(x, P, aux, par, kind, t, a, b):
 
 
 @njit
+def write_state_row(out, o, x, P):
+    """One state row (:data:`ROW_WIDTH` values) into ``out[o:]``: the state ``x`` (NX), the
+    diagonal of ``P`` (NX) and its pose cross terms P[x,y], P[x,yaw], P[y,yaw]."""
+    for i in range(NX):
+        out[o + i] = x[i]
+        out[o + NX + i] = P[i, i]
+    out[o + 2 * NX] = P[0, 1]
+    out[o + 2 * NX + 1] = P[0, 2]
+    out[o + 2 * NX + 2] = P[1, 2]
+
+
+@njit
 def batch_core(x, P, aux, par, kinds, ts, aa, bb, out, status):
-    """Run :func:`step_core` over N events; ``out[k, :8]`` = state after event k,
-    ``out[k, 8:16]`` the diagonal of P, ``out[k, 16:19]`` = P[x,y], P[x,yaw], P[y,yaw]."""
+    """Run :func:`step_core` over N events; ``out[k]`` = the state row after event k
+    (:func:`write_state_row`)."""
     for k in range(kinds.shape[0]):
         status[k] = step_core(x, P, aux, par, kinds[k], ts[k], aa[k], bb[k])
-        for i in range(NX):
-            out[k, i] = x[i]
-            out[k, NX + i] = P[i, i]
-        out[k, 2 * NX] = P[0, 1]
-        out[k, 2 * NX + 1] = P[0, 2]
-        out[k, 2 * NX + 2] = P[1, 2]
+        write_state_row(out[k], 0, x, P)

@@ -2,16 +2,29 @@
 
 Frames and units (REP-103/105): the pose is ``base_footprint`` in ``odom``; x, y in m, yaw in
 rad (CCW from the odom x axis; kept continuous inside, wrapped to (-pi, pi] on output),
-v forward speed m/s, w yaw rate rad/s, b the gyro's bias about the vertical axis, rad/s.
+v forward speed m/s, w yaw rate rad/s (in the gyro's scale, see g), b the gyro's bias about
+the vertical axis, rad/s.
 
-State ``x = [x, y, yaw, v, w, b, k, c]``, covariance ``P`` (8x8). ``k`` (dimensionless) and
-``c`` (rad/m) describe how the wheels' yaw rate departs from the truth:
+State ``x = [x, y, yaw, v, w, b, k, c, g, s]``, covariance ``P`` (10x10). ``k`` (dimensionless) and
+``c`` (rad/m) describe how the wheels' yaw rate departs from the gyro's:
 ``w_wheels = (1 + k)*w + c*v``. A wheel-separation error shows up as ``k``
 (``k ~ L_true/L_nominal - 1``), a left/right radius mismatch as ``c``
 (``c ~ (e_right - e_left)/L`` with ``e`` each wheel's relative distance error). The gyro makes
 both observable (turning reveals ``k``, driving straight reveals ``c``) once its bias is pinned
 by zero-velocity updates; a common distance scale (``speed_ratio`` wrong on both wheels alike)
-is not observable from a gyro and stays as it is configured. The class is a
+is not observable from a gyro and stays as it is configured. ``g`` (dimensionless) is the
+gyro's scale error, ``z_gyro = (1 + g)*w_true + b``: its prior comes from the datasheet
+(MPU6050: sensitivity tolerance +-3 %), not from any data. The heading error it causes grows
+with the angle turned, not with time, so no white process noise can stand for it; as a state
+it makes the pose covariance grow with the angle turned. Gyro and wheels reveal only the ratio
+of their scales (``k``), never the common one, so the state ``w`` is the rate in the gyro's
+scale and the heading integrates ``w/(1 + g)`` (:mod:`fusion.planar.model`): no rate
+measurement depends on g, only an absolute yaw corrects it. The state is there for an honest
+covariance, not for accuracy: without absolute yaws g stays 0 and the estimate is that of
+the filter without it. ``s`` (dimensionless) is the common distance scale error of the wheels
+(``speed_ratio`` wrong on both alike), unobservable too: ``v`` is the speed in the wheels'
+scale and the position integrates ``v/(1 + s)``; its prior makes the position covariance grow
+with the distance driven, along the track. The class is a
 :class:`filterpy.kalman.ExtendedKalmanFilter`: ``x``, ``P``, ``y``, ``S``, ``K`` keep filterpy's
 meaning and filterpy's own ``update(z, HJacobian, Hx, R, residual=...)`` can fuse any extra
 measurement (a beacon, a scan match) into the same state. The model below is written once, in
@@ -24,9 +37,10 @@ model's functions as the reference.
 
 Model:
 
-- Prediction over ``dt`` (constant twist): ``yaw += w*dt``,
-  ``x += v*dt*cos(yaw + w*dt/2)``, ``y += v*dt*sin(yaw + w*dt/2)``; v, w and b are random
-  walks (``q_v``, ``q_w``, ``q_b``), in steps of at most ``max_dt``.
+- Prediction over ``dt`` (constant twist): ``yaw += u*dt`` with ``u = w/(1 + g)`` the true
+  yaw rate, ``x += d*cos(yaw + u*dt/2)``, ``y += d*sin(yaw + u*dt/2)`` with ``d = v*dt/(1 + s)``;
+  v, w, b, k, c, g and s are random walks (``q_v``, ``q_w``, ``q_b``, ...), in steps of at most
+  ``max_dt``.
 - Gap policy (bounded cost and bounded extrapolation for any interval without inputs): v and
   w are extrapolated at most ``max_extrapolation`` s (default 3) past their last
   measurement (v: a wheel frame, twist or ZUPT, or an encoder-fault frame while the IMU shows
@@ -49,9 +63,9 @@ Model:
 - Implausible inputs (a rate above ``max_rate``, a speed above ``max_speed``: a corrupt
   value, not a measurement) and non-finite ones are counted in ``stats["invalid"]`` and
   never fused.
-- Gyro update: ``z = w + b`` where z is the rate about the *world* vertical. On a level robot
-  that is ``gyro[2]``; on a tilted one :func:`vertical_rate` projects the body rate with the
-  attitude quaternion (the pipeline's: Keel's).
+- Gyro update: ``z = w + b`` where z is the rate about the *world* vertical. On a
+  level robot that is ``gyro[2]``; on a tilted one :func:`vertical_rate` projects the body
+  rate with the attitude quaternion (the pipeline's: Keel's).
 - Wheel update: one DATA-uart2 frame's ticks give the period's mean speed ``v = (dl+dr)/(2T)``
   and yaw rate ``w = (dr-dl)/(L T)`` (seed 000's names: ``speed_ratio`` m/tick,
   ``wheel_distance`` L, ``encode_sampling_time`` T), modelled as ``v + c*w*L^2/4`` and
@@ -110,6 +124,7 @@ from fusion.geometry.angles import wrap_angle_scalar
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.geometry.mount import vertical_rate
 from fusion.planar import _ekf_core as core
+from fusion.planar.model import NX
 from fusion.types.constants import UNOBSERVED_VARIANCE
 
 __all__ = [
@@ -126,7 +141,8 @@ __all__ = [
     "vertical_rate",
 ]
 
-STATE_NAMES = ("x", "y", "yaw", "v", "w", "gyro_bias_z", "wheel_rate_scale", "wheel_rate_per_speed")
+STATE_NAMES = ("x", "y", "yaw", "v", "w", "gyro_bias_z", "wheel_rate_scale", "wheel_rate_per_speed",
+               "gyro_scale", "distance_scale")
 
 
 @dataclass(frozen=True)
@@ -190,6 +206,15 @@ class EkfNoise:
         max_speed: inputs with a speed above this (m/s: either wheel of a frame, a twist)
             are corrupt: counted as invalid, never fused.
         initial_bias_std: prior standard deviation of the gyro bias, rad/s.
+        gyro_scale_std: prior standard deviation of the gyro's scale error ``g`` (1): the
+            MPU6050 datasheet's sensitivity tolerance, +-3 % (set from the datasheet, not
+            tuned).
+        gyro_scale_psd: random walk of ``g``, 1/s (sensitivity drifts with temperature;
+            small).
+        distance_scale_std: prior standard deviation of the wheels' common distance scale
+            error ``s`` (1): 1 % (tyre wear, pressure and load change the rolling radius;
+            a value set by hand from that, not tuned on any run).
+        distance_scale_psd: random walk of ``s``, 1/s.
         initial_speed_std: prior standard deviation of v (m/s) and w (rad/s); also the least
             variance of a speed forgotten by the gap policy.
 
@@ -236,6 +261,10 @@ class EkfNoise:
     max_rate: float = 100.0
     max_speed: float = 50.0
     initial_bias_std: float = math.radians(2.0)
+    gyro_scale_std: float = 0.03
+    gyro_scale_psd: float = 1e-9
+    distance_scale_std: float = 0.01
+    distance_scale_psd: float = 1e-9
     initial_speed_std: float = 0.05
 
     def __post_init__(self) -> None:
@@ -274,19 +303,20 @@ MAX_STEPS_PER_INPUT = 10_000
 
 
 def _state_vector(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    """A finite (8,) state ``[x, y, yaw, v, w, b, k, c]``; ``ValueError`` naming ``name``."""
+    """A finite (NX,) state ``[x, y, yaw, v, w, b, k, c, g, s]``; ``ValueError`` naming
+    ``name``."""
     x = np.array(value, dtype=float).reshape(-1)
-    if x.shape != (8,) or not np.all(np.isfinite(x)):
-        raise ValueError(f"{name} must be 8 finite values [x, y, yaw, v, w, b, k, c], got "
-                         f"{x.tolist()}")
+    if x.shape != (NX,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"{name} must be {NX} finite values [x, y, yaw, v, w, b, k, c, g, s], "
+                         f"got {x.tolist()}")
     return x
 
 
 def _covariance(name: str, value: ArrayLike) -> NDArray[np.float64]:
-    """A finite symmetric (8, 8) covariance with a non-negative diagonal; ``ValueError``."""
+    """A finite symmetric (NX, NX) covariance with a non-negative diagonal; ``ValueError``."""
     P = np.array(value, dtype=float)
-    if P.shape != (8, 8) or not np.all(np.isfinite(P)):
-        raise ValueError(f"{name} must be a finite 8 x 8 covariance, got shape {P.shape}")
+    if P.shape != (NX, NX) or not np.all(np.isfinite(P)):
+        raise ValueError(f"{name} must be a finite {NX} x {NX} covariance, got shape {P.shape}")
     if np.any(np.diag(P) < 0) or not np.allclose(P, P.T, rtol=1e-9, atol=1e-300):
         raise ValueError(f"{name} must be symmetric with a non-negative diagonal, got "
                          f"diagonal {np.diag(P).tolist()}")
@@ -321,13 +351,14 @@ def pose_covariances(states: ArrayLike) -> NDArray[np.float64]:
     """(N, 3, 3) covariances of ``(x, y, yaw)`` from the rows of :meth:`PlanarEKF.process_batch`
     (m^2, m*rad, rad^2)."""
     s = np.asarray(states, dtype=float)
-    if s.ndim != 2 or s.shape[1] < 19:
-        raise ValueError(f"states must be (N, 19) rows of process_batch, got {s.shape}")
+    if s.ndim != 2 or s.shape[1] < core.ROW_WIDTH:
+        raise ValueError(f"states must be (N, {core.ROW_WIDTH}) rows of process_batch, got "
+                         f"{s.shape}")
     P = np.empty((s.shape[0], 3, 3))
-    P[:, 0, 0], P[:, 1, 1], P[:, 2, 2] = s[:, 8], s[:, 9], s[:, 10]
-    P[:, 0, 1] = P[:, 1, 0] = s[:, 16]
-    P[:, 0, 2] = P[:, 2, 0] = s[:, 17]
-    P[:, 1, 2] = P[:, 2, 1] = s[:, 18]
+    P[:, 0, 0], P[:, 1, 1], P[:, 2, 2] = s[:, NX], s[:, NX + 1], s[:, NX + 2]
+    P[:, 0, 1] = P[:, 1, 0] = s[:, 2 * NX]
+    P[:, 0, 2] = P[:, 2, 0] = s[:, 2 * NX + 1]
+    P[:, 1, 2] = P[:, 2, 1] = s[:, 2 * NX + 2]
     return P
 
 
@@ -479,8 +510,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         robot: chassis parameters (``wheel_distance`` m, ``speed_ratio`` m/tick,
             ``encode_sampling_time`` s).
         noise: :class:`EkfNoise`.
-        x0: initial state ``[x, y, yaw, v, w, b, k, c]`` (default zeros).
-        P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c from ``noise``).
+        x0: initial state ``[x, y, yaw, v, w, b, k, c, g, s]`` (default zeros).
+        P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c/g/s from ``noise``).
         backend: deprecated, leave it out. There is one implementation, the core
             (:mod:`fusion.planar._ekf_core` over :mod:`fusion.planar.model`): compiled by numba
             when installed, interpreted otherwise, with the same results. ``"core"`` and
@@ -503,7 +534,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         P0: ArrayLike | None = None,
         backend: str | None = None,
     ) -> None:
-        super().__init__(dim_x=8, dim_z=2)
+        super().__init__(dim_x=NX, dim_z=2)
         if backend is not None:
             _check_backend(backend)
         if not isinstance(robot, DiffDriveParams):
@@ -513,12 +544,13 @@ class PlanarEKF(ExtendedKalmanFilter):
         self.robot = robot
         self.noise = noise if noise is not None else EkfNoise()
         n = self.noise
-        self.x = np.zeros(8) if x0 is None else _state_vector("x0", x0)
+        self.x = np.zeros(NX) if x0 is None else _state_vector("x0", x0)
         if P0 is None:
             s = n.initial_speed_std
             # the odom origin is the start pose; 1e-9 (m^2, rad^2) keeps P positive definite
             self.P = np.diag([1e-9, 1e-9, 1e-9, s * s, s * s, n.initial_bias_std ** 2,
-                              n.calib_k_std ** 2, n.calib_c_std ** 2])
+                              n.calib_k_std ** 2, n.calib_c_std ** 2, n.gyro_scale_std ** 2,
+                              n.distance_scale_std ** 2])
         else:
             self.P = _covariance("P0", P0)
         self._par = np.zeros(core.PAR_SIZE)
@@ -558,6 +590,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_SPEED_VAR0] = n.initial_speed_std ** 2
         par[core.P_MAX_RATE] = n.max_rate
         par[core.P_MAX_SPEED] = n.max_speed
+        par[core.P_Q_G] = n.gyro_scale_psd
+        par[core.P_Q_S] = n.distance_scale_psd
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan
@@ -617,7 +651,7 @@ class PlanarEKF(ExtendedKalmanFilter):
 
     # -- streaming inputs --------------------------------------------------------------------
     def _step(self, kind: int, t: float, a: float, b: float) -> int:
-        self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
+        self.x = np.ascontiguousarray(self.x, dtype=float).reshape(NX)
         self.P = np.ascontiguousarray(self.P, dtype=float)
         return int(core.step_core(self.x, self.P, self._aux, self._par, kind, float(t),
                                   float(a), float(b)))
@@ -675,7 +709,7 @@ class PlanarEKF(ExtendedKalmanFilter):
             raise ValueError(f"predict_to needs a finite time in s, got {t!r}")
         if self.t is None or t <= self.t:
             return
-        self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
+        self.x = np.ascontiguousarray(self.x, dtype=float).reshape(NX)
         self.P = np.ascontiguousarray(self.P, dtype=float)
         core._advance(self.x, self.P, self._aux, self._par, float(t))
 
@@ -683,9 +717,10 @@ class PlanarEKF(ExtendedKalmanFilter):
     def process_batch(self, kinds, t_eff, a, b) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
         """Run a merged event list (see :func:`merge_events`) through the filter.
 
-        Returns ``(states, status)``: ``states[k, :8]`` is ``[x, y, yaw, v, w, b, k, c]`` after
-        event k (yaw continuous), ``states[k, 8:16]`` the diagonal of P and ``states[k, 16:19]``
-        its pose cross terms ``P[x,y], P[x,yaw], P[y,yaw]`` (see :func:`pose_covariances`);
+        Returns ``(states, status)``: ``states[k, :NX]`` is ``[x, y, yaw, v, w, b, k, c, g, s]``
+        after event k (yaw continuous), ``states[k, NX:2*NX]`` the diagonal of P and
+        ``states[k, 2*NX:2*NX+3]`` its pose cross terms ``P[x,y], P[x,yaw], P[y,yaw]`` (see
+        :func:`pose_covariances`);
         ``status[k]`` the update status. Exactly equal to calling the streaming methods one
         event at a time.
         """
@@ -696,9 +731,9 @@ class PlanarEKF(ExtendedKalmanFilter):
         n = kinds.size
         if not (t_eff.size == a.size == b.size == n):
             raise ValueError("kinds, t_eff, a, b must have the same length")
-        out = np.empty((n, 19))
+        out = np.empty((n, core.ROW_WIDTH))
         status = np.empty(n, dtype=np.int64)
-        self.x = np.ascontiguousarray(self.x, dtype=float).reshape(8)
+        self.x = np.ascontiguousarray(self.x, dtype=float).reshape(NX)
         self.P = np.ascontiguousarray(self.P, dtype=float)
         core.batch_core(self.x, self.P, self._aux, self._par, kinds, t_eff, a, b, out, status)
         return out, status
@@ -711,7 +746,7 @@ class FusedTrack:
     Attributes:
         t: (N,) host stamp of each event, s (a wheel frame's own stamp, not its effective time).
         kind: (N,) 0 gyro, 1 wheels, 2 absolute yaw, 3 twist.
-        states: (N, 19) rows of :meth:`PlanarEKF.process_batch` (state, diag(P), pose cross
+        states: (N, ROW_WIDTH) rows of :meth:`PlanarEKF.process_batch` (state, diag(P), pose cross
             terms); yaw is continuous.
         status: (N,) update status codes.
         stats: the filter's counters at the end.

@@ -1,24 +1,37 @@
 """The planar EKF's model, written once: motion, process noise and every measurement.
 
-State ``x = [x, y, yaw, v, w, b, k, c]`` (m, m, rad, m/s, rad/s, rad/s, 1, rad/m; see
+State ``x = [x, y, yaw, v, w, b, k, c, g, s]`` (m, m, rad, m/s, rad/s, rad/s, 1, rad/m, 1, 1; see
 :mod:`fusion.planar.ekf` for their meaning). Each function is plain arithmetic in numba's
 subset: the compiled core (:mod:`fusion.planar._ekf_core`) calls these very functions, they
 run interpreted when numba is absent, and the tests drive filterpy's own
 :class:`~filterpy.kalman.ExtendedKalmanFilter` with them as the reference. Nothing else in
 the project restates this algebra.
 
-- Motion (constant twist over ``dt`` s): ``yaw += w*dt``, ``x += v*dt*cos(yaw + w*dt/2)``,
-  ``y += v*dt*sin(yaw + w*dt/2)``; v, w, b, k, c stay. :func:`transition` (f),
-  :func:`transition_jacobian` (F); both from :func:`motion_terms`.
-- Process noise: random walks of v, w, b, k, c, :func:`process_noise` (Q).
-- Gyro: ``z = w + b`` (rad/s about the world vertical).
+- Motion (constant twist over ``dt`` s): ``yaw += w*dt/(1 + g)``,
+  ``x += v*dt/(1 + s)*cos(yaw + w*dt/(2*(1 + g)))``, ``y += v*dt/(1 + s)*sin(...)`` likewise;
+  v, w, b, k, c, g, s stay. :func:`transition` (f), :func:`transition_jacobian` (F); both from
+  :func:`motion_terms`.
+- Process noise: random walks of v, w, b, k, c, g, s, :func:`process_noise` (Q).
+- Gyro: ``z = w + b`` (rad/s about the world vertical). ``w`` is the yaw rate *in the gyro's
+  scale*: the true rate is ``w/(1 + g)``, with ``g`` the gyro's scale error (MPU6050 datasheet:
+  sensitivity tolerance +-3 %). This is ``z = (1 + g)*w_true + b`` with the variables changed
+  so that no rate measurement depends on g: the gyro and the wheels only ever reveal the ratio
+  of their scales (that is ``k``), never the common one, and a bilinear ``g*w`` in the gyro's
+  h let the EKF drift along that unobservable direction (one gyro outlier while w was
+  uncertain pushed ``1 + g`` through zero). So g moves only with an absolute yaw, and its
+  variance makes the yaw's grow with the angle turned (not with time: no white process noise
+  can represent it).
 - Wheel frame or external twist: ``v_m = v + c*w*L^2/4``, ``w_m = (1 + k)*w + c*v``
-  (m/s, rad/s), with ``L`` the wheel distance (m).
+  (m/s, rad/s), with ``L`` the wheel distance (m); ``k`` is the wheels' yaw-rate scale
+  relative to the gyro's. ``v`` is the speed *in the wheels' scale*: the true speed is
+  ``v/(1 + s)``, ``s`` the common distance scale error of both wheels (``speed_ratio``), which
+  no sensor here observes either (the same change of variables as for g): the position's
+  covariance grows with the distance driven, along the track.
 - Zero-velocity update (ZUPT): ``z = [v, w] = [0, 0]``.
 - Absolute yaw: ``z = yaw``, the residual wrapped to (-pi, pi].
 
 Measurement functions come in threes: ``*_h(x)`` the predicted measurement (m,),
-``*_jacobian(x)`` its Jacobian (m, 8), ``*_noise(...)`` its covariance R (m, m).
+``*_jacobian(x)`` its Jacobian (m, NX), ``*_noise(...)`` its covariance R (m, m).
 """
 
 from __future__ import annotations
@@ -53,7 +66,7 @@ __all__ = [
     "zupt_noise",
 ]
 
-NX = 8  # state size
+NX = 10  # state size
 
 
 # -- motion --------------------------------------------------------------------------------------
@@ -61,25 +74,32 @@ NX = 8  # state size
 def motion_terms(x, dt):
     """Increments and Jacobian entries of the constant-twist motion over ``dt`` s.
 
-    Returns ``(dx, dy, dyaw, f02, f03, f04, f12, f13, f14, f24)``: the increments of x (m),
-    y (m) and yaw (rad), and the non-zero off-diagonal entries ``F[i, j] = f_ij`` of the
-    Jacobian ``F = I + ...`` (every other entry of ``F`` is that of the identity).
+    Returns ``(dx, dy, dyaw, f02, f03, f04, f08, f09, f12, f13, f14, f18, f19, f24, f28)``: the
+    increments of x (m), y (m) and yaw (rad), and the non-zero off-diagonal entries
+    ``F[i, j] = f_ij`` of the Jacobian ``F = I + ...`` (every other entry of ``F`` is that of
+    the identity).
     """
     yaw = x[2]
     v = x[3]
     w = x[4]
-    phi = yaw + 0.5 * w * dt
-    c = math.cos(phi)
-    s = math.sin(phi)
-    return (v * dt * c, v * dt * s, w * dt,
-            -v * dt * s, dt * c, -0.5 * v * dt * dt * s,
-            v * dt * c, dt * s, 0.5 * v * dt * dt * c,
-            dt)
+    r = 1.0 / (1.0 + x[8])  # true rate per gyro-scale rate
+    rv = 1.0 / (1.0 + x[9])  # true speed per wheel-scale speed
+    dyaw = w * dt * r
+    dyaw_dg = -dyaw * r
+    phi = yaw + 0.5 * dyaw
+    c = dt * rv * math.cos(phi)  # dx/dv
+    s = dt * rv * math.sin(phi)  # dy/dv
+    dx = v * c
+    dy = v * s
+    return (dx, dy, dyaw,
+            -dy, c, -0.5 * dy * dt * r, -0.5 * dy * dyaw_dg, -dx * rv,
+            dx, s, 0.5 * dx * dt * r, 0.5 * dx * dyaw_dg, -dy * rv,
+            dt * r, dyaw_dg)
 
 
 @njit
 def transition(x, dt):
-    """f(x, dt): the state (8,) after ``dt`` s of constant-twist motion (a new array)."""
+    """f(x, dt): the state (NX,) after ``dt`` s of constant-twist motion (a new array)."""
     t = motion_terms(x, dt)
     out = x.copy()
     out[0] += t[0]
@@ -90,37 +110,38 @@ def transition(x, dt):
 
 @njit
 def transition_jacobian(x, dt):
-    """F(x, dt) = df/dx (8, 8) at the prior state ``x``."""
+    """F(x, dt) = df/dx (NX, NX) at the prior state ``x``."""
     t = motion_terms(x, dt)
     F = np.eye(NX)
-    F[0, 2] = t[3]
-    F[0, 3] = t[4]
-    F[0, 4] = t[5]
-    F[1, 2] = t[6]
-    F[1, 3] = t[7]
-    F[1, 4] = t[8]
-    F[2, 4] = t[9]
+    cols = (2, 3, 4, 8, 9)  # the columns of rows x and y that motion_terms returns
+    for row in range(2):
+        for n in range(5):
+            F[row, cols[n]] = t[3 + 5 * row + n]
+    F[2, 4] = t[13]
+    F[2, 8] = t[14]
     return F
 
 
 @njit
-def process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c):
-    """Diagonal of Q over ``dt`` s (a tuple of 8): random walks of v ((m/s)^2/s), w and b
-    ((rad/s)^2/s), k (1/s) and c ((rad/m)^2/s); the pose gets no noise of its own."""
-    return (0.0, 0.0, 0.0, q_v * dt, q_w * dt, q_b * dt, q_k * dt, q_c * dt)
+def process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s):
+    """Diagonal of Q over ``dt`` s (a tuple of NX): random walks of v ((m/s)^2/s), w and b
+    ((rad/s)^2/s), k (1/s), c ((rad/m)^2/s), g and s (1/s); the pose gets no noise of its
+    own."""
+    return (0.0, 0.0, 0.0, q_v * dt, q_w * dt, q_b * dt, q_k * dt, q_c * dt, q_g * dt,
+            q_s * dt)
 
 
 @njit
-def process_noise(dt, q_v, q_w, q_b, q_k, q_c):
-    """Q(dt) (8, 8), diagonal: see :func:`process_noise_diagonal`."""
-    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c)
+def process_noise(dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s):
+    """Q(dt) (NX, NX), diagonal: see :func:`process_noise_diagonal`."""
+    q = process_noise_diagonal(dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s)
     Q = np.zeros((NX, NX))
     for i in range(NX):
         Q[i, i] = q[i]
     return Q
 
 
-# -- gyro: z = w + b -----------------------------------------------------------------------------
+# -- gyro: z = w + b (w in the gyro's scale) ----------------------------------------------------
 @njit
 def gyro_h(x):
     """Predicted gyro rate about the world vertical, rad/s: ``[w + b]``."""
@@ -129,7 +150,7 @@ def gyro_h(x):
 
 @njit
 def gyro_jacobian(x):
-    """d(gyro_h)/dx (1, 8)."""
+    """d(gyro_h)/dx (1, NX)."""
     H = np.zeros((1, NX))
     H[0, 4] = 1.0
     H[0, 5] = 1.0
@@ -152,7 +173,7 @@ def wheel_h(x, wheel_distance):
 
 @njit
 def wheel_jacobian(x, wheel_distance):
-    """d(wheel_h)/dx (2, 8)."""
+    """d(wheel_h)/dx (2, NX)."""
     L2 = 0.25 * wheel_distance * wheel_distance
     H = np.zeros((2, NX))
     H[0, 3] = 1.0
@@ -221,7 +242,7 @@ def zupt_h(x):
 
 @njit
 def zupt_jacobian(x):
-    """d(zupt_h)/dx (2, 8)."""
+    """d(zupt_h)/dx (2, NX)."""
     H = np.zeros((2, NX))
     H[0, 3] = 1.0
     H[1, 4] = 1.0
@@ -246,7 +267,7 @@ def yaw_h(x):
 
 @njit
 def yaw_jacobian(x):
-    """d(yaw_h)/dx (1, 8)."""
+    """d(yaw_h)/dx (1, NX)."""
     H = np.zeros((1, NX))
     H[0, 2] = 1.0
     return H
