@@ -24,7 +24,7 @@ from fusion.planar.ekf import EkfNoise
 
 __all__ = ["FilterpyReference"]
 
-GYRO, WHEELS, YAW, TWIST = 0, 1, 2, 3
+GYRO, WHEELS, YAW, TWIST, WHEELS_SLIP = 0, 1, 2, 3, 4
 STILL, UNSURE, MOVING = 1, 2, 3  # fusion.planar.imu_motion
 
 
@@ -50,7 +50,7 @@ class FilterpyReference:
         self.yaw_budget = noise.yaw_fix_burst
         self.stats = dict.fromkeys(("slips", "zupts", "late_dropped", "late_applied",
                                     "invalid", "gyro_saturated", "encoder_faults", "updates",
-                                    "speed_resets", "predictions"), 0)
+                                    "speed_resets", "predictions", "accel_slips"), 0)
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
         self.forgotten: dict[int, tuple[float, float]] = {}  # i -> (time, second moment)
@@ -161,12 +161,16 @@ class FilterpyReference:
             return 6
         wheel_speed = max(abs(a), abs(b)) * r.speed_ratio / r.encode_sampling_time
         if ((kind == GYRO and abs(a) > n.max_rate)
-                or (kind == WHEELS and wheel_speed > n.max_speed)
+                or (kind in (WHEELS, WHEELS_SLIP) and wheel_speed > n.max_speed)
                 or (kind == TWIST and (abs(a) > n.max_speed or abs(b) > n.max_rate))):
             self.stats["invalid"] += 1  # implausible: a corrupt value
             return 6
         if not self._advance(t):
             return 5
+        # a wheel frame the accelerometer flagged: a slip whatever the gyro says
+        accel_slip = kind == WHEELS_SLIP
+        if accel_slip:
+            kind = WHEELS
         status = 0
         if kind == GYRO:
             self.imu_motion = int(b) if b in (STILL, UNSURE, MOVING) else 0
@@ -243,8 +247,9 @@ class FilterpyReference:
                 H = model.wheel_jacobian(kf.x, L)
                 S = H @ kf.P @ H.T + R
                 y = z - model.wheel_h(kf.x, L)
-                if y[1] ** 2 / S[1, 1] > n.slip_gate:  # the yaw rate disagrees: a slip
+                if accel_slip or y[1] ** 2 / S[1, 1] > n.slip_gate:  # the yaw rate disagrees
                     self.stats["slips"] += 1
+                    self.stats["accel_slips"] += accel_slip
                     if n.slip_inflation <= 0:
                         self.stats["updates"] += 1
                         return 2

@@ -48,7 +48,8 @@ def _events(run, **kw):
 
 
 def _every_kind_of_event(run):
-    """Gyro (a few saturated), wheel frames in the first half (slips, ZUPTs), the same frames as
+    """Gyro (a few saturated), wheel frames in the first half (slips, ZUPTs, some flagged by
+    the accelerometer), the same frames as
     external twists in the second half, absolute yaws (the true yaw, some of them a turn away:
     the residual must wrap; contradictory yaws would drive the gyro scale state away), a late
     input
@@ -61,8 +62,10 @@ def _every_kind_of_event(run):
     gyro[::97] = 5.0
     yaw_t = np.arange(3.0, run.duration, 4.0)
     turns = np.resize([0.0, 2 * math.pi, -2 * math.pi, 4 * math.pi], yaw_t.size)
+    # every 37th wheel frame flagged by the accelerometer (fused as a slip)
+    accel_slip = np.arange((~late).sum()) % 37 == 36
     kinds, t, a, b, _ = merge_events(
-        run.imu_t, gyro, run.wheel_t[~late], run.ticks[~late], T,
+        run.imu_t, gyro, run.wheel_t[~late], run.ticks[~late], T, wheel_slip=accel_slip,
         yaw_t=yaw_t, yaw_std=0.05, yaw=run.truth_at(yaw_t)[:, 2] + turns,
         twist_t=run.wheel_t[late] - 0.5 * T, twist_v=(0.5 * (dl + dr) / T)[late],
         twist_w=((dr - dl) / (L * T))[late])
@@ -102,6 +105,7 @@ def test_core_equals_filterpy_driven_by_the_model(short_run, noise):
     assert expected <= set(status.tolist())
     assert fast.stats == ref.stats
     assert fast.stats["late_applied"] == 1 and fast.stats["slips"] > 5
+    assert fast.stats["accel_slips"] > 5
     assert fast.stats["speed_resets"] >= 2 and fast.stats["invalid"] == 3  # NaN, 1e200, kind 7
     assert (kinds == core.EV_TWIST).sum() > 400 and (kinds == core.EV_YAW).sum() >= 9
     # measured: states within 5e-15, variances within 1.4e-12 (relative)

@@ -23,6 +23,7 @@ from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.records import _fast_record, _record_fields
 from fusion.pipeline.sources import capture_events, logdir_events, merge_by_time, replay
 from fusion.planar import _ekf_core as core
+from fusion.planar.accel_slip import accel_slip_flags, gravity_free_xy
 from fusion.planar.ekf import EkfNoise, fuse, vertical_rate
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.model import NX
@@ -52,15 +53,18 @@ def events(run):
 
 def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
     """Oracle: Keel told the wheels' knowledge (tests/keel_feed_reference.py) ->
-    ekf.vertical_rate, imu_motion_codes -> ekf.fuse (batch, merge_events' own ordering),
-    composed here from the library's pieces. The pipeline, fed one event at a time in host
-    order, must publish exactly the fused state after every wheel frame."""
+    ekf.vertical_rate, imu_motion_codes, the accelerometer slip flags of the gravity-free
+    specific force -> ekf.fuse (batch, merge_events' own ordering), composed here from the
+    library's pieces. The pipeline, fed one event at a time in host order, must publish
+    exactly the fused state after every wheel frame."""
     robot = RobotConfig(chassis=run.robot)
     q = keel_by_hand(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     gz = vertical_rate(run.gyro, q)
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    slip = accel_slip_flags(run.robot.speed_ratio, run.robot.encode_sampling_time, run.imu_t,
+                            gravity_free_xy(run.accel, q), gz, motion, run.wheel_t, run.ticks)
     track, ekf = fuse(run.robot, run.imu_t, gz, run.wheel_t, run.ticks, EkfNoise(),
-                      imu_motion=motion)
+                      imu_motion=motion, wheel_slip=slip)
     rows = track.states[track.kind == core.EV_WHEELS]
     t_rows = track.t_filter[track.kind == core.EV_WHEELS]
 
@@ -75,6 +79,7 @@ def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
                             rows[:, 4], rows[:, NX], rows[:, NX + 2], rows[:, NX + 4]])
     np.testing.assert_array_equal(got, want)
     assert stats.slips == ekf.stats["slips"] > 0 and stats.zupts == ekf.stats["zupts"] > 0
+    assert stats.accel_slips == ekf.stats["accel_slips"] == slip.sum()
     assert stats.late_dropped == 0 and stats.imu_samples == run.imu_t.size
     # the record carries the attitude of the last fused IMU sample and the frame's speeds
     last = records[-1]

@@ -23,6 +23,7 @@ from fusion.evaluation.synthetic import (
 from fusion.geometry.mount import vertical_rate
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.sources import merge_by_time
+from fusion.planar.accel_slip import accel_slip_flags, gravity_free_xy
 from fusion.planar.ekf import PlanarEKF
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import RobotConfig
@@ -90,8 +91,12 @@ def _reference(run, window: float, sources: tuple[str, ...]):
                      run.ticks)
     rate = vertical_rate(run.gyro, q)
     rate_at = dict(zip(run.imu_t.tolist(), rate.tolist()))
-    motion_at = dict(zip(run.imu_t.tolist(),
-                         imu_motion_codes(run.imu_t, run.gyro, run.accel).tolist()))
+    motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    motion_at = dict(zip(run.imu_t.tolist(), motion.tolist()))
+    # the accelerometer's slip flags of the wheel frames (fusion.planar.accel_slip)
+    slip = accel_slip_flags(robot.speed_ratio, robot.encode_sampling_time, run.imu_t,
+                            gravity_free_xy(run.accel, q), rate, motion, run.wheel_t, run.ticks)
+    slip_at = dict(zip(run.wheel_t.tolist(), slip.tolist()))
     heap: list = []
     marks = {name: -math.inf for name in sources}
     newest = -math.inf
@@ -102,7 +107,7 @@ def _reference(run, window: float, sources: tuple[str, ...]):
         if kind == "imu":
             ekf.update_gyro(t, a, motion_at[t])
         else:
-            ekf.update_wheels(t, a, b)
+            ekf.update_wheels(t, a, b, slip=slip_at[t])
             out.append(ekf.x.copy())
 
     for n, ev in enumerate(_events(run)):

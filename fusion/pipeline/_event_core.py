@@ -50,6 +50,7 @@ from fusion.planar._ekf_core import (
     EV_GYRO,
     EV_TWIST,
     EV_WHEELS,
+    EV_WHEELS_SLIP,
     NX,
     ROW_WIDTH,
     step_core,
@@ -118,7 +119,7 @@ def source_of(kind):
     """Watermark source of an event kind: 0 IMU, 1 wheels, 2 twist."""
     if kind == EV_GYRO:
         return 0
-    if kind == EV_WHEELS:
+    if kind == EV_WHEELS or kind == EV_WHEELS_SLIP:
         return 1
     return 2
 
@@ -229,8 +230,8 @@ def _apply(heap_f, heap_i, row, x, P, aux, par, sched, rate, trace_mask, pub, n_
         sched[S_LAST_GYRO] = heap_i[row, H_REF]
         if rate > 0.0:
             n_pub = _tick(pub, n_pub, x, P, aux, sched, rate, status)
-    elif kind == EV_WHEELS or kind == EV_TWIST:
-        if kind == EV_WHEELS:
+    elif kind == EV_WHEELS or kind == EV_WHEELS_SLIP or kind == EV_TWIST:
+        if kind != EV_TWIST:
             sched[S_LAST_WHEEL] = heap_i[row, H_REF]
             sched[S_LAST_LEFT] = heap_f[row, H_A]
             sched[S_LAST_RIGHT] = heap_f[row, H_B]

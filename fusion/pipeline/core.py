@@ -88,9 +88,11 @@ from fusion.geometry.mount import imu_to_base, vertical_rate
 from fusion.pipeline import _event_core as ev_core
 from fusion.pipeline.records import _fast_record, _record_fields
 from fusion.planar import _ekf_core as core
+from fusion.planar.accel_slip import AccelSlipDetector, AccelSlipParams, gravity_free_xy
 from fusion.planar.ekf import PlanarEKF
 from fusion.planar.imu_motion import ImuMotionDetector
 from fusion.planar.robot import AttitudeConfig, RobotConfig
+from fusion.types.constants import STANDARD_GRAVITY
 from fusion.types.fused import FusedOdometry
 from fusion.types.lifecycle import Lifecycle
 from fusion.types.samples import ImuSample, WheelTicks
@@ -169,6 +171,8 @@ class PipelineStats:
         records: records published.
         late_dropped, late_applied: inputs the EKF dropped as too late / fused at its own time.
         slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
+        accel_slips: of the slips, the wheel frames the accelerometer flagged
+            (:mod:`fusion.planar.accel_slip`).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
@@ -200,6 +204,7 @@ class PipelineStats:
     late_dropped: int = 0
     late_applied: int = 0
     slips: int = 0
+    accel_slips: int = 0
     zupts: int = 0
     encoder_faults: int = 0
     gap_count: int = 0
@@ -266,6 +271,13 @@ class FusionPipeline(Lifecycle):
         max_stamp_lead: with a ``clock``: an event stamped more than this many s after
             ``clock()`` is dropped as an invalid stamp (a live stamp cannot be in the future:
             a clock jump or a corrupt stamp); None (default) checks nothing.
+        accel_slip: the accelerometer slip test (:mod:`fusion.planar.accel_slip`) on every
+            wheel frame: True (default) with :class:`AccelSlipParams`' noise figures and the
+            EKF's ``tick_std`` and ``wheel_latency``, an :class:`AccelSlipParams`, or False
+            (the gyro gate alone decides). It takes the base-frame specific force with
+            gravity removed by the attitude filter's attitude (``tilt=False``: as measured,
+            the at-rest offset removed) and the yaw rate the EKF gets; a flagged frame goes
+            to the EKF as a slip (``EV_WHEELS_SLIP``).
         on_sink_error: ``callback(sink, exception, traceback_text)`` when a sink's ``write``
             raises
             (default: an error on the ``fusion.pipeline`` logger). That sink is aborted (a
@@ -306,6 +318,7 @@ class FusionPipeline(Lifecycle):
         on_progress: Callable[[float], None] | None = None,
         max_stamp_lead: float | None = None,
         on_sink_error: Callable[[Any, BaseException, str], None] | None = None,
+        accel_slip: AccelSlipParams | bool = True,
     ) -> None:
         if publish_rate_hz is not None and not (
             math.isfinite(publish_rate_hz) and publish_rate_hz > 0
@@ -361,6 +374,9 @@ class FusionPipeline(Lifecycle):
         self._last_speed = {"wheels": (-math.inf, 0.0), "twist": (-math.inf, 0.0)}
         # still / moving per IMU sample, for the EKF's ZUPT and encoder-fault decisions
         self._imu_motion = ImuMotionDetector()
+        self._slip = self._slip_detector(accel_slip)
+        self._gravity = getattr(getattr(self.attitude, "params", None), "gravity",
+                                STANDARD_GRAVITY)
         self._mount = _matrix_or_none(robot.imu_to_base())
         self._sched = ev_core.new_sched(*(name in sources for name in _SOURCES))
         self._heap_f = np.empty((256, 4))
@@ -369,6 +385,8 @@ class FusionPipeline(Lifecycle):
         self._trace = np.empty((256 if state_rows else 0, ev_core.TRACE_WIDTH))
         self._rate = 0.0 if publish_rate_hz is None else float(publish_rate_hz)
         self._trace_mask = sum(1 << TRACE_KINDS[name] for name in set(state_rows))
+        if "wheels" in state_rows:  # wheel frames flagged as slipping are wheel frames too
+            self._trace_mask |= 1 << core.EV_WHEELS_SLIP
         self._trace_chunks: list[NDArray[np.float64]] = []
         self._clock = clock
         self._gap_periods = float(gap_periods)
@@ -413,6 +431,20 @@ class FusionPipeline(Lifecycle):
             raise ValueError("robot.attitude.wheel_knowledge is a Keel input: the "
                              f"{type(attitude).__name__} filter cannot use it")
         return attitude
+
+    def _slip_detector(self, accel_slip: AccelSlipParams | bool) -> AccelSlipDetector | None:
+        """The accelerometer slip test the constructor's ``accel_slip`` asks for."""
+        if accel_slip is False:
+            return None
+        if accel_slip is True:
+            noise = self.robot.ekf
+            accel_slip = AccelSlipParams(tick_std=noise.tick_std,
+                                         wheel_latency=noise.wheel_latency)
+        if not isinstance(accel_slip, AccelSlipParams):
+            raise ValueError(f"accel_slip must be True, False or an AccelSlipParams, got "
+                             f"{accel_slip!r}")
+        chassis = self.robot.chassis
+        return AccelSlipDetector(chassis.speed_ratio, chassis.encode_sampling_time, accel_slip)
 
     # -- lifecycle (fusion.types.lifecycle.Lifecycle: open, close, abort, with) -------------
     def _reuse_error(self) -> Exception:
@@ -588,6 +620,7 @@ class FusionPipeline(Lifecycle):
             stats.twist_invalid_stamp += bad
             stats.twist_out_of_order += dropped
         motion = self._motion(wheel_t, ticks, twist_t, twist_v, twist_w)
+        slip_imu = None  # the IMU's part of the accelerometer slip test
         if imu_t is not None and imu_t.size:
             stats.events_in += imu_t.size
             imu_t, (gyro, accel) = self._finite_values(imu_t, gyro, accel)
@@ -602,6 +635,9 @@ class FusionPipeline(Lifecycle):
                 q = self._attitude(imu_t, gyro, accel, motion)
                 rate = vertical_rate(gyro, q) if self.tilt else gyro[:, 2].copy()
                 imu_codes = self._imu_motion.update_batch(imu_t, gyro, accel)
+                if self._slip is not None:
+                    fxy = gravity_free_xy(accel, q, self._gravity) if self.tilt else accel
+                    slip_imu = (imu_t, fxy[:, 0], fxy[:, 1], rate, imu_codes)
                 dt = _steps(imu_t, self._last_imu_t)
                 stats.gyro_turn = _add_up(stats.gyro_turn, rate * dt)
                 stats.gyro_time = _add_up(stats.gyro_time, dt)
@@ -612,6 +648,7 @@ class FusionPipeline(Lifecycle):
                               np.arange(ref0, ref0 + imu_t.size)))
         if motion is not None and motion[0].size:
             self._known_motion = tuple(float(m[-1]) for m in motion)
+        wheel_slip = self._slip_flags(slip_imu, wheel_t, ticks)
         if wheel_t is not None and wheel_t.size:
             self._note_gaps(wheel_t)
             self._last_wheel_t = float(wheel_t[-1])
@@ -620,7 +657,9 @@ class FusionPipeline(Lifecycle):
                                        (ticks[:, 1] - ticks[:, 0]) * self._m_per_turn)
             ref0 = self._wheel_rows.append(ticks)
             t_eff = wheel_t - self._wheel_shift - self.ekf.noise.wheel_latency
-            parts.append((wheel_t, _EV_WHEELS, t_eff, ticks[:, 0].astype(np.float64),
+            kind = _EV_WHEELS if wheel_slip is None else np.where(
+                wheel_slip, core.EV_WHEELS_SLIP, _EV_WHEELS)
+            parts.append((wheel_t, kind, t_eff, ticks[:, 0].astype(np.float64),
                           ticks[:, 1].astype(np.float64),
                           np.arange(ref0, ref0 + wheel_t.size)))
         if twist_t is not None and twist_t.size:
@@ -638,16 +677,42 @@ class FusionPipeline(Lifecycle):
             return
         if len(parts) == 1:
             stamp, kind, t_eff, a, b, refs = parts[0]
-            self._run(np.full(stamp.size, kind, dtype=np.int64), t_eff, a, b, stamp, refs,
-                      flush=flush)
+            self._run(np.broadcast_to(kind, stamp.shape).astype(np.int64), t_eff, a, b, stamp,
+                      refs, flush=flush)
             return
         # arrival order: host time, ties in source order (IMU, wheels, twist) as merge_by_time
         stamp = np.concatenate([p[0] for p in parts])
         order = np.argsort(stamp, kind="stable")
-        kinds = np.concatenate([np.full(p[0].size, p[1], dtype=np.int64) for p in parts])
+        kinds = np.concatenate([np.broadcast_to(p[1], p[0].shape).astype(np.int64)
+                                for p in parts])
         self._run(kinds[order], *(np.concatenate([p[i] for p in parts])[order]
                                   for i in (2, 3, 4)),
                   stamp[order], np.concatenate([p[5] for p in parts])[order], flush=flush)
+
+    def _slip_flags(self, imu, wheel_t, ticks) -> NDArray[np.bool_] | None:
+        """The accelerometer slip test over one call's accepted IMU samples (``imu``:
+        stamps, specific force x, y, yaw rate, motion codes; or None) and wheel frames, in
+        arrival order (at equal stamps the IMU sample first, as :meth:`_ingest` orders
+        them); the wheel frames' flags, or None (no test or no frames)."""
+        has_wheels = wheel_t is not None and wheel_t.size > 0
+        if self._slip is None or (imu is None and not has_wheels):
+            return None
+        cols = [np.zeros(0, dtype=np.int64), *(np.zeros(0) for _ in range(5))]
+        if imu is not None:
+            cols = [np.zeros(imu[0].size, dtype=np.int64), *imu]
+        if has_wheels:
+            m = wheel_t.size
+            zeros = np.zeros(m)
+            wheel = [np.ones(m, dtype=np.int64), wheel_t, ticks[:, 0].astype(np.float64),
+                     ticks[:, 1].astype(np.float64), zeros, zeros]
+            cols = [np.concatenate([c, w]) for c, w in zip(cols, wheel)]
+        order = np.argsort(cols[1], kind="stable")
+        out = self._slip.update_batch(*(c[order] for c in cols))
+        if not has_wheels:
+            return None
+        flags = np.empty(order.size, dtype=bool)
+        flags[order] = out[:, 0] == 1.0
+        return flags[flags.size - wheel_t.size:]
 
     def _finite_values(self, t: NDArray[np.float64], *cols: NDArray) -> tuple[NDArray, tuple]:
         """Drop (and count) the events with a NaN or infinite value in any column (they
@@ -930,6 +995,7 @@ class FusionPipeline(Lifecycle):
         self.stats.late_dropped = s["late_dropped"]
         self.stats.late_applied = s["late_applied"]
         self.stats.slips = s["slips"]
+        self.stats.accel_slips = s["accel_slips"]
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
         self.stats.speed_resets = s["speed_resets"]

@@ -107,7 +107,8 @@ A_V_RMS2 = 19  # second moment of v when forgotten, (m/s)^2
 A_W_RMS2 = 20  # the same for w, (rad/s)^2
 A_SPEED_RESETS = 21  # v or w forgotten after max_extrapolation without a measurement
 A_PREDICTIONS = 22  # predict_core calls
-AUX_SIZE = 23
+A_ACCEL_SLIPS = 23  # wheel frames the accelerometer flagged as slipping (EV_WHEELS_SLIP)
+AUX_SIZE = 24
 # per-frame flags
 FLAG_ZUPT = 1
 FLAG_SLIP = 2
@@ -125,6 +126,9 @@ EV_GYRO = 0
 EV_WHEELS = 1
 EV_YAW = 2
 EV_TWIST = 3
+# a wheel frame that the accelerometer says slips (fusion.planar.accel_slip): fused as a
+# slipping frame whatever the gyro gate says
+EV_WHEELS_SLIP = 4
 # a state row (batch output, pipeline trace): x (NX), diag(P) (NX), P[x,y], P[x,yaw], P[y,yaw]
 ROW_WIDTH = 2 * NX + 3
 
@@ -469,13 +473,14 @@ def _rate_update(x, P, aux, y, H, R):
 
 
 @njit
-def _wheel_update(x, P, aux, par, z, R):
+def _wheel_update(x, P, aux, par, z, R, accel_slip):
     """Fuse a wheel twist ``z = [v_m, w_m]`` with noise ``R``; returns ``(d2, status)``.
 
     The yaw-rate component is gated (chi-square, 1 dof, against the gyro-corrected rate
-    state): a frame above the gate is a slip, and only its speed is fused, with its noise
-    multiplied by ``slip_inflation`` (0: nothing is fused). A slipping frame's yaw rate is
-    never fused, so it cannot bend the heading.
+    state): a frame above the gate, or one the accelerometer flagged (``accel_slip``), is a
+    slip, and only its speed is fused, with its noise multiplied by ``slip_inflation`` (0:
+    nothing is fused). A slipping frame's yaw rate is never fused, so it cannot bend the
+    heading.
     """
     L = par[P_WHEEL_DISTANCE]
     H = wheel_jacobian(x, L)
@@ -483,9 +488,11 @@ def _wheel_update(x, P, aux, par, z, R):
     y[0] = z[0] - y[0]
     y[1] = z[1] - y[1]
     d2 = y[1] * y[1] / innovation_variance(P, H, R, 1)
-    if d2 <= par[P_GATE]:
+    if d2 <= par[P_GATE] and not accel_slip:
         _, status = _rate_update(x, P, aux, y, H, R)
         return d2, status
+    if accel_slip:
+        aux[A_ACCEL_SLIPS] += 1.0
     aux[A_SLIPS] += 1.0
     aux[A_FLAGS] = FLAG_SLIP
     inflation = par[P_SLIP_INFLATION]
@@ -511,7 +518,8 @@ def _impossible_stop(x, P, aux, par, t):
 
 @njit
 def _wheel_event(x, P, aux, par, kind, t, a, b):
-    """A wheel frame (kind 1) or an external twist (kind 3); returns ``(d2, status)``.
+    """A wheel frame (kind 1; kind 4: one the accelerometer flagged as slipping) or an
+    external twist (kind 3); returns ``(d2, status)``.
 
     Zero wheel speed is a stop only if the IMU agrees: with the IMU moving while the state
     expects the wheels to turn by more than two ticks per period (a twist: twice
@@ -522,6 +530,9 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
     that lasts ``zupt_frames`` frames with a still IMU (or no IMU information) gives a ZUPT;
     before that, or with the IMU unsure, the zero speed is fused as an ordinary frame.
     """
+    accel_slip = kind == EV_WHEELS_SLIP
+    if accel_slip:
+        kind = EV_WHEELS
     in_fault = aux[A_FLAGS] == FLAG_FAULT
     interval = par[P_PERIOD]
     if not math.isnan(aux[A_WHEEL_T]) and t - aux[A_WHEEL_T] > 0.0:
@@ -585,7 +596,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         R[1, 1] *= inflate
         R[0, 1] *= math.sqrt(inflate)
         R[1, 0] = R[0, 1]
-    return _wheel_update(x, P, aux, par, z, R)
+    return _wheel_update(x, P, aux, par, z, R, accel_slip)
 
 
 @njit
@@ -594,7 +605,7 @@ def _implausible(kind, a, b, par):
     ``max_rate`` rad/s or a (wheel) speed above ``max_speed`` m/s."""
     if kind == 0:
         return abs(a) > par[P_MAX_RATE]
-    if kind == 1:
+    if kind == 1 or kind == 4:
         k = par[P_SPEED_RATIO] / par[P_PERIOD]
         return abs(a) * k > par[P_MAX_SPEED] or abs(b) * k > par[P_MAX_SPEED]
     if kind == 3:
@@ -613,6 +624,9 @@ def step_core(x, P, aux, par, kind, t, a, b):
     kind 2 (absolute yaw): ``a`` = yaw, rad; ``b`` = its standard deviation, rad.
     kind 3 (twist): ``a`` = forward speed m/s, ``b`` = yaw rate rad/s of an external wheel
     odometry (nav_msgs/Odometry twist), taken as instantaneous at ``t``.
+    kind 4 (wheels, slipping): as kind 1, for a frame the accelerometer flagged as slipping
+    (:mod:`fusion.planar.accel_slip`): fused as a slip (status 1) whatever the gyro gate
+    says, unless it is a stop or an encoder fault.
 
     Only the absolute yaw corrects the pose directly; the rate measurements (gyro, wheels,
     twist, ZUPT) correct v, w, b, k, c, and the pose follows through the motion model.
@@ -652,7 +666,7 @@ def step_core(x, P, aux, par, kind, t, a, b):
                 aux[A_ZERO_COUNT] = 0.0
                 P[4, 4] += par[P_Q_W] * par[P_PERIOD]
         d2, status = _rate_update(x, P, aux, y, H, R)
-    elif kind == 1 or kind == 3:
+    elif kind == 1 or kind == 3 or kind == 4:
         d2, status = _wheel_event(x, P, aux, par, kind, t, a, b)
         if status == 7:
             # a dead encoder feed while the IMU shows the robot moving is no gap: the speed

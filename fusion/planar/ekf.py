@@ -376,6 +376,7 @@ def merge_events(
     twist_v: ArrayLike | None = None,
     twist_w: ArrayLike | None = None,
     imu_motion: ArrayLike | None = None,
+    wheel_slip: ArrayLike | None = None,
 ):
     """Merge gyro, wheel, absolute-yaw and twist inputs into one time-ordered event list.
 
@@ -389,6 +390,9 @@ def merge_events(
             yaw rate (rad/s), fused at their stamps.
         imu_motion: (N,) IMU motion code of each gyro sample
             (:func:`fusion.planar.imu_motion.imu_motion_codes`), or None (unknown).
+        wheel_slip: (M,) bool, the wheel frames the accelerometer says slip
+            (:func:`fusion.planar.accel_slip.accel_slip_flags`): their kind is
+            ``EV_WHEELS_SLIP`` (fused as a slip), or None (none flagged).
 
     Returns:
         ``(kinds, t_eff, a, b, stamp)`` arrays sorted by effective time (stable; at equal
@@ -400,7 +404,13 @@ def merge_events(
         tk = np.asarray(ticks, dtype=float).reshape(-1, 2)
         if tk.shape[0] != wt.size:
             raise ValueError(f"{wt.size} wheel stamps but {tk.shape[0]} tick rows")
-        kinds.append(np.full(wt.size, core.EV_WHEELS))
+        wheel_kinds = np.full(wt.size, core.EV_WHEELS)
+        if wheel_slip is not None:
+            slip = np.asarray(wheel_slip, dtype=bool).reshape(-1)
+            if slip.size != wt.size:
+                raise ValueError(f"{wt.size} wheel stamps but {slip.size} slip flags")
+            wheel_kinds[slip] = core.EV_WHEELS_SLIP
+        kinds.append(wheel_kinds)
         ts.append(wt - 0.5 * period - wheel_latency)
         aa.append(tk[:, 0])
         bb.append(tk[:, 1])
@@ -443,7 +453,8 @@ def merge_events(
         return (np.zeros(0, np.int64), *(np.zeros(0) for _ in range(4)))
     k = np.concatenate(kinds).astype(np.int64)
     t = np.concatenate(ts)
-    order = np.lexsort((k, t))
+    # at equal times a slipping wheel frame sorts as a wheel frame
+    order = np.lexsort((np.where(k == core.EV_WHEELS_SLIP, core.EV_WHEELS, k), t))
     return (k[order], t[order], np.concatenate(aa)[order], np.concatenate(bb)[order],
             np.concatenate(st)[order])
 
@@ -520,7 +531,8 @@ class PlanarEKF(ExtendedKalmanFilter):
 
     Attributes:
         t: filter time, s (None before the first input).
-        stats: counters: ``slips``, ``zupts``, ``late_dropped``, ``late_applied``,
+        stats: counters: ``slips`` (frames fused as slipping), ``accel_slips`` (of those, the
+            ones the accelerometer flagged), ``zupts``, ``late_dropped``, ``late_applied``,
             ``invalid`` (non-finite or implausible inputs), ``gyro_saturated``,
             ``encoder_faults``, ``updates``, ``speed_resets`` (v or w forgotten by the gap
             policy), ``predictions`` (prediction steps).
@@ -608,6 +620,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         a = self._aux
         return {
             "slips": int(a[core.A_SLIPS]),
+            "accel_slips": int(a[core.A_ACCEL_SLIPS]),
             "zupts": int(a[core.A_ZUPTS]),
             "late_dropped": int(a[core.A_LATE_DROPPED]),
             "late_applied": int(a[core.A_LATE_APPLIED]),
@@ -665,12 +678,14 @@ class PlanarEKF(ExtendedKalmanFilter):
         """
         return self._step(core.EV_GYRO, t, rate_z, motion)
 
-    def update_wheels(self, t: float, left: int, right: int) -> int:
+    def update_wheels(self, t: float, left: int, right: int, slip: bool = False) -> int:
         """Fuse one wheel frame: ``left``, ``right`` ticks counted in the period ending at
-        host time ``t`` (s). Returns the status (0 applied, 1 slip: speed down-weighted, yaw
-        rate not fused, 4 ZUPT, 5 too late, 7 encoder fault: not fused)."""
+        host time ``t`` (s); ``slip``: the accelerometer says the frame slips
+        (:mod:`fusion.planar.accel_slip`), fuse it as a slip whatever the gyro gate says.
+        Returns the status (0 applied, 1 slip: speed down-weighted, yaw rate not fused,
+        4 ZUPT, 5 too late, 7 encoder fault: not fused)."""
         t_eff = t - 0.5 * self.robot.encode_sampling_time - self.noise.wheel_latency
-        return self._step(core.EV_WHEELS, t_eff, left, right)
+        return self._step(core.EV_WHEELS_SLIP if slip else core.EV_WHEELS, t_eff, left, right)
 
     def update_twist(self, t: float, v: float, w: float) -> int:
         """Fuse an external wheel-odometry twist: forward speed ``v`` (m/s) and yaw rate ``w``
@@ -783,6 +798,7 @@ def fuse(
     twist_v: ArrayLike | None = None,
     twist_w: ArrayLike | None = None,
     imu_motion: ArrayLike | None = None,
+    wheel_slip: ArrayLike | None = None,
 ) -> tuple[FusedTrack, PlanarEKF]:
     """Fuse recorded streams offline (merged by effective time, see the module docstring).
 
@@ -799,6 +815,9 @@ def fuse(
             (:func:`fusion.planar.imu_motion.imu_motion_codes` of the base-frame gyro and
             accelerometer), or None: the stops are then judged by the wheels and the gyro rate
             alone.
+        wheel_slip: (M,) bool per wheel frame, True where the accelerometer says it slips
+            (:func:`fusion.planar.accel_slip.accel_slip_flags`): fused as a slip (yaw rate
+            not fused, speed down-weighted); None: the gyro gate alone decides.
 
     Returns:
         ``(track, filter)``; the filter holds the final state.
@@ -806,7 +825,9 @@ def fuse(
     ekf = PlanarEKF(robot, noise)
     kinds, t_eff, a, b, stamp = merge_events(
         imu_t, gyro_z, wheel_t, ticks, robot.encode_sampling_time, ekf.noise.wheel_latency,
-        yaw_t, yaw, yaw_std, twist_t, twist_v, twist_w, imu_motion,
+        yaw_t, yaw, yaw_std, twist_t, twist_v, twist_w, imu_motion, wheel_slip,
     )
     states, status = ekf.process_batch(kinds, t_eff, a, b)
+    # a flagged wheel frame is a wheel frame in the track (its status says slip)
+    kinds = np.where(kinds == core.EV_WHEELS_SLIP, core.EV_WHEELS, kinds)
     return FusedTrack(stamp, kinds, states, status, ekf.stats, t_eff), ekf
