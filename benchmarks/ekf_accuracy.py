@@ -18,7 +18,9 @@ Contenders:
 model): scenarios "plain" (white noise, constant gyro bias), "all" (every sensor error and
 low-friction patches) and "all+dead" (plus 8 s of zero ticks on both wheels while driving).
 Contenders: wheel only, gyro at stops, and the fused EKF with the DEFAULT EkfNoise fed the
-IMU's z rate as logged (robot.toml says the mount is level, as the owner believes). Errors at
+IMU's z rate as logged (robot.toml says the mount is level, as the owner believes) and the
+accelerometer's slip flags (fusion.planar.accel_slip on the logged x, y specific force;
+``--no-accel-slip``: the gyro gate alone). Errors at
 every wheel frame (baselines) or IMU sample (EKF rows) against the truth at the row's host
 stamp. NEES of the EKF pose (x, y, yaw) with the covariances it reports
 (fusion.planar.ekf.pose_covariances) at those rows: fraction of rows inside the two-sided 95 %
@@ -65,6 +67,7 @@ from fusion.evaluation.trajectory import (
     yaw_rmse,
 )
 from fusion.geometry.kinematics import DiffDriveParams
+from fusion.planar.accel_slip import accel_slip_flags
 from fusion.planar.ekf import EkfNoise, fuse, pose_covariances
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.odometry import TwistOdometry, WheelOdometry
@@ -130,16 +133,29 @@ def kinematic_section(seeds: int, duration: float) -> None:
     _table(results)
 
 
-def score_physics_run(run, noise: EkfNoise | None = None
+def physics_slip_flags(run) -> np.ndarray:
+    """The accelerometer's slip flags of a physics run's wheel frames, as the EKF gets them
+    here: IMU-frame x, y specific force as logged (the mount tilt's gravity leak removed as
+    the at-rest offset), the IMU's z rate."""
+    robot = run.robot.chassis
+    return accel_slip_flags(robot.speed_ratio, robot.encode_sampling_time, run.imu_t,
+                            run.accel[:, :2], run.gyro[:, 2],
+                            imu_motion_codes(run.imu_t, run.gyro, run.accel), run.wheel_t,
+                            run.ticks)
+
+
+def score_physics_run(run, noise: EkfNoise | None = None, accel_slip: bool = True
                       ) -> tuple[dict[str, tuple[float, float]], float]:
-    """Errors of the three contenders on one physics run, and the EKF's NEES fraction."""
+    """Errors of the three contenders on one physics run, and the EKF's NEES fraction
+    (``accel_slip``: the EKF gets the accelerometer's slip flags)."""
     robot = run.robot.chassis
     tw = run.truth_at(run.wheel_t)
     out = {"wheel only": _errors(wheel_only(robot, run.ticks), tw, run.distance)}
     stops = gyro_at_stops(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     out["gyro at stops"] = _errors(stops.poses, tw, run.distance)
     track, _ = fuse(robot, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
-                    noise=noise, imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
+                    noise=noise, imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel),
+                    wheel_slip=physics_slip_flags(run) if accel_slip else None)
     k = track.kind == GYRO_ROWS
     est = track.states[k, :3]
     truth = run.truth_at(track.t[k])
@@ -150,7 +166,7 @@ def score_physics_run(run, noise: EkfNoise | None = None
     return out, nees_fraction_within(values, 3)
 
 
-def physics_section(seeds: int, duration: float) -> None:
+def physics_section(seeds: int, duration: float, accel_slip: bool = True) -> None:
     lo, hi = nees_bounds(3)
     for scenario in ("plain", "all", "all+dead"):
         results: dict[str, list[tuple[float, float]]] = {
@@ -158,7 +174,7 @@ def physics_section(seeds: int, duration: float) -> None:
         inside: list[float] = []
         for seed in range(seeds):
             scores, fraction = score_physics_run(
-                physics_scenario(scenario, seed=seed, duration=duration))
+                physics_scenario(scenario, seed=seed, duration=duration), accel_slip=accel_slip)
             for name, value in scores.items():
                 results[name].append(value)
             inside.append(fraction)
@@ -171,7 +187,7 @@ def physics_section(seeds: int, duration: float) -> None:
               "worst run")
 
 
-def breakdown_section(seed: int, duration: float) -> None:
+def breakdown_section(seed: int, duration: float, accel_slip: bool = True) -> None:
     """One error at a time on the physics simulator (plain sensors plus that error)."""
     print(f"\n(ii-b) physics simulator, one error at a time, seed {seed}, {duration:.0f} s: "
           "final pos. error % / yaw RMSE deg; EKF NEES inside 95 %")
@@ -183,7 +199,7 @@ def breakdown_section(seed: int, duration: float) -> None:
         sensors = with_errors([name] if name in ERROR_GROUPS else [], seed=seed)
         run = simulate_physics(mission, sensors, seed,
                                dead_encoder_while_driving=8.0 if name == "dead-encoder" else 0)
-        scores, fraction = score_physics_run(run)
+        scores, fraction = score_physics_run(run, accel_slip=accel_slip)
         cells = " ".join(f"{a:7.2f} /{b:7.2f}" for a, b in scores.values())
         print(f"{name:16s} {cells} {100 * fraction:7.1f}%")
 
@@ -243,12 +259,14 @@ def main() -> None:
     ap.add_argument("--skip-bag", action="store_true", help="leave out section (iii)")
     ap.add_argument("--breakdown", type=int, metavar="SEED",
                     help="also one physics error at a time on this seed")
+    ap.add_argument("--no-accel-slip", action="store_true",
+                    help="physics runs: no accelerometer slip flags (the gyro gate alone)")
     args = ap.parse_args()
     kinematic_section(args.seeds, args.duration)
     sys.stdout.flush()
-    physics_section(args.seeds, args.duration)
+    physics_section(args.seeds, args.duration, not args.no_accel_slip)
     if args.breakdown is not None:
-        breakdown_section(args.breakdown, args.duration)
+        breakdown_section(args.breakdown, args.duration, not args.no_accel_slip)
     if not args.skip_bag:
         bag_section()
 

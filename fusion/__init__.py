@@ -34,6 +34,8 @@ _EXPORTS = {
     "ImuCalibration": "fusion.calibration.imu",
     "PlanarEKF": "fusion.planar.ekf",
     "EkfNoise": "fusion.planar.ekf",
+    "AccelSlipDetector": "fusion.planar.accel_slip",
+    "AccelSlipParams": "fusion.planar.accel_slip",
     "read_logdir": "fusion.io.logdir",
     "write_logdir": "fusion.io.logdir",
     "calibrate_odometry": "fusion.calibration.odometry",

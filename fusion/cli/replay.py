@@ -188,7 +188,8 @@ def _print_result(r, level_note: bool = True) -> None:
     print(f"final pose: x {x:.3f} m, y {y:.3f} m, yaw {math.degrees(yaw):.2f} deg; path "
           f"{r.distance:.2f} m")
     print(f"gyro bias {math.degrees(r.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, "
-          f"slip frames {s['slips']}, encoder faults (zero ticks while the IMU moved, not "
+          f"slip frames {s['slips']} ({s.get('accel_slips', 0)} seen by the accelerometer), "
+          f"encoder faults (zero ticks while the IMU moved, not "
           f"fused) {s['encoder_faults']}, late inputs fused {s['late_applied']}, dropped "
           f"{s['late_dropped']}, invalid {s['invalid']}; wheel gaps {s['gap_count']} "
           f"({s['frames_missing']} frames missing), IMU gaps {s['attitude_gaps']}, "

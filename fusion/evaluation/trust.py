@@ -91,7 +91,8 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None) -> list[Tr
         out.append(TrustWarning(
             "slip",
             f"{100 * slips / frames:.0f} % of the {frames} odometry frames were flagged as "
-            f"slip (their yaw rate disagrees with the gyro's; more than "
+            f"slip (their yaw rate disagrees with the gyro's, or their speed change with the "
+            f"accelerometer's; more than "
             f"{100 * SLIP_FRACTION_LIMIT:.0f} % means the two inputs describe different "
             "motions: check wheel_distance, the IMU mount and the topics)",
             {"slip_fraction": slips / frames, "slips": float(slips), "frames": float(frames)}))

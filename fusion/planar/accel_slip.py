@@ -38,8 +38,9 @@ acceleration. The frame slips when ``e_f^2/s_f^2 + e_l^2/s_l^2`` exceeds ``gate`
   frame's period (averaged over the window); the integral over any window of a vibration
   at ``vibration_freq`` Hz or above has an RMS of at most ``A / (pi * vibration_freq)``;
 - model: ``relative_std`` of the expected speed changes (wheel scale, a mount yawed by a
-  degree or two, gyro scale), the lever arm's uncertainty times ``integral of w^2`` and
-  ``|delta w|``, the offset's own uncertainty times ``D`` (``offset_std`` before any rest was
+  degree or two, gyro scale), the lever arm's uncertainty (each coordinate off by
+  ``lever_arm_std``, independently) through ``integral of w^2`` and ``delta w``, the offset's
+  own uncertainty times ``D`` (``offset_std`` before any rest was
   seen), and the wheels' quantisation ``tick_std`` ticks on the speed difference.
 
 A decision needs ``n + 1`` frames without a gap longer than ``gap_periods`` periods, each with
@@ -279,7 +280,9 @@ def _decide(state, frames, par, out_row):
     # noise figures (m/s)^2
     white = par[_P_ACCEL_NOISE] ** 2 * span * span / samples
     vib_scale = 1.0 / (math.pi * par[_P_VIB_FREQ]) ** 2 / n
-    lever = (par[_P_LEVER_STD] * (w2 + abs(dw))) ** 2
+    # f_x is off by -w^2 dx - w' dy, f_y by w' dx - w^2 dy for an IMU off by (dx, dy),
+    # independent with standard deviation lever_arm_std each
+    lever = par[_P_LEVER_STD] ** 2 * (w2 * w2 + dw * dw)
     if state[_S_OFF_N] > 0:
         off_var = par[_P_ACCEL_NOISE] ** 2 / state[_S_OFF_N]
     else:

@@ -72,7 +72,12 @@ Model:
   ``(1 + k)*w + c*v``. The noise comes from tick quantisation and a per-frame wheel scale
   noise, plus white noise on w. The yaw-rate innovation is
   chi-square gated (1 dof): above the gate the frame is a slip and its noise is inflated
-  (down-weighted) so the gyro carries the heading.
+  (down-weighted) so the gyro carries the heading. The gyro cannot see wheels that spin or
+  skid alike or a body sliding sideways; a frame the accelerometer flags
+  (:mod:`fusion.planar.accel_slip`: forward specific force against the wheels' dv/dt,
+  lateral against v*w; event kind 4, ``wheel_slip=`` of :func:`fuse`,
+  ``update_wheels(slip=True)``) is a slip too, whatever the gate says: its yaw rate is not
+  fused, its speed down-weighted alike, and its flag and status are a slip's.
 - Zero-velocity update (ZUPT): after ``zupt_frames`` consecutive frames with zero ticks on both
   wheels, ``v = 0`` and ``w = 0`` are fused with a tight noise; the gyro then reads its own bias,
   which is how ``b`` becomes observable. While standing still the v and w random walks shrink
