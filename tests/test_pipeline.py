@@ -23,7 +23,7 @@ from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.records import _fast_record, _record_fields
 from fusion.pipeline.sources import capture_events, logdir_events, merge_by_time, replay
 from fusion.planar import _ekf_core as core
-from fusion.planar.accel_slip import accel_slip_flags, gravity_free_xy
+from fusion.planar.accel_slip import accel_slip_flags
 from fusion.planar.ekf import EkfNoise, fuse, vertical_rate
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.model import NX
@@ -53,7 +53,7 @@ def events(run):
 
 def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
     """Oracle: Keel told the wheels' knowledge (tests/keel_feed_reference.py) ->
-    ekf.vertical_rate, imu_motion_codes, the accelerometer slip flags of the gravity-free
+    ekf.vertical_rate, imu_motion_codes, the accelerometer slip flags of the base-frame
     specific force -> ekf.fuse (batch, merge_events' own ordering), composed here from the
     library's pieces. The pipeline, fed one event at a time in host order, must publish
     exactly the fused state after every wheel frame."""
@@ -62,7 +62,7 @@ def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
     gz = vertical_rate(run.gyro, q)
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
     slip = accel_slip_flags(run.robot.speed_ratio, run.robot.encode_sampling_time, run.imu_t,
-                            gravity_free_xy(run.accel, q), gz, motion, run.wheel_t, run.ticks)
+                            run.accel[:, :2], gz, motion, run.wheel_t, run.ticks)
     track, ekf = fuse(run.robot, run.imu_t, gz, run.wheel_t, run.ticks, EkfNoise(),
                       imu_motion=motion, wheel_slip=slip)
     rows = track.states[track.kind == core.EV_WHEELS]

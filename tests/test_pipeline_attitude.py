@@ -31,7 +31,7 @@ from fusion.io.robot_toml import read_robot_toml, write_robot_toml
 from fusion.io.run_config import ConfigError, load_config
 from fusion.pipeline.core import FusionPipeline
 from fusion.planar import _ekf_core as core
-from fusion.planar.accel_slip import accel_slip_flags, gravity_free_xy
+from fusion.planar.accel_slip import accel_slip_flags
 from fusion.planar.ekf import EkfNoise, fuse, vertical_rate
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import AttitudeConfig, RobotConfig
@@ -61,11 +61,11 @@ def _records(robot: RobotConfig, run, **kw) -> list:
 
 def _by_hand(run, q) -> np.ndarray:
     """The EKF's state after each wheel frame with the yaw rate of attitudes ``q`` (and the
-    accelerometer's slip flags of the specific force with gravity removed by ``q``)."""
+    accelerometer's slip flags of the specific force as measured)."""
     rate = vertical_rate(run.gyro, q)
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
     slip = accel_slip_flags(run.robot.speed_ratio, run.robot.encode_sampling_time, run.imu_t,
-                            gravity_free_xy(run.accel, q), rate, motion, run.wheel_t, run.ticks)
+                            run.accel[:, :2], rate, motion, run.wheel_t, run.ticks)
     track, _ = fuse(run.robot, run.imu_t, rate, run.wheel_t, run.ticks, EkfNoise(),
                     imu_motion=motion, wheel_slip=slip)
     return track.states[track.kind == core.EV_WHEELS]

@@ -23,7 +23,7 @@ from fusion.evaluation.synthetic import (
 from fusion.geometry.mount import vertical_rate
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.sources import merge_by_time
-from fusion.planar.accel_slip import accel_slip_flags, gravity_free_xy
+from fusion.planar.accel_slip import accel_slip_flags
 from fusion.planar.ekf import PlanarEKF
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import RobotConfig
@@ -95,7 +95,7 @@ def _reference(run, window: float, sources: tuple[str, ...]):
     motion_at = dict(zip(run.imu_t.tolist(), motion.tolist()))
     # the accelerometer's slip flags of the wheel frames (fusion.planar.accel_slip)
     slip = accel_slip_flags(robot.speed_ratio, robot.encode_sampling_time, run.imu_t,
-                            gravity_free_xy(run.accel, q), rate, motion, run.wheel_t, run.ticks)
+                            run.accel[:, :2], rate, motion, run.wheel_t, run.ticks)
     slip_at = dict(zip(run.wheel_t.tolist(), slip.tolist()))
     heap: list = []
     marks = {name: -math.inf for name in sources}

@@ -10,10 +10,11 @@ sideways in a turn. A rigid body rolling without slip obeys, at the axle midpoin
 - forward: the acceleration along x is ``dv/dt`` of the wheels' speed ``v``;
 - lateral: the acceleration along y is the centripetal ``v*w`` (``w`` the yaw rate).
 
-The accelerometer measures the specific force ``f`` (m/s^2); with gravity removed (the caller's
-attitude, or nothing) and the at-rest offset removed (learnt here whenever the newest wheel
-frame has zero ticks and the IMU is still: gravity leaking through a mount tilt, the
-accelerometer bias), ``f`` is that acceleration. An IMU at ``lever_arm = (px, py)`` from the
+The accelerometer measures the specific force ``f`` (m/s^2) in the base frame; with the
+at-rest offset removed (learnt here whenever the newest wheel frame has zero ticks and the
+IMU is still: gravity leaking through a mount tilt, the accelerometer bias), ``f`` is that
+acceleration on a level floor (on a slope gravity leaks by a different amount, about
+0.17 m/s^2 per degree along the track, which the test cannot tell from a slip). An IMU at ``lever_arm = (px, py)`` from the
 axle midpoint feels ``f_x = a_x - w^2 px - w' py`` and ``f_y = a_y + w' px - w^2 py``
 (``w'`` the yaw acceleration); ``lever_arm`` defaults to ``(0, 0)`` (the lever arm ignored)
 and ``lever_arm_std`` covers an IMU up to that far from where it is configured.
@@ -63,10 +64,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion._jit import njit
 from fusion.planar.imu_motion import MOTION_STILL
-from fusion.types.constants import STANDARD_GRAVITY
 
-__all__ = ["CHI2_2DOF_01PCT", "AccelSlipDetector", "AccelSlipParams", "accel_slip_flags",
-           "gravity_free_xy"]
+__all__ = ["CHI2_2DOF_01PCT", "AccelSlipDetector", "AccelSlipParams", "accel_slip_flags"]
 
 #: Chi-square threshold, 2 degrees of freedom, 0.1 % upper tail (scipy.stats.chi2.isf(1e-3, 2)).
 CHI2_2DOF_01PCT = 13.815510557964274
@@ -440,17 +439,3 @@ def accel_slip_flags(
     flags[order] = out[:, 0]
     return flags[it.size:] == 1.0
 
-
-def gravity_free_xy(accel: ArrayLike, quaternion: ArrayLike,
-                    gravity: float = STANDARD_GRAVITY) -> NDArray[np.float64]:
-    """(N, 2) base-frame x, y of the specific force ``accel`` (N, 3) m/s^2 with gravity
-    removed by the attitude ``quaternion`` (N, 4) (scalar first, body -> world ENU, e.g.
-    Keel's): ``f - gravity * R^T e_z``, the kinematic acceleration's x and y (m/s^2).
-    Element-wise, so one row gives the same bits alone as in a batch."""
-    f = np.asarray(accel, dtype=float).reshape(-1, 3)
-    q = np.asarray(quaternion, dtype=float).reshape(-1, 4)
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    n2 = w * w + x * x + y * y + z * z
-    up_x = 2.0 * (x * z - w * y) / n2
-    up_y = 2.0 * (y * z + w * x) / n2
-    return np.column_stack([f[:, 0] - gravity * up_x, f[:, 1] - gravity * up_y])
