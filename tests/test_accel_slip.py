@@ -24,6 +24,9 @@ from fusion.evaluation.physics_sim import (
     with_errors,
 )
 from fusion.geometry.kinematics import DiffDriveParams
+from fusion.io.fused_csv import read_fused_csv
+from fusion.io.logdir import write_logdir
+from fusion.jobs.replay import replay_logdir
 from fusion.pipeline.core import FusionPipeline
 from fusion.planar import _ekf_core as core
 from fusion.planar.accel_slip import (
@@ -237,3 +240,22 @@ def test_the_pipeline_flag_reaches_the_slip_column():
     assert not (slip & ~near).any()
     # without the accelerometer test nothing sees the straight spin
     assert out[False][0].sum() == 0 and out[False][1].accel_slips == 0
+
+
+def test_the_replay_csv_slip_column_carries_the_flag(tmp_path):
+    # a log directory replayed into the fused CSV (one row per IMU sample, the flags of the
+    # last wheel frame): slip rows appear only while the simulator's tyres slide (or within
+    # a window after), and the replay counts them as the accelerometer's
+    run = _straight_onto_ice(seed=4)
+    d = write_logdir(tmp_path / "log", run.robot.chassis, run.imu_t, run.gyro, run.accel,
+                     run.wheel_t, run.ticks)
+    out = tmp_path / "fused.csv"
+    result = replay_logdir(d, out)
+    f = read_fused_csv(out)
+    slip = f["slip"] == 1.0
+    assert result.stats["accel_slips"] >= 10 and slip.sum() >= 5 * result.stats["accel_slips"]
+    slides = run.truth_t[run.truth_slip]
+    assert slides.size > 0
+    # every slip row lies within [first slide, last slide + window + one frame]
+    t = f["t"][slip]
+    assert t.min() >= slides.min() and t.max() <= slides.max() + 0.4 + 0.1
