@@ -198,7 +198,8 @@ def _print_result(r, level_note: bool = True) -> None:
     _print_warnings(r.warnings)
     if r.n_imu:
         print(f"wheel yaw-rate calibration seen by the gyro: k {r.k:+.4f} "
-              f"(wheel_distance ~ {r.wheel_distance * (1 + r.k):.4f} m), "
+              f"(wheel_distance ~ {r.wheel_distance * (1 + r.k) * (1 + r.gyro_scale):.4f} "
+              "m with the gyro's scale as configured), "
               f"c {r.c:+.5f} rad/m; see `fusion calibrate odometry` for corrected parameters")
     elif level_note:
         print("no imu.csv: wheel odometry only (no gyro to fuse)")

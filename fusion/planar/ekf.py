@@ -206,9 +206,13 @@ class EkfNoise:
         max_speed: inputs with a speed above this (m/s: either wheel of a frame, a twist)
             are corrupt: counted as invalid, never fused.
         initial_bias_std: prior standard deviation of the gyro bias, rad/s.
-        gyro_scale_std: prior standard deviation of the gyro's scale error ``g`` (1): the
-            MPU6050 datasheet's sensitivity tolerance, +-3 % (set from the datasheet, not
-            tuned).
+        gyro_scale: prior mean of the gyro's scale error ``g`` (1; the gyro reads
+            ``(1 + g)`` times the true rate): 0 for an uncalibrated gyro, or the result of
+            :func:`fusion.calibration.gyro_scale.calibrate_gyro_scale` (turns in place back to
+            a mark; ``fusion calibrate gyro-scale`` writes it into robot.toml's ``[ekf]``).
+        gyro_scale_std: prior standard deviation of ``g`` (1): the MPU6050 datasheet's
+            sensitivity tolerance, +-3 %, for an uncalibrated gyro (set from the datasheet,
+            not tuned); the calibration's own standard deviation after a calibration.
         gyro_scale_psd: random walk of ``g``, 1/s (sensitivity drifts with temperature;
             small).
         distance_scale_std: prior standard deviation of the wheels' common distance scale
@@ -261,6 +265,7 @@ class EkfNoise:
     max_rate: float = 100.0
     max_speed: float = 50.0
     initial_bias_std: float = math.radians(2.0)
+    gyro_scale: float = 0.0
     gyro_scale_std: float = 0.03
     gyro_scale_psd: float = 1e-9
     distance_scale_std: float = 0.01
@@ -271,7 +276,9 @@ class EkfNoise:
         for name, value in asdict(self).items():
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ValueError(f"EkfNoise.{name} must be a number, got {value!r}")
-            if name in ("gyro_limit", "yaw_fix_rate", "yaw_fix_burst"):
+            if name == "gyro_scale":
+                ok, need = math.isfinite(value) and abs(value) < 0.5, "finite, in (-0.5, 0.5)"
+            elif name in ("gyro_limit", "yaw_fix_rate", "yaw_fix_burst"):
                 ok, need = value > 0, "> 0 (rad/s or rad; or inf)"
             elif name == "zupt_frames":
                 ok, need = value >= 1 and float(value).is_integer(), "a whole number >= 1"
@@ -510,7 +517,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         robot: chassis parameters (``wheel_distance`` m, ``speed_ratio`` m/tick,
             ``encode_sampling_time`` s).
         noise: :class:`EkfNoise`.
-        x0: initial state ``[x, y, yaw, v, w, b, k, c, g, s]`` (default zeros).
+        x0: initial state ``[x, y, yaw, v, w, b, k, c, g, s]`` (default zeros, except
+            ``g = noise.gyro_scale``).
         P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c/g/s from ``noise``).
         backend: deprecated, leave it out. There is one implementation, the core
             (:mod:`fusion.planar._ekf_core` over :mod:`fusion.planar.model`): compiled by numba
@@ -544,7 +552,11 @@ class PlanarEKF(ExtendedKalmanFilter):
         self.robot = robot
         self.noise = noise if noise is not None else EkfNoise()
         n = self.noise
-        self.x = np.zeros(NX) if x0 is None else _state_vector("x0", x0)
+        if x0 is None:
+            self.x = np.zeros(NX)
+            self.x[8] = n.gyro_scale  # a calibrated gyro's scale error, 0 if uncalibrated
+        else:
+            self.x = _state_vector("x0", x0)
         if P0 is None:
             s = n.initial_speed_std
             # the odom origin is the start pose; 1e-9 (m^2, rad^2) keeps P positive definite
