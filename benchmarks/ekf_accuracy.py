@@ -109,7 +109,7 @@ def _errors(poses: np.ndarray, truth: np.ndarray, distance: float) -> tuple[floa
 
 def _table(results: dict[str, list[tuple[float, float]]]) -> None:
     print(f"{'odometry':16s} {'final pos. error % of distance':>32s} {'yaw RMSE deg':>22s}")
-    print(f"{'':14s} {'mean':>15s} {'worst':>16s} {'mean':>10s} {'worst':>11s}")
+    print(f"{'':16s} {'mean':>15s} {'worst':>16s} {'mean':>10s} {'worst':>11s}")
     for name, vals in results.items():
         v = np.array(vals)
         print(f"{name:16s} {v[:, 0].mean():15.3f} {v[:, 0].max():16.3f} "
