@@ -81,7 +81,9 @@ P_MAX_RATE = 33
 P_MAX_SPEED = 34
 P_Q_G = 35
 P_Q_S = 36
-PAR_SIZE = 37
+P_TRUST_TIME = 37  # time constant of the wheel yaw rate's slip share, s
+P_MAX_SLIP_SHARE = 38  # above this slip share the wheels' yaw rates are not fused
+PAR_SIZE = 39
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -107,7 +109,11 @@ A_V_RMS2 = 19  # second moment of v when forgotten, (m/s)^2
 A_W_RMS2 = 20  # the same for w, (rad/s)^2
 A_SPEED_RESETS = 21  # v or w forgotten after max_extrapolation without a measurement
 A_PREDICTIONS = 22  # predict_core calls
-AUX_SIZE = 23
+A_SLIP_SHARE = 23  # exponentially weighted share of wheel frames or twists above the gate
+A_DISTRUST = 24  # 1: the wheels' yaw rates are not fused (their slip share is too high)
+A_DISTRUSTED = 25  # wheel frames or twists whose yaw rate was not fused for that reason
+A_CLIPPED = 26  # filter time of the last saturated gyro sample (NaN: none yet)
+AUX_SIZE = 27
 # per-frame flags
 FLAG_ZUPT = 1
 FLAG_SLIP = 2
@@ -468,14 +474,51 @@ def _rate_update(x, P, aux, y, H, R):
     return d2, status
 
 
+#: A frame whose measured or expected yaw rate exceeds this (rad/s, 6 deg/s) is a turn: only
+#: turns test whether the wheels' yaw rate can be trusted (standing or driving straight,
+#: any wheels agree with the gyro).
+TURN_RATE = 0.1
+
+
 @njit
-def _wheel_update(x, P, aux, par, z, R):
-    """Fuse a wheel twist ``z = [v_m, w_m]`` with noise ``R``; returns ``(d2, status)``.
+def _wheel_rate_trusted(aux, par, interval, slip, turning):
+    """Update the wheels' slip share with one frame (``slip``: above the gate) that comes
+    ``interval`` s after the previous one, if it is ``turning``, and return whether their yaw
+    rates may be fused.
+
+    The share is an exponentially weighted mean over turning frames with time constant
+    ``wheel_rate_trust_time`` (s of turning). Above ``max_slip_share`` the wheels' yaw rate
+    is not a measurement of this robot's rotation (a skid-steer base's odometry, a wrong
+    wheel distance, a floor that slips everywhere), and fusing the frames that happen to pass
+    the gate (driving straight, a turn's first frames while the bias is still uncertain) would
+    bend the gyro bias towards them; trust returns below half that share. The filter starts
+    distrusting, with the share at ``max_slip_share``: in its first turns the wheels have to
+    agree with the gyro.
+    """
+    share = aux[A_SLIP_SHARE]
+    if turning:
+        alpha = min(1.0, interval / par[P_TRUST_TIME])
+        share += alpha * ((1.0 if slip else 0.0) - share)
+        aux[A_SLIP_SHARE] = share
+    if share > par[P_MAX_SLIP_SHARE]:
+        aux[A_DISTRUST] = 1.0
+    elif share < 0.5 * par[P_MAX_SLIP_SHARE]:
+        aux[A_DISTRUST] = 0.0
+    return aux[A_DISTRUST] == 0.0
+
+
+@njit
+def _wheel_update(x, P, aux, par, z, R, interval):
+    """Fuse a wheel twist ``z = [v_m, w_m]`` with noise ``R``, ``interval`` s after the
+    previous frame; returns ``(d2, status)``.
 
     The yaw-rate component is gated (chi-square, 1 dof, against the gyro-corrected rate
     state): a frame above the gate is a slip, and only its speed is fused, with its noise
     multiplied by ``slip_inflation`` (0: nothing is fused). A slipping frame's yaw rate is
-    never fused, so it cannot bend the heading.
+    never fused, so it cannot bend the heading. Nor is any frame's while most frames slip
+    (:func:`_wheel_rate_trusted`): then only the speed is fused, unless the gyro was
+    saturated within ``wheel_rate_trust_time`` (the wheels are then the only yaw rate; their
+    slip share is left as it is).
     """
     L = par[P_WHEEL_DISTANCE]
     H = wheel_jacobian(x, L)
@@ -483,20 +526,34 @@ def _wheel_update(x, P, aux, par, z, R):
     y[0] = z[0] - y[0]
     y[1] = z[1] - y[1]
     d2 = y[1] * y[1] / innovation_variance(P, H, R, 1)
-    if d2 <= par[P_GATE]:
+    slip = d2 > par[P_GATE]
+    if aux[A_T] - aux[A_CLIPPED] < par[P_TRUST_TIME]:
+        # the gyro is (or was just) saturated: the wheels are all there is, and the gyro's
+        # rate state around the saturation is no test of them
+        trusted = True
+    else:
+        turning = abs(z[1]) > TURN_RATE or abs(x[4]) > TURN_RATE
+        trusted = _wheel_rate_trusted(aux, par, interval, slip, turning)
+    if not slip and trusted:
         _, status = _rate_update(x, P, aux, y, H, R)
         return d2, status
-    aux[A_SLIPS] += 1.0
-    aux[A_FLAGS] = FLAG_SLIP
-    inflation = par[P_SLIP_INFLATION]
+    if slip:
+        aux[A_SLIPS] += 1.0
+        aux[A_FLAGS] = FLAG_SLIP
+        inflation = par[P_SLIP_INFLATION]
+    else:  # an agreeing frame of wheels whose yaw rate is not trusted: its speed is fine
+        aux[A_DISTRUSTED] += 1.0
+        inflation = 1.0
     if inflation <= 0.0:
         return d2, 2
+    # the speed alone: the wheel yaw-rate model's small c*w term is left out of the
+    # Jacobian, so that a frame whose rotation is not trusted teaches nothing about it
+    # (through c and w it would reach the gyro bias)
     H1 = np.zeros((1, NX))
-    for j in range(NX):
-        H1[0, j] = H[0, j]
+    H1[0, 3] = H[0, 3]
     _, status = _rate_update(x, P, aux, np.array([y[0]]), H1,
                              np.full((1, 1), R[0, 0] * inflation))
-    return d2, 1 if status == 0 else status
+    return d2, 1 if status == 0 and slip else status
 
 
 @njit
@@ -585,7 +642,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         R[1, 1] *= inflate
         R[0, 1] *= math.sqrt(inflate)
         R[1, 0] = R[0, 1]
-    return _wheel_update(x, P, aux, par, z, R)
+    return _wheel_update(x, P, aux, par, z, R, interval)
 
 
 @njit
@@ -638,6 +695,7 @@ def step_core(x, P, aux, par, kind, t, a, b):
             # a saturated gyro reads the full-scale value, not the rate: skip it and let the
             # wheels carry the yaw rate until the gyro is back in range
             aux[A_SATURATED] += 1.0
+            aux[A_CLIPPED] = aux[A_T]
             return 2
         H = gyro_jacobian(x)
         R = gyro_noise(par[P_GYRO_VAR])
