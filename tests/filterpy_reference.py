@@ -53,8 +53,9 @@ class FilterpyReference:
                                     "gyro_saturated", "encoder_faults", "updates",
                                     "speed_resets", "predictions"), 0)
         # the wheels' yaw rates are fused only while few turning frames fail the slip gate
-        self.slip_share = noise.max_slip_share
-        self.distrust = True
+        self.slip_share = 0.0
+        self.distrust = False  # disproven: most turns disagree
+        self.agreed = 0.0  # s of turning frames that agreed (proven at wheel_rate_proof_time)
         self.clipped_at = -math.inf  # filter time of the last saturated gyro sample
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
@@ -250,18 +251,26 @@ class FilterpyReference:
                 S = H @ kf.P @ H.T + R
                 y = z - model.wheel_h(kf.x, L)
                 slip = y[1] ** 2 / S[1, 1] > n.slip_gate  # the yaw rate disagrees
-                distrust = False  # with the gyro saturated the wheels are all there is
-                if self.t - self.clipped_at >= n.wheel_rate_trust_time:
-                    if abs(z[1]) > 0.1 or abs(kf.x[4]) > 0.1:  # a turn tests the wheels
+                # with the gyro saturated the wheels are all there is
+                fuse_rate, disproven = True, False
+                turning = abs(z[1]) > 0.1 or abs(kf.x[4]) > 0.1  # a turn tests the wheels
+                if self.t - self.clipped_at >= n.wheel_rate_proof_time:
+                    if turning:
                         w = min(1.0, interval / n.wheel_rate_trust_time)
                         self.slip_share += w * (float(slip) - self.slip_share)
+                        self.agreed += 0.0 if slip else interval
                     if self.slip_share > n.max_slip_share:
                         self.distrust = True
                     elif self.slip_share < 0.5 * n.max_slip_share:
                         self.distrust = False
-                    distrust = self.distrust
-                if slip or distrust:
-                    self.stats["slips" if slip else "wheel_rate_distrusted"] += 1
+                    disproven = self.distrust
+                    fuse_rate = not disproven and self.agreed >= n.wheel_rate_proof_time
+                if slip or not fuse_rate:
+                    slip = slip and not disproven  # disproven wheels: no slip test at all
+                    if slip:
+                        self.stats["slips"] += 1
+                    elif disproven and turning:
+                        self.stats["wheel_rate_distrusted"] += 1
                     inflation = n.slip_inflation if slip else 1.0
                     if inflation <= 0:
                         self.stats["updates"] += 1

@@ -118,8 +118,11 @@ def test_jackal_skid_steer_twists_do_not_bend_the_gyro_bias():
     err = track.states[rows, 2] - (np.interp(track.t[rows], imu.t, ref) - ref[0])
     assert math.degrees(np.sqrt(np.mean(err ** 2))) < 3.0
     assert abs(math.degrees(ekf.x[5])) < 0.1
-    # the twists that passed the gate were not fused for their yaw rate either
-    assert ekf.stats["wheel_rate_distrusted"] > 100 and ekf.stats["slips"] > 1000
+    # most turning twists disagreed: first flagged as slips, then (the wheels' yaw rate
+    # disproven) no longer fused for their yaw rate at all, agreeing or not
+    stats = ekf.stats
+    assert stats["wheel_rate_distrusted"] > 1000
+    assert stats["slips"] + stats["wheel_rate_distrusted"] > 0.5 * odom.t.size
 
 
 def test_imu_motion_separates_rest_from_driving_vibration():

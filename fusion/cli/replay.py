@@ -188,7 +188,8 @@ def _print_result(r, level_note: bool = True) -> None:
     print(f"final pose: x {x:.3f} m, y {y:.3f} m, yaw {math.degrees(yaw):.2f} deg; path "
           f"{r.distance:.2f} m")
     print(f"gyro bias {math.degrees(r.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, "
-          f"slip frames {s['slips']}, encoder faults (zero ticks while the IMU moved, not "
+          f"slip frames {s['slips']}, turning frames whose yaw rate was not trusted "
+          f"{s['wheel_rate_distrusted']}, encoder faults (zero ticks while the IMU moved, not "
           f"fused) {s['encoder_faults']}, late inputs fused {s['late_applied']}, dropped "
           f"{s['late_dropped']}, invalid {s['invalid']}; wheel gaps {s['gap_count']} "
           f"({s['frames_missing']} frames missing), IMU gaps {s['attitude_gaps']}, "
@@ -526,7 +527,8 @@ def run_bag(args: argparse.Namespace) -> int:
           f" deg; path {job.distance_travelled(table):.2f} m")
     ekf = r.pipeline.ekf
     print(f"gyro bias {math.degrees(ekf.gyro_bias):+.4f} deg/s; ZUPTs {stats.zupts}, slip "
-          f"(twist/gyro disagreement) {stats.slips}, encoder faults (zero twist while the IMU "
+          f"(twist/gyro disagreement) {stats.slips}, turning twists whose yaw rate was not "
+          f"trusted {stats.wheel_rate_distrusted}, encoder faults (zero twist while the IMU "
           f"moved, not fused) {stats.encoder_faults}, invalid {ekf.stats['invalid']}")
     print(f"the bag's own odometry ({args.odom_topic}) final pose from its start: x "
           f"{own[-1, 0]:.3f} m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")

@@ -169,6 +169,9 @@ class PipelineStats:
         records: records published.
         late_dropped, late_applied: inputs the EKF dropped as too late / fused at its own time.
         slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
+        wheel_rate_distrusted: turning wheel frames (or twists) whose yaw rate was not fused
+            because most turns disagreed with the gyro (a skid-steer base, a wrong
+            wheel_distance; :class:`fusion.planar.ekf.EkfNoise` ``max_slip_share``).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
@@ -200,6 +203,7 @@ class PipelineStats:
     late_dropped: int = 0
     late_applied: int = 0
     slips: int = 0
+    wheel_rate_distrusted: int = 0
     zupts: int = 0
     encoder_faults: int = 0
     gap_count: int = 0
@@ -930,6 +934,7 @@ class FusionPipeline(Lifecycle):
         self.stats.late_dropped = s["late_dropped"]
         self.stats.late_applied = s["late_applied"]
         self.stats.slips = s["slips"]
+        self.stats.wheel_rate_distrusted = s["wheel_rate_distrusted"]
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
         self.stats.speed_resets = s["speed_resets"]

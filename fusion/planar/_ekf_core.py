@@ -83,7 +83,8 @@ P_Q_G = 35
 P_Q_S = 36
 P_TRUST_TIME = 37  # time constant of the wheel yaw rate's slip share, s
 P_MAX_SLIP_SHARE = 38  # above this slip share the wheels' yaw rates are not fused
-PAR_SIZE = 39
+P_PROOF_TIME = 39  # s of agreeing turns before the wheels' yaw rates are fused
+PAR_SIZE = 40
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -111,9 +112,10 @@ A_SPEED_RESETS = 21  # v or w forgotten after max_extrapolation without a measur
 A_PREDICTIONS = 22  # predict_core calls
 A_SLIP_SHARE = 23  # exponentially weighted share of wheel frames or twists above the gate
 A_DISTRUST = 24  # 1: the wheels' yaw rates are not fused (their slip share is too high)
-A_DISTRUSTED = 25  # wheel frames or twists whose yaw rate was not fused for that reason
+A_DISTRUSTED = 25  # turning wheel frames or twists whose yaw rate was not fused for that
 A_CLIPPED = 26  # filter time of the last saturated gyro sample (NaN: none yet)
-AUX_SIZE = 27
+A_AGREED = 27  # s of turning wheel frames or twists that agreed with the gyro
+AUX_SIZE = 28
 # per-frame flags
 FLAG_ZUPT = 1
 FLAG_SLIP = 2
@@ -481,30 +483,34 @@ TURN_RATE = 0.1
 
 
 @njit
-def _wheel_rate_trusted(aux, par, interval, slip, turning):
-    """Update the wheels' slip share with one frame (``slip``: above the gate) that comes
-    ``interval`` s after the previous one, if it is ``turning``, and return whether their yaw
-    rates may be fused.
+def _wheel_rate_trust(aux, par, interval, slip, turning):
+    """Account one wheel frame or twist (``slip``: above the gate; ``turning``; ``interval``
+    s after the previous one) and return ``(fuse_rate, disproven)``: whether its yaw rate may
+    be fused, and whether the wheels' yaw rate has shown it does not measure the rotation.
 
-    The share is an exponentially weighted mean over turning frames with time constant
-    ``wheel_rate_trust_time`` (s of turning). Above ``max_slip_share`` the wheels' yaw rate
-    is not a measurement of this robot's rotation (a skid-steer base's odometry, a wrong
-    wheel distance, a floor that slips everywhere), and fusing the frames that happen to pass
-    the gate (driving straight, a turn's first frames while the bias is still uncertain) would
-    bend the gyro bias towards them; trust returns below half that share. The filter starts
-    distrusting, with the share at ``max_slip_share``: in its first turns the wheels have to
-    agree with the gyro.
+    Only turns test the wheels (standing or driving straight, any wheels agree with the
+    gyro). Proven: the wheels have agreed with the gyro over ``wheel_rate_proof_time`` s of
+    turning; before that their yaw rates are not fused (while the bias is still uncertain the
+    gate passes a skid-steer base's first turns, which would pull the bias), but a frame
+    above the gate is still a slip. Disproven: the share of turning frames above the gate,
+    an exponentially weighted mean with time constant ``wheel_rate_trust_time``, exceeds
+    ``max_slip_share`` (a skid-steer base's odometry, a wrong wheel distance, a floor that
+    slips everywhere); then a disagreement is no sign of slip, only the speed is fused, and
+    trust returns below half that share.
     """
     share = aux[A_SLIP_SHARE]
     if turning:
         alpha = min(1.0, interval / par[P_TRUST_TIME])
         share += alpha * ((1.0 if slip else 0.0) - share)
         aux[A_SLIP_SHARE] = share
+        if not slip:
+            aux[A_AGREED] += interval
     if share > par[P_MAX_SLIP_SHARE]:
         aux[A_DISTRUST] = 1.0
     elif share < 0.5 * par[P_MAX_SLIP_SHARE]:
         aux[A_DISTRUST] = 0.0
-    return aux[A_DISTRUST] == 0.0
+    disproven = aux[A_DISTRUST] == 1.0
+    return (not disproven) and aux[A_AGREED] >= par[P_PROOF_TIME], disproven
 
 
 @njit
@@ -515,9 +521,11 @@ def _wheel_update(x, P, aux, par, z, R, interval):
     The yaw-rate component is gated (chi-square, 1 dof, against the gyro-corrected rate
     state): a frame above the gate is a slip, and only its speed is fused, with its noise
     multiplied by ``slip_inflation`` (0: nothing is fused). A slipping frame's yaw rate is
-    never fused, so it cannot bend the heading. Nor is any frame's while most frames slip
-    (:func:`_wheel_rate_trusted`): then only the speed is fused, unless the gyro was
-    saturated within ``wheel_rate_trust_time`` (the wheels are then the only yaw rate; their
+    never fused, so it cannot bend the heading. Nor is any frame's before the wheels have
+    proven themselves in turns, or once most turns disagree (:func:`_wheel_rate_trust`):
+    then only the speed is fused, with its own noise (and, once disproven, no slip flag: the
+    yaw rates' disagreement says nothing about slipping), unless the gyro was
+    saturated within ``wheel_rate_proof_time`` (the wheels are then the only yaw rate; their
     slip share is left as it is).
     """
     L = par[P_WHEEL_DISTANCE]
@@ -527,22 +535,27 @@ def _wheel_update(x, P, aux, par, z, R, interval):
     y[1] = z[1] - y[1]
     d2 = y[1] * y[1] / innovation_variance(P, H, R, 1)
     slip = d2 > par[P_GATE]
-    if aux[A_T] - aux[A_CLIPPED] < par[P_TRUST_TIME]:
+    turning = abs(z[1]) > TURN_RATE or abs(x[4]) > TURN_RATE
+    if aux[A_T] - aux[A_CLIPPED] < par[P_PROOF_TIME]:
         # the gyro is (or was just) saturated: the wheels are all there is, and the gyro's
         # rate state around the saturation is no test of them
-        trusted = True
+        fuse_rate, disproven = True, False
     else:
-        turning = abs(z[1]) > TURN_RATE or abs(x[4]) > TURN_RATE
-        trusted = _wheel_rate_trusted(aux, par, interval, slip, turning)
-    if not slip and trusted:
+        fuse_rate, disproven = _wheel_rate_trust(aux, par, interval, slip, turning)
+    if not slip and fuse_rate:
         _, status = _rate_update(x, P, aux, y, H, R)
         return d2, status
+    if disproven:
+        # wheels whose yaw rate does not measure the rotation: a disagreement with the gyro
+        # says nothing about slipping, and the speed is as good as ever
+        if turning:
+            aux[A_DISTRUSTED] += 1.0
+        slip = False
     if slip:
         aux[A_SLIPS] += 1.0
         aux[A_FLAGS] = FLAG_SLIP
         inflation = par[P_SLIP_INFLATION]
-    else:  # an agreeing frame of wheels whose yaw rate is not trusted: its speed is fine
-        aux[A_DISTRUSTED] += 1.0
+    else:  # agreeing wheels not yet proven in turns, or disproven ones: their speed only
         inflation = 1.0
     if inflation <= 0.0:
         return d2, 2
