@@ -20,7 +20,12 @@ low-friction patches) and "all+dead" (plus 8 s of zero ticks on both wheels whil
 Contenders: wheel only, gyro at stops, and the fused EKF with the DEFAULT EkfNoise fed the
 IMU's z rate as logged (robot.toml says the mount is level, as the owner believes) and the
 accelerometer's slip flags (fusion.planar.accel_slip on the logged x, y specific force;
-``--no-accel-slip``: the gyro gate alone). Errors at
+``--no-accel-slip``: the gyro gate alone). Then the
+same two gyro contenders after the owner's gyro-scale calibration ("cal."): a separate
+simulated run of the same sensors, 10 turns in place back to a mark aligned by eye
+(fusion.evaluation.physics_sim.calibration_run, fusion.calibration.gyro_scale); they get the
+rate about the vertical the calibration found, the EKF its gyro_scale and gyro_scale_std, the
+baseline the rate divided by (1 + gyro_scale). Errors at
 every wheel frame (baselines) or IMU sample (EKF rows) against the truth at the row's host
 stamp. NEES of the EKF pose (x, y, yaw) with the covariances it reports
 (fusion.planar.ekf.pose_covariances) at those rows: fraction of rows inside the two-sided 95 %
@@ -45,10 +50,12 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
+from fusion.calibration.gyro_scale import calibrate_gyro_scale
 from fusion.evaluation.baselines import gyro_at_stops, gyro_at_stops_twist, wheel_only
 from fusion.evaluation.physics_sim import (
     ERROR_GROUPS,
@@ -57,6 +64,7 @@ from fusion.evaluation.physics_sim import (
     simulate_physics,
     with_errors,
 )
+from fusion.evaluation.physics_sim.calibration_run import gyro_calibration_run
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
 from fusion.evaluation.trajectory import (
     final_position_error_percent,
@@ -103,11 +111,11 @@ def _errors(poses: np.ndarray, truth: np.ndarray, distance: float) -> tuple[floa
 
 
 def _table(results: dict[str, list[tuple[float, float]]]) -> None:
-    print(f"{'odometry':14s} {'final pos. error % of distance':>32s} {'yaw RMSE deg':>22s}")
-    print(f"{'':14s} {'mean':>15s} {'worst':>16s} {'mean':>10s} {'worst':>11s}")
+    print(f"{'odometry':16s} {'final pos. error % of distance':>32s} {'yaw RMSE deg':>22s}")
+    print(f"{'':16s} {'mean':>15s} {'worst':>16s} {'mean':>10s} {'worst':>11s}")
     for name, vals in results.items():
         v = np.array(vals)
-        print(f"{name:14s} {v[:, 0].mean():15.3f} {v[:, 0].max():16.3f} "
+        print(f"{name:16s} {v[:, 0].mean():15.3f} {v[:, 0].max():16.3f} "
               f"{v[:, 1].mean():10.3f} {v[:, 1].max():11.3f}")
 
 
@@ -133,58 +141,85 @@ def kinematic_section(seeds: int, duration: float) -> None:
     _table(results)
 
 
-def physics_slip_flags(run) -> np.ndarray:
+def physics_slip_flags(run, rate=None) -> np.ndarray:
     """The accelerometer's slip flags of a physics run's wheel frames, as the EKF gets them
     here: IMU-frame x, y specific force as logged (the mount tilt's gravity leak removed as
-    the at-rest offset), the IMU's z rate."""
+    the at-rest offset) and ``rate`` about the vertical (default: the IMU's z rate)."""
     robot = run.robot.chassis
     return accel_slip_flags(robot.speed_ratio, robot.encode_sampling_time, run.imu_t,
-                            run.accel[:, :2], run.gyro[:, 2],
+                            run.accel[:, :2], run.gyro[:, 2] if rate is None else rate,
                             imu_motion_codes(run.imu_t, run.gyro, run.accel), run.wheel_t,
                             run.ticks)
 
 
-def score_physics_run(run, noise: EkfNoise | None = None, accel_slip: bool = True
-                      ) -> tuple[dict[str, tuple[float, float]], float]:
-    """Errors of the three contenders on one physics run, and the EKF's NEES fraction
-    (``accel_slip``: the EKF gets the accelerometer's slip flags)."""
+def _fused(run, rate, noise: EkfNoise | None, accel_slip: bool = True
+           ) -> tuple[tuple[float, float], float]:
+    """The EKF's errors on a physics run fed ``rate`` about the vertical (and, with
+    ``accel_slip``, the accelerometer's slip flags), and the fraction of its rows whose pose
+    NEES is inside the 95 % bounds."""
+    track, _ = fuse(run.robot.chassis, run.imu_t, rate, run.wheel_t, run.ticks,
+                    noise=noise, imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel),
+                    wheel_slip=physics_slip_flags(run, rate) if accel_slip else None)
+    k = track.kind == GYRO_ROWS
+    est = track.states[k, :3]
+    truth = run.truth_at(track.t[k])
+    errors = _errors(est, truth, run.distance)
+    if not np.isfinite(track.states[k]).all():
+        return errors, math.nan
+    values = nees(pose_errors(est, truth), pose_covariances(track.states[k]))
+    return errors, nees_fraction_within(values, 3)
+
+
+def score_physics_run(run, noise: EkfNoise | None = None, calibration_seed: int | None = None,
+                      accel_slip: bool = True
+                      ) -> tuple[dict[str, tuple[float, float]], dict[str, float]]:
+    """Errors of the contenders on one physics run, and the EKF's NEES fraction (per EKF
+    contender). With ``calibration_seed``, also the gyro contenders after a simulated 10-turn
+    gyro-scale calibration of the same sensors (that seed draws its noise and mark error).
+    ``accel_slip``: the EKF gets the accelerometer's slip flags."""
     robot = run.robot.chassis
     tw = run.truth_at(run.wheel_t)
     out = {"wheel only": _errors(wheel_only(robot, run.ticks), tw, run.distance)}
     stops = gyro_at_stops(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     out["gyro at stops"] = _errors(stops.poses, tw, run.distance)
-    track, _ = fuse(robot, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
-                    noise=noise, imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel),
-                    wheel_slip=physics_slip_flags(run) if accel_slip else None)
-    k = track.kind == GYRO_ROWS
-    est = track.states[k, :3]
-    truth = run.truth_at(track.t[k])
-    out["fused EKF"] = _errors(est, truth, run.distance)
-    if not np.isfinite(track.states[k]).all():
-        return out, math.nan
-    values = nees(pose_errors(est, truth), pose_covariances(track.states[k]))
-    return out, nees_fraction_within(values, 3)
+    out["fused EKF"], fraction = _fused(run, run.gyro[:, 2], noise, accel_slip)
+    inside = {"fused EKF": fraction}
+    if calibration_seed is not None:
+        cal_run, _ = gyro_calibration_run(run.sensors, calibration_seed, turns=10)
+        cal = calibrate_gyro_scale(cal_run.imu_t, cal_run.gyro, cal_run.accel, 10)
+        rate = run.gyro @ np.asarray(cal.vertical)
+        gyro = run.gyro.copy()
+        gyro[:, 2] = rate / (1.0 + cal.scale_error)
+        stops = gyro_at_stops(robot, run.imu_t, gyro, run.accel, run.wheel_t, run.ticks)
+        out["stops, cal."] = _errors(stops.poses, tw, run.distance)
+        cal_noise = replace(noise or EkfNoise(), **cal.ekf_fields())
+        out["fused EKF, cal."], inside["fused EKF, cal."] = _fused(run, rate, cal_noise,
+                                                                   accel_slip)
+    return out, inside
 
 
 def physics_section(seeds: int, duration: float, accel_slip: bool = True) -> None:
     lo, hi = nees_bounds(3)
     for scenario in ("plain", "all", "all+dead"):
-        results: dict[str, list[tuple[float, float]]] = {
-            "wheel only": [], "gyro at stops": [], "fused EKF": []}
-        inside: list[float] = []
+        results: dict[str, list[tuple[float, float]]] = {}
+        inside: dict[str, list[float]] = {}
         for seed in range(seeds):
-            scores, fraction = score_physics_run(
-                physics_scenario(scenario, seed=seed, duration=duration), accel_slip=accel_slip)
+            run = physics_scenario(scenario, seed=seed, duration=duration)
+            scores, fractions = score_physics_run(
+                run, calibration_seed=None if scenario == "plain" else seed,
+                accel_slip=accel_slip)
             for name, value in scores.items():
-                results[name].append(value)
-            inside.append(fraction)
+                results.setdefault(name, []).append(value)
+            for name, value in fractions.items():
+                inside.setdefault(name, []).append(value)
         print(f"\n(ii) physics simulator, scenario {scenario!r}: {seeds} seeds x "
               f"{duration:.0f} s")
         _table(results)
-        f = np.array(inside)
-        print(f"EKF pose NEES (x, y, yaw) inside its 95 % bounds [{lo:.3f}, {hi:.3f}]: "
-              f"{100 * f.mean():.1f} % of the rows on average, {100 * f.min():.1f} % in the "
-              "worst run")
+        for name, values in inside.items():
+            f = np.array(values)
+            print(f"{name}: pose NEES (x, y, yaw) inside its 95 % bounds [{lo:.3f}, {hi:.3f}]: "
+                  f"{100 * f.mean():.1f} % of the rows on average, {100 * f.min():.1f} % in "
+                  "the worst run")
 
 
 def breakdown_section(seed: int, duration: float, accel_slip: bool = True) -> None:
@@ -199,9 +234,9 @@ def breakdown_section(seed: int, duration: float, accel_slip: bool = True) -> No
         sensors = with_errors([name] if name in ERROR_GROUPS else [], seed=seed)
         run = simulate_physics(mission, sensors, seed,
                                dead_encoder_while_driving=8.0 if name == "dead-encoder" else 0)
-        scores, fraction = score_physics_run(run, accel_slip=accel_slip)
+        scores, fractions = score_physics_run(run, accel_slip=accel_slip)
         cells = " ".join(f"{a:7.2f} /{b:7.2f}" for a, b in scores.values())
-        print(f"{name:16s} {cells} {100 * fraction:7.1f}%")
+        print(f"{name:16s} {cells} {100 * fractions['fused EKF']:7.1f}%")
 
 
 def bag_section() -> None:

@@ -48,9 +48,15 @@ class FilterpyReference:
         self.in_fault = False
         self.wheel_t: float | None = None
         self.yaw_budget = noise.yaw_fix_burst
-        self.stats = dict.fromkeys(("slips", "zupts", "late_dropped", "late_applied",
-                                    "invalid", "gyro_saturated", "encoder_faults", "updates",
+        self.stats = dict.fromkeys(("slips", "wheel_rate_distrusted", "zupts",
+                                    "late_dropped", "late_applied", "invalid",
+                                    "gyro_saturated", "encoder_faults", "updates",
                                     "speed_resets", "predictions", "accel_slips"), 0)
+        # the wheels' yaw rates are fused only while few turning frames fail the slip gate
+        self.slip_share = 0.0
+        self.distrust = False  # disproven: most turns disagree
+        self.agreed = 0.0  # s of turning frames that agreed (proven at wheel_rate_proof_time)
+        self.clipped_at = -math.inf  # filter time of the last saturated gyro sample
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
         self.forgotten: dict[int, tuple[float, float]] = {}  # i -> (time, second moment)
@@ -176,6 +182,7 @@ class FilterpyReference:
             self.imu_motion = int(b) if b in (STILL, UNSURE, MOVING) else 0
             if abs(a) >= n.gyro_limit:
                 self.stats["gyro_saturated"] += 1
+                self.clipped_at = self.t
                 return 2
             H = model.gyro_jacobian(kf.x)
             R = model.gyro_noise(n.gyro_std ** 2)
@@ -247,17 +254,41 @@ class FilterpyReference:
                 H = model.wheel_jacobian(kf.x, L)
                 S = H @ kf.P @ H.T + R
                 y = z - model.wheel_h(kf.x, L)
-                if accel_slip or y[1] ** 2 / S[1, 1] > n.slip_gate:  # the yaw rate disagrees
-                    self.stats["slips"] += 1
-                    self.stats["accel_slips"] += accel_slip
-                    if n.slip_inflation <= 0:
+                slip = y[1] ** 2 / S[1, 1] > n.slip_gate  # the yaw rate disagrees
+                # with the gyro saturated the wheels are all there is
+                fuse_rate, disproven = True, False
+                turning = abs(z[1]) > 0.1 or abs(kf.x[4]) > 0.1  # a turn tests the wheels
+                if self.t - self.clipped_at >= n.wheel_rate_proof_time:
+                    if turning:
+                        w = min(1.0, interval / n.wheel_rate_trust_time)
+                        self.slip_share += w * (float(slip) - self.slip_share)
+                        self.agreed += 0.0 if slip else interval
+                    if self.slip_share > n.max_slip_share:
+                        self.distrust = True
+                    elif self.slip_share < 0.5 * n.max_slip_share:
+                        self.distrust = False
+                    disproven = self.distrust
+                    fuse_rate = not disproven and self.agreed >= n.wheel_rate_proof_time
+                if slip or not fuse_rate or accel_slip:
+                    slip = slip and not disproven  # disproven wheels: no slip test at all
+                    if disproven and turning:
+                        self.stats["wheel_rate_distrusted"] += 1
+                    if accel_slip:  # the accelerometer says so: a slip whatever the gyro says
+                        self.stats["accel_slips"] += 1
+                        slip = True
+                    if slip:
+                        self.stats["slips"] += 1
+                    inflation = n.slip_inflation if slip else 1.0
+                    if inflation <= 0:
                         self.stats["updates"] += 1
                         return 2
-                    # the speed alone, down-weighted; never the yaw rate
-                    self._rate_update(y[:1], H[:1], R[:1, :1] * n.slip_inflation)
+                    # the speed alone (down-weighted if slipping); never the yaw rate
+                    H_v = np.zeros((1, model.NX))
+                    H_v[0, 3] = H[0, 3]
+                    self._rate_update(y[:1], H_v, R[:1, :1] * inflation)
                     self._measured(3, 4)
                     self.stats["updates"] += 1
-                    return 1
+                    return 1 if slip else 0
                 self._rate_update(y, H, R)
                 self._measured(3, 4)
         elif kind == YAW:

@@ -78,6 +78,7 @@ BASE = {
     "imu-calibrate": {"raw": ["imu-calibrate", "rest.csv", "-o", "cal.json"]},
     "calibrate odometry": {"logdir": ["calibrate", "odometry", "run1"]},
     "calibrate umbmark": {"squares": ["calibrate", "umbmark", "--cw", "cw", "--ccw", "ccw"]},
+    "calibrate gyro-scale": {"turns": ["calibrate", "gyro-scale", "turns", "--turns", "3"]},
     "chassis decode": {"capture": ["chassis", "decode", "capture.bin"]},
     "chassis encode": {"ticks": ["chassis", "encode", "100", "-300"]},
     "synth": {"mission": ["synth", "out", "--duration", "12"],
@@ -177,6 +178,12 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         "--ccw": [changes("squares", "--ccw", "ccw", "cw")],
         "--side": [changes("squares", "--side", "2")],
     },
+    "calibrate gyro-scale": {
+        # the last --turns counts: a miscount is refused with both counts
+        "--turns": [refused("turns", "but +2 were declared", "--turns", "2")],
+        "--mark-std": [changes("turns", "--mark-std", "5")],
+        "--write": [changes("turns", "--write", "robot-gyro.toml")],
+    },
     "chassis decode": {
         "--output": [changes("capture", "-o", "ticks.csv")],
         "--max-ticks": [changes("capture", "--max-ticks", "200")],
@@ -187,6 +194,8 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         "--scenario": [refused("mission", "--duration applies to --scenario mission only",
                                "--scenario", "square"),
                        changes("square", "--scenario", "figure8"),
+                       refused("square", "--scenario turns needs --simulator physics",
+                               "--scenario", "turns"),
                        changes("figure8", "--scenario", "square")],
         "--direction": [refused("mission", "--direction applies to --scenario square only",
                                 "--direction", "cw"),
@@ -207,10 +216,13 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         # the physics simulator: its own options refused with the kinematic one (the
         # kinematic options under --simulator physics have no rows yet)
         "--simulator": [changes("mission", "--simulator", "physics"),
-                        refused("square", "--simulator physics runs missions only",
-                                "--simulator", "physics"),
-                        refused("figure8", "--simulator physics runs missions only",
-                                "--simulator", "physics")],
+                        refused("square", "--simulator physics runs --scenario mission or "
+                                "turns", "--simulator", "physics"),
+                        refused("figure8", "--simulator physics runs --scenario mission or "
+                                "turns", "--simulator", "physics")],
+        # a gyro-scale calibration run is the physics simulator's
+        "--turns": [refused(k, "--turns applies to --scenario turns only", "--turns", "3")
+                    for k in ("mission", "square", "figure8")],
         **{opt: [refused(k, f"{opt} applies to --simulator physics only", *argv)
                  for k in ("mission", "square", "figure8")]
            for opt, argv in (("--errors", ("--errors", "plain")),
@@ -373,6 +385,8 @@ def inputs(tmp_path_factory) -> Path:
     save_imu_calibration(ImuCalibration(gyro_bias=np.array([0.01, -0.02, 0.03])),
                          d / "cal.json")
     write_synthetic_run(d / "run1", degraded_mission(seed=2, duration=120.0))
+    assert main(["synth", str(d / "turns"), "--simulator", "physics", "--scenario", "turns",
+                 "--turns", "3", "--seed", "1"]) == 0
     from fusion.evaluation.synthetic import EXAMPLE_ROBOT, EncoderModel, ImuModel
 
     for direction in ("cw", "ccw"):

@@ -5,6 +5,10 @@
   corrected ``[chassis]`` parameters (seed 000's names).
 - ``fusion calibrate umbmark --cw DIR... --ccw DIR...``: Borenstein & Feng's UMBmark from
   square runs whose log directories carry ``truth.csv``.
+- ``fusion calibrate gyro-scale LOGDIR... --turns N...``: the gyro's scale error from turns in
+  place back to a mark (:mod:`fusion.calibration.gyro_scale`); prints robot.toml's ``[ekf]``
+  ``gyro_scale`` and ``gyro_scale_std``. Do it before ``odometry``, which uses the gyro as its
+  reference (it applies the calibrated scale).
 """
 
 from __future__ import annotations
@@ -66,6 +70,26 @@ def register(subparsers) -> None:
     u.add_argument("--ccw", type=Path, nargs="+", required=True, help="counter-clockwise runs")
     u.add_argument("--side", type=float, default=4.0, help="side of the square, m (default 4)")
     u.set_defaults(func=run_umbmark)
+    g = sub.add_parser(
+        "gyro-scale",
+        help="the gyro's scale error from turns in place back to a mark",
+        description=(
+            "Each LOGDIR (imu.csv) is one run: at least 3 s at rest on a mark, N full turns in "
+            "place, back on the mark, at least 3 s at rest. Prints the gyro's scale error and "
+            "its uncertainty (several runs are combined; do one clockwise and one "
+            "counter-clockwise)."
+        ),
+    )
+    g.add_argument("input", type=Path, nargs="+", help="log directories, one run each")
+    g.add_argument("--turns", type=int, nargs="+", required=True,
+                   help="full turns of each run, signed: CCW positive (one per LOGDIR)")
+    g.add_argument("--mark-std", type=float, default=1.0,
+                   help="how well the robot was put back on the mark, deg (default 1)")
+    g.add_argument("--write", type=Path, metavar="TOML",
+                   help="also write a robot.toml with [ekf] gyro_scale and gyro_scale_std "
+                        "set (the rest copied from the first log's robot.toml); refuses to "
+                        "overwrite a log's own")
+    g.set_defaults(func=run_gyro_scale)
     p.set_defaults(func=lambda args: _missing_what(p))
 
 
@@ -81,13 +105,7 @@ def run_odometry(args: argparse.Namespace) -> int:
 
     if not args.input.is_dir():
         raise CommandError(f"{args.input}: not a log directory")
-    if args.write is not None:
-        from fusion.io.atomic import check_target
-
-        check_target(args.write)  # before the fit, not after
-        if args.write.resolve() == (args.input / "robot.toml").resolve():
-            raise CommandError(f"{args.write}: refusing to overwrite the log's own robot.toml "
-                               "(it describes how the log was recorded)")
+    _check_write_target(args.write, [args.input])  # before the fit, not after
     log = read_logdir(args.input)
     if log.imu_t is None or log.wheel_t is None:
         raise CommandError(f"{args.input}: odometry calibration needs both imu.csv and "
@@ -103,6 +121,7 @@ def run_odometry(args: argparse.Namespace) -> int:
 
         q = Mahony(axes=6).update_batch(log.gyro, log.accel, timestamps=log.imu_t)
         gyro_z = vertical_rate(log.gyro, q)
+    gyro_z = gyro_z / (1.0 + log.robot.ekf.gyro_scale)  # the reference: a calibrated gyro
     cal = calibrate_odometry(
         log.imu_t, gyro_z, log.wheel_t, log.ticks, log.robot.chassis,
         distance=args.distance,
@@ -121,6 +140,63 @@ def run_odometry(args: argparse.Namespace) -> int:
         target = args.write
         write_robot_toml(target, replace(log.robot, chassis=cal.params()))
         print(f"wrote {target}")
+    return 0
+
+
+def _check_write_target(target: Path | None, logs: list[Path]) -> None:
+    """Refuse an unwritable ``--write`` target, or a log's own robot.toml, before any work."""
+    if target is None:
+        return
+    from fusion.io.atomic import check_target
+
+    check_target(target)
+    for log in logs:
+        if target.resolve() == (log / "robot.toml").resolve():
+            raise CommandError(f"{target}: refusing to overwrite the log's own robot.toml "
+                               "(it describes how the log was recorded)")
+
+
+def run_gyro_scale(args: argparse.Namespace) -> int:
+    from dataclasses import replace
+
+    from fusion.calibration.gyro_scale import calibrate_gyro_scale, combine_gyro_scales
+    from fusion.io.logdir import read_logdir
+
+    if len(args.turns) != len(args.input):
+        raise CommandError(f"give one --turns per log directory: {len(args.input)} "
+                           f"directories, {len(args.turns)} turn counts")
+    if not (math.isfinite(args.mark_std) and args.mark_std > 0):
+        raise CommandError(f"--mark-std must be > 0 deg, got {args.mark_std}")
+    _check_write_target(args.write, args.input)
+    runs = []
+    robot = None
+    for d, turns in zip(args.input, args.turns, strict=True):
+        if not d.is_dir():
+            raise CommandError(f"{d}: not a log directory")
+        log = read_logdir(d)
+        if log.imu_t is None:
+            raise CommandError(f"{d}: gyro-scale calibration needs imu.csv")
+        try:
+            cal = calibrate_gyro_scale(log.imu_t, log.gyro, log.accel, turns,
+                                       mark_std=math.radians(args.mark_std))
+        except ValueError as exc:
+            raise CommandError(f"{d}: {exc}") from exc
+        print(f"{d}:")
+        print(cal.report())
+        runs.append(cal)
+        robot = robot or log.robot
+    cal = combine_gyro_scales(runs)
+    if len(runs) > 1:
+        print(f"combined ({len(runs)} runs): g = {100 * cal.scale_error:+.3f} % +- "
+              f"{100 * cal.scale_error_std:.3f} %")
+    print("[ekf]")
+    for key, value in cal.ekf_fields().items():
+        print(f"{key} = {value:.6g}")
+    if args.write is not None:
+        from fusion.io.robot_toml import write_robot_toml
+
+        write_robot_toml(args.write, replace(robot, ekf=replace(robot.ekf, **cal.ekf_fields())))
+        print(f"wrote {args.write}")
     return 0
 
 

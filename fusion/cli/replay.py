@@ -189,6 +189,7 @@ def _print_result(r, level_note: bool = True) -> None:
           f"{r.distance:.2f} m")
     print(f"gyro bias {math.degrees(r.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, "
           f"slip frames {s['slips']} ({s.get('accel_slips', 0)} seen by the accelerometer), "
+          f"turning frames whose yaw rate was not trusted {s['wheel_rate_distrusted']}, "
           f"encoder faults (zero ticks while the IMU moved, not "
           f"fused) {s['encoder_faults']}, late inputs fused {s['late_applied']}, dropped "
           f"{s['late_dropped']}, invalid {s['invalid']}; wheel gaps {s['gap_count']} "
@@ -199,7 +200,8 @@ def _print_result(r, level_note: bool = True) -> None:
     _print_warnings(r.warnings)
     if r.n_imu:
         print(f"wheel yaw-rate calibration seen by the gyro: k {r.k:+.4f} "
-              f"(wheel_distance ~ {r.wheel_distance * (1 + r.k):.4f} m), "
+              f"(wheel_distance ~ {r.wheel_distance * (1 + r.k) * (1 + r.gyro_scale):.4f} "
+              "m with the gyro's scale as configured), "
               f"c {r.c:+.5f} rad/m; see `fusion calibrate odometry` for corrected parameters")
     elif level_note:
         print("no imu.csv: wheel odometry only (no gyro to fuse)")
@@ -526,7 +528,8 @@ def run_bag(args: argparse.Namespace) -> int:
           f" deg; path {job.distance_travelled(table):.2f} m")
     ekf = r.pipeline.ekf
     print(f"gyro bias {math.degrees(ekf.gyro_bias):+.4f} deg/s; ZUPTs {stats.zupts}, slip "
-          f"(twist/gyro disagreement) {stats.slips}, encoder faults (zero twist while the IMU "
+          f"(twist/gyro disagreement) {stats.slips}, turning twists whose yaw rate was not "
+          f"trusted {stats.wheel_rate_distrusted}, encoder faults (zero twist while the IMU "
           f"moved, not fused) {stats.encoder_faults}, invalid {ekf.stats['invalid']}")
     print(f"the bag's own odometry ({args.odom_topic}) final pose from its start: x "
           f"{own[-1, 0]:.3f} m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")

@@ -32,8 +32,14 @@ def register(subparsers) -> None:
         ),
     )
     p.add_argument("output", type=Path, help="log directory to create")
-    p.add_argument("--scenario", choices=("mission", "square", "figure8"), default="mission",
-                   help="random mission (default), UMBmark square, or figure eight")
+    p.add_argument("--scenario", choices=("mission", "square", "figure8", "turns"),
+                   default="mission",
+                   help="random mission (default), UMBmark square, figure eight, or (physics "
+                        "only) a gyro-scale calibration run: --turns turns in place back to "
+                        "a mark, for `fusion calibrate gyro-scale`")
+    p.add_argument("--turns", type=int, default=None,
+                   help="full turns in place of --scenario turns, signed: CCW positive "
+                        "(default 10)")
     p.add_argument("--direction", choices=("cw", "ccw"),
                    help="square direction (default ccw; square only)")
     p.add_argument("--side", type=float, help="square side, m (default 4; square only)")
@@ -90,25 +96,32 @@ def run_physics(args: argparse.Namespace) -> int:
         simulate_physics,
         with_errors,
     )
+    from fusion.evaluation.physics_sim.calibration_run import gyro_calibration_run
     from fusion.io.logdir import write_logdir
 
     known = _physics_error_names()
     bad = [n for n in args.with_errors + args.without_errors if n not in known]
     if bad:
         raise CommandError(f"unknown error name(s) {bad}; known: {', '.join(known)}")
-    if args.scenario != "mission":
-        raise CommandError("--simulator physics runs missions only (no --scenario "
-                           f"{args.scenario})")
+    if args.scenario not in ("mission", "turns"):
+        raise CommandError("--simulator physics runs --scenario mission or turns, not "
+                           f"{args.scenario}")
     if args.dead_encoder < 0 or not args.truth_rate > 0 or args.truth_rate > 1000:
         raise CommandError("--dead-encoder must be >= 0 s and --truth-rate in (0, 1000] Hz")
     names = set(known) if args.errors == "all" else set()
     names = (names | set(args.with_errors)) - set(args.without_errors)
     sensors = with_errors(sorted(names & set(ERROR_GROUPS)), seed=args.seed)
-    mission = indoor_mission(args.seed, args.duration, moving_start=args.moving_start,
-                             low_friction="low-friction" in names)
+    note = ""
     try:
-        run_ = simulate_physics(mission, sensors, args.seed,
-                                dead_encoder_while_driving=args.dead_encoder)
+        if args.scenario == "turns":
+            run_, alignment = gyro_calibration_run(sensors, args.seed, turns=args.turns)
+            note = (f"; {args.turns:+d} turns in place, stopped {math.degrees(alignment):+.2f} "
+                    "deg off the mark (aligned by eye)")
+        else:
+            mission = indoor_mission(args.seed, args.duration, moving_start=args.moving_start,
+                                     low_friction="low-friction" in names)
+            run_ = simulate_physics(mission, sensors, args.seed,
+                                    dead_encoder_while_driving=args.dead_encoder)
     except ValueError as exc:
         raise CommandError(str(exc)) from exc
     step = max(1, round(1000.0 / args.truth_rate))
@@ -121,7 +134,7 @@ def run_physics(args: argparse.Namespace) -> int:
           f"{run_.imu_t.size} IMU samples, {run_.ticks.shape[0]} wheel frames; errors: "
           f"{', '.join(sorted(names)) or 'none (plain)'}; dead encoder: {dead}; true "
           f"wheel_distance {run_.trace.wheel_distance:.5g} m (robot.toml says "
-          f"{run_.robot.chassis.wheel_distance:g})")
+          f"{run_.robot.chassis.wheel_distance:g}){note}")
     return 0
 
 
@@ -157,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
         raise CommandError(f"{out}: exists and is not empty; choose a new directory")
     only = {"--direction": (args.direction, "square"), "--side": (args.side, "square"),
             "--duration": (args.duration, "mission"),
-            "--slip-patches": (args.slip_patches, "mission")}
+            "--slip-patches": (args.slip_patches, "mission"), "--turns": (args.turns, "turns")}
     for option, (value, scenario) in only.items():
         if value is not None and args.scenario != scenario:
             raise CommandError(f"{option} applies to --scenario {scenario} only (this is "
@@ -168,6 +181,12 @@ def run(args: argparse.Namespace) -> int:
     args.slip_patches = 3 if args.slip_patches is None else args.slip_patches
     if args.duration <= 10:
         raise CommandError(f"--duration must be > 10 s, got {args.duration}")
+    args.turns = 10 if args.turns is None else args.turns
+    if args.scenario == "turns" and args.simulator != "physics":
+        raise CommandError("--scenario turns needs --simulator physics")
+    if args.scenario == "turns" and (args.moving_start or args.dead_encoder):
+        raise CommandError("--moving-start and --dead-encoder apply to missions, not to "
+                           "--scenario turns")
     if args.simulator == "physics":
         return run_physics(args)
     if not -0.5 < args.separation_error < 0.5 or not -0.5 < args.radius_mismatch < 0.5:

@@ -12,9 +12,11 @@ Checks (each a :class:`TrustWarning` with its figures):
 
 ``slip``
     More than :data:`SLIP_FRACTION_LIMIT` of the odometry frames (wheel frames or twists)
-    were flagged as slip (their yaw rate disagreed with the gyro's): slip is an exception
-    the model down-weights, not the normal state; most frames flagged means the two sources
-    describe different motions (a wrong wheel_distance, an IMU on another body, a wrong mount).
+    were flagged as slip (their yaw rate disagreed with the gyro's) or, once most turns
+    disagreed, were turning frames whose yaw rate the EKF no longer fused
+    (``wheel_rate_distrusted``): slip is an exception the model down-weights, not the normal
+    state; most frames disagreeing means the two sources describe different motions (a
+    skid-steer base, a wrong wheel_distance, an IMU on another body, a wrong mount).
 ``gyro_bias``
     The EKF's gyro bias estimate beyond :data:`GYRO_BIAS_LIMIT`: the MPU-6050's initial
     zero-rate output tolerance, +-20 deg/s at 25 C (InvenSense MPU-6000/MPU-6050 Product
@@ -87,15 +89,21 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None) -> list[Tr
     out: list[TrustWarning] = []
     frames = int(stats.get("wheel_frames", 0)) + int(stats.get("twist_messages", 0))
     slips = int(stats.get("slips", 0))
-    if frames and slips / frames > SLIP_FRACTION_LIMIT:
+    distrusted = int(stats.get("wheel_rate_distrusted", 0))
+    disagree = slips + distrusted
+    if frames and disagree / frames > SLIP_FRACTION_LIMIT:
         out.append(TrustWarning(
             "slip",
-            f"{100 * slips / frames:.0f} % of the {frames} odometry frames were flagged as "
-            f"slip (their yaw rate disagrees with the gyro's, or their speed change with the "
-            f"accelerometer's; more than "
+            f"{100 * disagree / frames:.0f} % of the {frames} odometry frames disagree with "
+            f"the gyro on the yaw rate or with the accelerometer on the speed ({slips} "
+            f"flagged as slip, {distrusted} turning frames "
+            "whose yaw rate was no longer fused because most turns disagreed; more than "
             f"{100 * SLIP_FRACTION_LIMIT:.0f} % means the two inputs describe different "
-            "motions: check wheel_distance, the IMU mount and the topics)",
-            {"slip_fraction": slips / frames, "slips": float(slips), "frames": float(frames)}))
+            "motions: a skid-steer base, or check wheel_distance, the IMU mount and the "
+            "topics)" + ("; the fused heading followed the gyro alone" if distrusted > slips
+                         else ""),
+            {"slip_fraction": disagree / frames, "slips": float(slips),
+             "wheel_rate_distrusted": float(distrusted), "frames": float(frames)}))
     gyro_time = float(stats.get("gyro_time", 0.0))
     if gyro_bias is None or not gyro_time > 0:
         return out

@@ -140,6 +140,8 @@ class ReplayResult:
         notes: warnings for the user about the input files.
         warnings: the trust checks that failed (:mod:`fusion.evaluation.trust`: the inputs
             disagree beyond what the model explains).
+        gyro_scale: the EKF's final gyro scale error ``g`` (1; robot.toml's
+            ``[ekf] gyro_scale`` unless an absolute yaw moved it).
     """
 
     source: str
@@ -159,6 +161,7 @@ class ReplayResult:
     truth: dict[str, float] | None = None
     notes: list[str] = field(default_factory=list)
     warnings: list[TrustWarning] = field(default_factory=list)
+    gyro_scale: float = 0.0
 
 
 def output_format(path: Path) -> str:
@@ -355,7 +358,7 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
         n_wheels=int(wheel_t.size), rows=int(table.shape[0]), records=stats.records,
         final=(float(last[1]), float(last[2]), float(last[3])),
         distance=_distance(t_out, table[:, 4]), gyro_bias=float(ekf.gyro_bias),
-        k=float(ekf.x[6]), c=float(ekf.x[7]),
+        k=float(ekf.x[6]), c=float(ekf.x[7]), gyro_scale=float(ekf.x[8]),
         stats={**stats.as_dict(), "invalid": ekf.stats["invalid"], "ledger": pipe.ledger()},
         wheel_distance=chassis.wheel_distance, truth=truth_res, notes=notes,
         warnings=warnings)

@@ -172,6 +172,9 @@ class PipelineStats:
         slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
         accel_slips: of the slips, the wheel frames the accelerometer flagged
             (:mod:`fusion.planar.accel_slip`).
+        wheel_rate_distrusted: turning wheel frames (or twists) whose yaw rate was not fused
+            because most turns disagreed with the gyro (a skid-steer base, a wrong
+            wheel_distance; :class:`fusion.planar.ekf.EkfNoise` ``max_slip_share``).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
@@ -204,6 +207,7 @@ class PipelineStats:
     late_applied: int = 0
     slips: int = 0
     accel_slips: int = 0
+    wheel_rate_distrusted: int = 0
     zupts: int = 0
     encoder_faults: int = 0
     gap_count: int = 0
@@ -1003,6 +1007,7 @@ class FusionPipeline(Lifecycle):
         self.stats.late_applied = s["late_applied"]
         self.stats.slips = s["slips"]
         self.stats.accel_slips = s["accel_slips"]
+        self.stats.wheel_rate_distrusted = s["wheel_rate_distrusted"]
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
         self.stats.speed_resets = s["speed_resets"]

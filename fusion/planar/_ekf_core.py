@@ -81,7 +81,10 @@ P_MAX_RATE = 33
 P_MAX_SPEED = 34
 P_Q_G = 35
 P_Q_S = 36
-PAR_SIZE = 37
+P_TRUST_TIME = 37  # time constant of the wheel yaw rate's slip share, s
+P_MAX_SLIP_SHARE = 38  # above this slip share the wheels' yaw rates are not fused
+P_PROOF_TIME = 39  # s of agreeing turns before the wheels' yaw rates are fused
+PAR_SIZE = 40
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -107,8 +110,13 @@ A_V_RMS2 = 19  # second moment of v when forgotten, (m/s)^2
 A_W_RMS2 = 20  # the same for w, (rad/s)^2
 A_SPEED_RESETS = 21  # v or w forgotten after max_extrapolation without a measurement
 A_PREDICTIONS = 22  # predict_core calls
-A_ACCEL_SLIPS = 23  # wheel frames the accelerometer flagged as slipping (EV_WHEELS_SLIP)
-AUX_SIZE = 24
+A_SLIP_SHARE = 23  # exponentially weighted share of wheel frames or twists above the gate
+A_DISTRUST = 24  # 1: the wheels' yaw rates are not fused (their slip share is too high)
+A_DISTRUSTED = 25  # turning wheel frames or twists whose yaw rate was not fused for that
+A_CLIPPED = 26  # filter time of the last saturated gyro sample (NaN: none yet)
+A_AGREED = 27  # s of turning wheel frames or twists that agreed with the gyro
+A_ACCEL_SLIPS = 28  # wheel frames the accelerometer flagged as slipping (EV_WHEELS_SLIP)
+AUX_SIZE = 29
 # per-frame flags
 FLAG_ZUPT = 1
 FLAG_SLIP = 2
@@ -472,15 +480,60 @@ def _rate_update(x, P, aux, y, H, R):
     return d2, status
 
 
+#: A frame whose measured or expected yaw rate exceeds this (rad/s, 6 deg/s) is a turn: only
+#: turns test whether the wheels' yaw rate can be trusted (standing or driving straight,
+#: any wheels agree with the gyro).
+TURN_RATE = 0.1
+
+
 @njit
-def _wheel_update(x, P, aux, par, z, R, accel_slip):
-    """Fuse a wheel twist ``z = [v_m, w_m]`` with noise ``R``; returns ``(d2, status)``.
+def _wheel_rate_trust(aux, par, interval, slip, turning):
+    """Account one wheel frame or twist (``slip``: above the gate; ``turning``; ``interval``
+    s after the previous one) and return ``(fuse_rate, disproven)``: whether its yaw rate may
+    be fused, and whether the wheels' yaw rate has shown it does not measure the rotation.
+
+    Only turns test the wheels (standing or driving straight, any wheels agree with the
+    gyro). Proven: the wheels have agreed with the gyro over ``wheel_rate_proof_time`` s of
+    turning; before that their yaw rates are not fused (while the bias is still uncertain the
+    gate passes a skid-steer base's first turns, which would pull the bias), but a frame
+    above the gate is still a slip. Disproven: the share of turning frames above the gate,
+    an exponentially weighted mean with time constant ``wheel_rate_trust_time``, exceeds
+    ``max_slip_share`` (a skid-steer base's odometry, a wrong wheel distance, a floor that
+    slips everywhere); then a disagreement is no sign of slip, only the speed is fused, and
+    trust returns below half that share.
+    """
+    share = aux[A_SLIP_SHARE]
+    if turning:
+        alpha = min(1.0, interval / par[P_TRUST_TIME])
+        share += alpha * ((1.0 if slip else 0.0) - share)
+        aux[A_SLIP_SHARE] = share
+        if not slip:
+            aux[A_AGREED] += interval
+    if share > par[P_MAX_SLIP_SHARE]:
+        aux[A_DISTRUST] = 1.0
+    elif share < 0.5 * par[P_MAX_SLIP_SHARE]:
+        aux[A_DISTRUST] = 0.0
+    disproven = aux[A_DISTRUST] == 1.0
+    return (not disproven) and aux[A_AGREED] >= par[P_PROOF_TIME], disproven
+
+
+@njit
+def _wheel_update(x, P, aux, par, z, R, interval, accel_slip):
+    """Fuse a wheel twist ``z = [v_m, w_m]`` with noise ``R``, ``interval`` s after the
+    previous frame; returns ``(d2, status)``.
 
     The yaw-rate component is gated (chi-square, 1 dof, against the gyro-corrected rate
-    state): a frame above the gate, or one the accelerometer flagged (``accel_slip``), is a
-    slip, and only its speed is fused, with its noise multiplied by ``slip_inflation`` (0:
-    nothing is fused). A slipping frame's yaw rate is never fused, so it cannot bend the
-    heading.
+    state): a frame above the gate is a slip, and only its speed is fused, with its noise
+    multiplied by ``slip_inflation`` (0: nothing is fused). A slipping frame's yaw rate is
+    never fused, so it cannot bend the heading. Nor is any frame's before the wheels have
+    proven themselves in turns, or once most turns disagree (:func:`_wheel_rate_trust`):
+    then only the speed is fused, with its own noise (and, once disproven, no slip flag: the
+    yaw rates' disagreement says nothing about slipping), unless the gyro was
+    saturated within ``wheel_rate_proof_time`` (the wheels are then the only yaw rate; their
+    slip share is left as it is). A frame the accelerometer flagged (``accel_slip``: its
+    speed change or v*w contradicted, :mod:`fusion.planar.accel_slip`) is a slip whatever
+    the gyro gate and the wheels' trust say; it does not count in the wheels' slip share,
+    which is about their yaw rate.
     """
     L = par[P_WHEEL_DISTANCE]
     H = wheel_jacobian(x, L)
@@ -488,22 +541,42 @@ def _wheel_update(x, P, aux, par, z, R, accel_slip):
     y[0] = z[0] - y[0]
     y[1] = z[1] - y[1]
     d2 = y[1] * y[1] / innovation_variance(P, H, R, 1)
-    if d2 <= par[P_GATE] and not accel_slip:
+    slip = d2 > par[P_GATE]
+    turning = abs(z[1]) > TURN_RATE or abs(x[4]) > TURN_RATE
+    if aux[A_T] - aux[A_CLIPPED] < par[P_PROOF_TIME]:
+        # the gyro is (or was just) saturated: the wheels are all there is, and the gyro's
+        # rate state around the saturation is no test of them
+        fuse_rate, disproven = True, False
+    else:
+        fuse_rate, disproven = _wheel_rate_trust(aux, par, interval, slip, turning)
+    if not slip and fuse_rate and not accel_slip:
         _, status = _rate_update(x, P, aux, y, H, R)
         return d2, status
+    if disproven:
+        # wheels whose yaw rate does not measure the rotation: a disagreement with the gyro
+        # says nothing about slipping, and the speed is as good as ever
+        if turning:
+            aux[A_DISTRUSTED] += 1.0
+        slip = False
     if accel_slip:
         aux[A_ACCEL_SLIPS] += 1.0
-    aux[A_SLIPS] += 1.0
-    aux[A_FLAGS] = FLAG_SLIP
-    inflation = par[P_SLIP_INFLATION]
+        slip = True
+    if slip:
+        aux[A_SLIPS] += 1.0
+        aux[A_FLAGS] = FLAG_SLIP
+        inflation = par[P_SLIP_INFLATION]
+    else:  # agreeing wheels not yet proven in turns, or disproven ones: their speed only
+        inflation = 1.0
     if inflation <= 0.0:
         return d2, 2
+    # the speed alone: the wheel yaw-rate model's small c*w term is left out of the
+    # Jacobian, so that a frame whose rotation is not trusted teaches nothing about it
+    # (through c and w it would reach the gyro bias)
     H1 = np.zeros((1, NX))
-    for j in range(NX):
-        H1[0, j] = H[0, j]
+    H1[0, 3] = H[0, 3]
     _, status = _rate_update(x, P, aux, np.array([y[0]]), H1,
                              np.full((1, 1), R[0, 0] * inflation))
-    return d2, 1 if status == 0 else status
+    return d2, 1 if status == 0 and slip else status
 
 
 @njit
@@ -596,7 +669,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         R[1, 1] *= inflate
         R[0, 1] *= math.sqrt(inflate)
         R[1, 0] = R[0, 1]
-    return _wheel_update(x, P, aux, par, z, R, accel_slip)
+    return _wheel_update(x, P, aux, par, z, R, interval, accel_slip)
 
 
 @njit
@@ -652,6 +725,7 @@ def step_core(x, P, aux, par, kind, t, a, b):
             # a saturated gyro reads the full-scale value, not the rate: skip it and let the
             # wheels carry the yaw rate until the gyro is back in range
             aux[A_SATURATED] += 1.0
+            aux[A_CLIPPED] = aux[A_T]
             return 2
         H = gyro_jacobian(x)
         R = gyro_noise(par[P_GYRO_VAR])

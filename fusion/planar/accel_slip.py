@@ -14,10 +14,11 @@ The accelerometer measures the specific force ``f`` (m/s^2) in the base frame; w
 at-rest offset removed (learnt here whenever the newest wheel frame has zero ticks and the
 IMU is still: gravity leaking through a mount tilt, the accelerometer bias), ``f`` is that
 acceleration on a level floor (on a slope gravity leaks by a different amount, about
-0.17 m/s^2 per degree along the track, which the test cannot tell from a slip). An IMU at ``lever_arm = (px, py)`` from the
-axle midpoint feels ``f_x = a_x - w^2 px - w' py`` and ``f_y = a_y + w' px - w^2 py``
-(``w'`` the yaw acceleration); ``lever_arm`` defaults to ``(0, 0)`` (the lever arm ignored)
-and ``lever_arm_std`` covers an IMU up to that far from where it is configured.
+0.17 m/s^2 per degree along the track, which the test cannot tell from a slip). An IMU at
+``lever_arm = (px, py)`` from the axle midpoint feels ``f_x = a_x - w^2 px - w' py`` and
+``f_y = a_y + w' px - w^2 py`` (``w'`` the yaw acceleration); ``lever_arm`` defaults to
+``(0, 0)`` (the lever arm ignored) and ``lever_arm_std`` covers an IMU up to that far from
+where it is configured.
 
 Per wheel frame ``k`` the detector compares, over the last ``n`` frames
 (``n = round(window / period)``, frames ``k-n .. k`` without a gap),

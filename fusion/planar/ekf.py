@@ -211,9 +211,13 @@ class EkfNoise:
         max_speed: inputs with a speed above this (m/s: either wheel of a frame, a twist)
             are corrupt: counted as invalid, never fused.
         initial_bias_std: prior standard deviation of the gyro bias, rad/s.
-        gyro_scale_std: prior standard deviation of the gyro's scale error ``g`` (1): the
-            MPU6050 datasheet's sensitivity tolerance, +-3 % (set from the datasheet, not
-            tuned).
+        gyro_scale: prior mean of the gyro's scale error ``g`` (1; the gyro reads
+            ``(1 + g)`` times the true rate): 0 for an uncalibrated gyro, or the result of
+            :func:`fusion.calibration.gyro_scale.calibrate_gyro_scale` (turns in place back to
+            a mark; ``fusion calibrate gyro-scale`` writes it into robot.toml's ``[ekf]``).
+        gyro_scale_std: prior standard deviation of ``g`` (1): the MPU6050 datasheet's
+            sensitivity tolerance, +-3 %, for an uncalibrated gyro (set from the datasheet,
+            not tuned); the calibration's own standard deviation after a calibration.
         gyro_scale_psd: random walk of ``g``, 1/s (sensitivity drifts with temperature;
             small).
         distance_scale_std: prior standard deviation of the wheels' common distance scale
@@ -222,6 +226,33 @@ class EkfNoise:
         distance_scale_psd: random walk of ``s``, 1/s.
         initial_speed_std: prior standard deviation of v (m/s) and w (rad/s); also the least
             variance of a speed forgotten by the gap policy.
+        initial_rate_std: prior standard deviation of w at the first input, rad/s: the
+            robot may be turning at any rate when the filter starts, and the gyro measures
+            it. A tight prior (like ``initial_speed_std``) would split the first gyro
+            reading between w and the bias by their prior variances, and nothing but a stop
+            or trusted wheels would undo it (on the bundled Jackal bag, which never stops,
+            0.05 rad/s left a bias of 0.8 deg/s and a yaw RMSE of 27 deg; 1 rad/s: 0.003
+            deg/s and 1.0 deg). Set from that reasoning, not tuned.
+        wheel_rate_proof_time, wheel_rate_trust_time, max_slip_share: when the wheels' yaw
+            rate is fused. Only turning frames (faster than 0.1 rad/s, measured or expected)
+            test it. Proven: the wheels have agreed with the gyro over
+            ``wheel_rate_proof_time`` s of turning; before that their yaw rates are not fused
+            (while the bias is still uncertain the gate passes a skid-steer base's first
+            turns, which would pull the bias), but a frame above the gate is still a slip.
+            Disproven: the share of turning frames above the slip gate, an exponentially
+            weighted mean with time constant ``wheel_rate_trust_time`` (s of turning),
+            exceeds ``max_slip_share`` (1): the wheels' yaw rate does not measure this
+            robot's rotation (a skid-steer base, as in the bundled Jackal bag, where 83 % of
+            the twists turn unlike the gyro; a badly wrong wheel distance), so a
+            disagreement is no sign of slip: only the speed is fused, with its own noise and
+            no slip flag, until the share falls below half of it. The time constant is long
+            enough that a burst of slips (tests/test_ekf_real.py: 3 s of 50 % slip within 5
+            s, share 0.45) does not disprove a diff-drive's wheels, and short enough that a
+            skid-steer base's first turns, flagged as slips and their speed down-weighted
+            until then, cost little (Jackal bag: final position error 0.49 / 0.72 / 1.10 /
+            2.53 % of the distance with 2 / 3 / 5 / 10 s). While the gyro is saturated, and for
+            ``wheel_rate_proof_time`` after, the wheels are fused regardless (they are all
+            there is). Set by hand from that reasoning, not tuned.
 
     Raises:
         ValueError: a value that is not a number, a measurement noise, prior, time step or
@@ -266,17 +297,24 @@ class EkfNoise:
     max_rate: float = 100.0
     max_speed: float = 50.0
     initial_bias_std: float = math.radians(2.0)
+    gyro_scale: float = 0.0
     gyro_scale_std: float = 0.03
     gyro_scale_psd: float = 1e-9
     distance_scale_std: float = 0.01
     distance_scale_psd: float = 1e-9
     initial_speed_std: float = 0.05
+    initial_rate_std: float = 1.0
+    wheel_rate_proof_time: float = 2.0
+    wheel_rate_trust_time: float = 5.0
+    max_slip_share: float = 0.5
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ValueError(f"EkfNoise.{name} must be a number, got {value!r}")
-            if name in ("gyro_limit", "yaw_fix_rate", "yaw_fix_burst"):
+            if name == "gyro_scale":
+                ok, need = math.isfinite(value) and abs(value) < 0.5, "finite, in (-0.5, 0.5)"
+            elif name in ("gyro_limit", "yaw_fix_rate", "yaw_fix_burst"):
                 ok, need = value > 0, "> 0 (rad/s or rad; or inf)"
             elif name == "zupt_frames":
                 ok, need = value >= 1 and float(value).is_integer(), "a whole number >= 1"
@@ -301,7 +339,8 @@ class EkfNoise:
 _POSITIVE = frozenset({
     "gyro_std", "tick_std", "zupt_v_std", "zupt_w_std", "twist_v_std", "twist_w_std",
     "initial_bias_std", "initial_speed_std", "max_dt", "max_extrapolation", "slip_gate",
-    "max_rate", "max_speed",
+    "max_rate", "max_speed", "wheel_rate_trust_time", "max_slip_share", "initial_rate_std",
+    "wheel_rate_proof_time",
 })
 #: Upper bound on ``max_extrapolation / max_dt``: the prediction steps one input may cost.
 MAX_STEPS_PER_INPUT = 10_000
@@ -526,7 +565,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         robot: chassis parameters (``wheel_distance`` m, ``speed_ratio`` m/tick,
             ``encode_sampling_time`` s).
         noise: :class:`EkfNoise`.
-        x0: initial state ``[x, y, yaw, v, w, b, k, c, g, s]`` (default zeros).
+        x0: initial state ``[x, y, yaw, v, w, b, k, c, g, s]`` (default zeros, except
+            ``g = noise.gyro_scale``).
         P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c/g/s from ``noise``).
         backend: deprecated, leave it out. There is one implementation, the core
             (:mod:`fusion.planar._ekf_core` over :mod:`fusion.planar.model`): compiled by numba
@@ -537,7 +577,9 @@ class PlanarEKF(ExtendedKalmanFilter):
     Attributes:
         t: filter time, s (None before the first input).
         stats: counters: ``slips`` (frames fused as slipping), ``accel_slips`` (of those, the
-            ones the accelerometer flagged), ``zupts``, ``late_dropped``, ``late_applied``,
+            ones the accelerometer flagged), ``wheel_rate_distrusted`` (turning frames or
+            twists whose yaw rate was not fused because most turns disagreed with the gyro),
+            ``zupts``, ``late_dropped``, ``late_applied``,
             ``invalid`` (non-finite or implausible inputs), ``gyro_saturated``,
             ``encoder_faults``, ``updates``, ``speed_resets`` (v or w forgotten by the gap
             policy), ``predictions`` (prediction steps).
@@ -561,11 +603,16 @@ class PlanarEKF(ExtendedKalmanFilter):
         self.robot = robot
         self.noise = noise if noise is not None else EkfNoise()
         n = self.noise
-        self.x = np.zeros(NX) if x0 is None else _state_vector("x0", x0)
+        if x0 is None:
+            self.x = np.zeros(NX)
+            self.x[8] = n.gyro_scale  # a calibrated gyro's scale error, 0 if uncalibrated
+        else:
+            self.x = _state_vector("x0", x0)
         if P0 is None:
             s = n.initial_speed_std
             # the odom origin is the start pose; 1e-9 (m^2, rad^2) keeps P positive definite
-            self.P = np.diag([1e-9, 1e-9, 1e-9, s * s, s * s, n.initial_bias_std ** 2,
+            self.P = np.diag([1e-9, 1e-9, 1e-9, s * s, n.initial_rate_std ** 2,
+                              n.initial_bias_std ** 2,
                               n.calib_k_std ** 2, n.calib_c_std ** 2, n.gyro_scale_std ** 2,
                               n.distance_scale_std ** 2])
         else:
@@ -609,10 +656,15 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_MAX_SPEED] = n.max_speed
         par[core.P_Q_G] = n.gyro_scale_psd
         par[core.P_Q_S] = n.distance_scale_psd
+        par[core.P_TRUST_TIME] = n.wheel_rate_trust_time
+        par[core.P_MAX_SLIP_SHARE] = n.max_slip_share
+        par[core.P_PROOF_TIME] = n.wheel_rate_proof_time
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan
         self._aux[core.A_YAW_BUDGET] = n.yaw_fix_burst
+        # the wheels' yaw rate: no disagreement seen, not yet proven in turns (A_AGREED 0)
+        self._aux[core.A_CLIPPED] = math.nan
 
     # -- state -------------------------------------------------------------------------------
     @property
@@ -626,6 +678,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         return {
             "slips": int(a[core.A_SLIPS]),
             "accel_slips": int(a[core.A_ACCEL_SLIPS]),
+            "wheel_rate_distrusted": int(a[core.A_DISTRUSTED]),
             "zupts": int(a[core.A_ZUPTS]),
             "late_dropped": int(a[core.A_LATE_DROPPED]),
             "late_applied": int(a[core.A_LATE_APPLIED]),

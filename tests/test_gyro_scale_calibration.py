@@ -1,0 +1,136 @@
+"""Gyro scale calibration (turns in place back to a mark) and its use by the EKF.
+
+Oracles: a constructed stream whose angle is known in closed form; the physics simulator's
+own sensor matrices (written without looking at the EKF or the calibration) for the true
+scale of the rate about the vertical; the simulator's ground truth for the fused track.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fusion.calibration.gyro_scale import calibrate_gyro_scale, combine_gyro_scales
+from fusion.evaluation.physics_sim import all_errors, physics_scenario
+from fusion.evaluation.physics_sim.calibration_run import gyro_calibration_run
+from fusion.evaluation.trajectory import final_position_error_percent, yaw_rmse
+from fusion.geometry.mount import base_to_imu, mount_matrix
+from fusion.planar.ekf import EkfNoise, fuse
+from fusion.planar.imu_motion import imu_motion_codes
+
+G = 9.80665
+
+
+def _turns_stream(turns, scale, bias0, drift, rate=1.0, rest=5.0, fs=200.0, mount=(0, 0, 0)):
+    """Rest, a constant true rate for exactly ``turns`` turns, rest; gyro = (1+scale)*rate +
+    bias0 + drift*t about the base vertical, then rotated into a tilted IMU."""
+    spin = 2 * math.pi * abs(turns) / rate
+    t = np.arange(0.0, 2 * rest + spin, 1.0 / fs)
+    true = np.where((t >= rest) & (t < rest + spin), math.copysign(rate, turns), 0.0)
+    # the sample grid does not hit the turn's ends exactly: make the trapezoid integral exact
+    z = (1 + scale) * true + bias0 + drift * t
+    R = mount_matrix(mount)
+    gyro = base_to_imu(R, np.column_stack([np.zeros_like(t), np.zeros_like(t), z]))
+    accel = base_to_imu(R, np.tile([0.0, 0.0, G], (t.size, 1)))
+    angle_true = float(np.sum(0.5 * (true[1:] + true[:-1]) * np.diff(t)))
+    return t, gyro, accel, angle_true
+
+
+def test_scale_bias_drift_and_tilt_recovered_in_closed_form():
+    mount = (math.radians(2.0), math.radians(-1.5), 0.3)
+    t, gyro, accel, angle = _turns_stream(8, 0.0137, math.radians(0.4), math.radians(0.002),
+                                          mount=mount)
+    # the turn's ends fall between samples; declare the angle the samples really hold
+    cal = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi))
+    assert cal.scale_error == pytest.approx(0.0137, abs=1e-9)
+    # linear drift is removed exactly; the first rest (0-4.5 s, the last 0.5 s before the
+    # turn trimmed) has the drift line's value at its middle, within 0.05 s of drift
+    assert cal.bias_before == pytest.approx(math.radians(0.4) + math.radians(0.002) * 2.25,
+                                            abs=math.radians(0.002) * 0.05)
+    assert math.degrees(cal.mount_tilt) == pytest.approx(2.5, abs=0.01)
+
+
+def test_clockwise_turns_give_the_same_scale():
+    t, gyro, accel, angle = _turns_stream(-5, -0.021, math.radians(-0.3), 0.0)
+    cal = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi))
+    assert cal.scale_error == pytest.approx(-0.021, abs=1e-9)
+    assert cal.measured_turns < 0
+    # no noise, no drift: the uncertainty is the 1 deg mark over 5 turns
+    assert cal.scale_error_std == pytest.approx(math.radians(1.0) / abs(angle), rel=1e-6)
+
+
+def test_a_miscount_is_refused_with_both_counts():
+    t, gyro, accel, _ = _turns_stream(10, 0.01, 0.0, 0.0)
+    with pytest.raises(ValueError, match=r"measured \+10\.1.* \+9 were declared"):
+        calibrate_gyro_scale(t, gyro, accel, 9)
+
+
+def test_too_short_a_rest_is_refused():
+    t, gyro, accel, _ = _turns_stream(3, 0.01, 0.0, 0.0, rest=1.5)
+    with pytest.raises(ValueError, match="stand still for at least 3 s"):
+        calibrate_gyro_scale(t, gyro, accel, 3)
+
+
+def test_combined_runs_are_the_inverse_variance_mean():
+    t, gyro, accel, angle = _turns_stream(2, 0.01, 0.0, 0.0)
+    a = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), mark_std=0.01)
+    t, gyro, accel, angle = _turns_stream(-6, 0.02, 0.0, 0.0)
+    b = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), mark_std=0.01)
+    c = combine_gyro_scales([a, b])
+    wa, wb = a.scale_error_std ** -2, b.scale_error_std ** -2
+    assert c.scale_error == pytest.approx((wa * 0.01 + wb * 0.02) / (wa + wb), abs=1e-9)
+    assert c.scale_error_std == pytest.approx((wa + wb) ** -0.5)
+    assert c.declared_turns == pytest.approx(8.0, abs=0.01)
+
+
+def _effective_vertical_scale(sensors, vertical):
+    """The simulator's true scale of ``gyro . vertical`` for a rotation about the base
+    vertical: its own scale/cross-axis matrix and mount (sensor_model.py, sensors.py)."""
+    sx, sy, sz = sensors.gyro_scale
+    cxy, cxz, cyx, cyz, czx, czy = sensors.gyro_cross_axis
+    M = np.array([[1 + sx, cxy, cxz], [cyx, 1 + sy, cyz], [czx, czy, 1 + sz]])
+    z_imu = base_to_imu(mount_matrix(sensors.mount_rpy), np.array([[0.0, 0.0, 1.0]]))[0]
+    return float(np.asarray(vertical) @ M @ z_imu) - 1.0
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_physics_calibration_run_recovers_the_true_scale(seed):
+    """Every error of the physics simulator on (warming bias, g-sensitivity, cross-axis,
+    mount tilt, vibration, lost samples, jittered stamps), 10 turns, a 1 deg mark."""
+    sensors = all_errors(seed)
+    run, alignment = gyro_calibration_run(sensors, seed, turns=10)
+    assert abs(alignment) < math.radians(4)  # the owner's error, N(0, 1 deg)
+    cal = calibrate_gyro_scale(run.imu_t, run.gyro, run.accel, 10)
+    truth = _effective_vertical_scale(sensors, cal.vertical)
+    assert abs(truth - sensors.gyro_scale[2]) < 0.002  # z's own scale dominates
+    assert abs(cal.scale_error - truth) < 3 * cal.scale_error_std
+    assert cal.scale_error_std < 6e-4
+
+
+def _fused_errors(run, noise, rate):
+    track, _ = fuse(run.robot.chassis, run.imu_t, rate, run.wheel_t, run.ticks, noise=noise,
+                    imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
+    k = track.kind == 0
+    est, truth = track.states[k, :3], run.truth_at(track.t[k])
+    return (final_position_error_percent(est[:, :2], truth, run.distance),
+            math.degrees(yaw_rmse(est[:, 2], truth[:, 2])))
+
+
+@pytest.mark.parametrize("scenario", ["all", "all+dead"])
+def test_calibrated_ekf_meets_issue_11_targets_on_every_seed(scenario):
+    """Issue 11's acceptance on the second simulator, with the gyro calibrated by the owner's
+    10 turns (a separate simulated run of the same sensors): final error <= 0.5 % of the
+    distance and yaw RMSE <= 1.5 deg on each of seeds 0-7 for every error on; yaw RMSE <= 1.5
+    deg with an 8 s dead encoder feed while driving. Without the calibration the gyro's
+    0.5-2 % scale error alone costs up to 9 deg (benchmarks/ekf_accuracy.py)."""
+    for seed in range(8):
+        run = physics_scenario(scenario, seed=seed)
+        cal_run, _ = gyro_calibration_run(run.sensors, seed, turns=10)
+        cal = calibrate_gyro_scale(cal_run.imu_t, cal_run.gyro, cal_run.accel, 10)
+        rate = run.gyro @ np.asarray(cal.vertical)
+        final, yaw = _fused_errors(run, EkfNoise(**cal.ekf_fields()), rate)
+        assert yaw <= 1.5, (seed, final, yaw)
+        if scenario == "all":
+            assert final <= 0.5, (seed, final, yaw)
