@@ -48,6 +48,7 @@ class FilterpyReference:
         self.in_fault = False
         self.wheel_t: float | None = None
         self.yaw_budget = noise.yaw_fix_burst
+        self.yaw_owed = 0.0  # heading correction beyond the budget, rad
         self.stats = dict.fromkeys(("slips", "wheel_rate_distrusted", "zupts",
                                     "late_dropped", "late_applied", "invalid",
                                     "gyro_saturated", "encoder_faults", "updates",
@@ -123,6 +124,10 @@ class FilterpyReference:
             return False
         if dt > 0:
             self.yaw_budget = min(self.yaw_budget + n.yaw_fix_rate * dt, n.yaw_fix_burst)
+            pay = min(abs(self.yaw_owed), self.yaw_budget)  # the owed correction, paid
+            self.kf.x[2] += math.copysign(pay, self.yaw_owed)
+            self.yaw_owed -= math.copysign(pay, self.yaw_owed)
+            self.yaw_budget -= pay
         now = self.t
         while dt > 0:
             # deadlines (time from now) of the speeds still extrapolated, within this interval
@@ -147,13 +152,15 @@ class FilterpyReference:
         K = kf.P @ H.T @ np.linalg.inv(S)
         K[0:2] = 0.0
         dyaw = float(K[2] @ y)
-        if abs(dyaw) > self.yaw_budget:
-            K[2] *= self.yaw_budget / abs(dyaw)
-        yaw = kf.x[2]
         kf.x = kf.x + K @ y
+        if abs(dyaw) > self.yaw_budget:  # beyond the budget: owed, paid later
+            applied = math.copysign(self.yaw_budget, dyaw)
+            self.yaw_owed += dyaw - applied
+            kf.x[2] -= dyaw - applied
+            dyaw = applied
         IKH = np.eye(model.NX) - K @ H
         kf.P = IKH @ kf.P @ IKH.T + K @ R @ K.T
-        self.yaw_budget = max(self.yaw_budget - abs(kf.x[2] - yaw), 0.0)
+        self.yaw_budget = max(self.yaw_budget - abs(dyaw), 0.0)
 
     def _measured(self, *states: int) -> None:
         for i in states:
@@ -264,7 +271,8 @@ class FilterpyReference:
                     elif self.slip_share < 0.5 * n.max_slip_share:
                         self.distrust = False
                     disproven = self.distrust
-                    fuse_rate = not disproven and self.agreed >= n.wheel_rate_proof_time
+                    fuse_rate = not disproven and (kind == WHEELS
+                                                   or self.agreed >= n.wheel_rate_proof_time)
                 if slip or not fuse_rate:
                     slip = slip and not disproven  # disproven wheels: no slip test at all
                     if slip:
@@ -285,6 +293,8 @@ class FilterpyReference:
                 self._rate_update(y, H, R)
                 self._measured(3, 4)
         elif kind == YAW:
+            kf.x[2] += self.yaw_owed  # an absolute yaw: what is owed is paid at once
+            self.yaw_owed = 0.0
             kf.update(np.array([a]), model.yaw_jacobian, model.yaw_h, R=model.yaw_noise(b),
                       residual=model.yaw_residual)
         else:

@@ -185,7 +185,8 @@ class EkfNoise:
             correct the position (it follows from the motion model), and the heading by at
             most ``yaw_fix_burst + yaw_fix_rate*T`` (rad; rad/s) over any ``T`` s: a heading
             error that a better bias or wheel scale reveals is corrected at that pace, never
-            in a jump.
+            in a jump; what exceeds the allowance is owed and paid as it refills (the
+            covariance is that of the full correction), never dropped.
         late_tolerance: inputs at most this much older than the filter time are fused at the
             filter time, s; older ones are dropped.
         max_dt: longest single prediction step, s.
