@@ -63,6 +63,9 @@ class FilterpyReference:
         kf.Q = model.process_noise(dt, n.accel_psd * f, n.angular_accel_psd * f, n.bias_psd,
                                    n.calib_k_psd, n.calib_c_psd, n.gyro_scale_psd,
                                    n.distance_scale_psd)
+        q_xx, q_xy, q_yy = model.odometry_noise(kf.x, dt, n.odometry_along_var,
+                                                n.odometry_cross_var)
+        kf.Q[:2, :2] += np.array([[q_xx, q_xy], [q_xy, q_yy]])
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
 

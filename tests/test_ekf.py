@@ -80,7 +80,8 @@ def _every_kind_of_event(run):
 @pytest.mark.parametrize("noise", [EkfNoise(gyro_limit=4.3),
                                    EkfNoise(slip_inflation=0.0, zupt_frames=3),
                                    EkfNoise(gyro_limit=4.3, turn_w_std=0.2,
-                                            wheel_w_corr_time=0.1)],
+                                            wheel_w_corr_time=0.1, odometry_along_var=3e-4,
+                                            odometry_cross_var=2e-5)],
                          ids=["inflate-slips", "drop-slips", "turn-noise"])
 def test_core_equals_filterpy_driven_by_the_model(short_run, noise):
     # filterpy's own ExtendedKalmanFilter (predict with the model's f, F, Q; update with each
@@ -173,6 +174,27 @@ def test_process_noise_and_the_wrapped_yaw_residual():
                                rtol=1e-15)
     r = model.yaw_residual(np.array([math.radians(-179.0)]), np.array([math.radians(179.0)]))
     assert math.degrees(r[0]) == pytest.approx(2.0, abs=1e-12)
+
+
+def test_odometry_noise_grows_with_the_distance_along_and_across_the_heading():
+    # A straight drive at 0.5 m/s on a heading of 30 deg with a known speed, heading and scale
+    # (their variances zero, no random walks): the pose covariance is the odometry noise
+    # alone, analytically d * (a u u^T + c n n^T) after d m, u the heading and n its normal.
+    along, cross, yaw = 4e-4, 1e-5, math.radians(30.0)
+    noise = EkfNoise(odometry_along_var=along, odometry_cross_var=cross, accel_psd=1e-30,
+                     angular_accel_psd=1e-30, bias_psd=1e-30, calib_k_psd=1e-30,
+                     calib_c_psd=1e-30, gyro_scale_psd=1e-30, distance_scale_psd=1e-30)
+    x0 = np.zeros(model.NX)
+    x0[2], x0[3] = yaw, 0.5
+    ekf = PlanarEKF(ROBOT, noise, x0=x0, P0=np.zeros((model.NX, model.NX)))
+    ekf.predict(dt=1.0)
+    ekf.predict(dt=1.0)  # the gap policy extrapolates v for max_extrapolation = 3 s
+    d = 1.0
+    u = np.array([math.cos(yaw), math.sin(yaw)])
+    n = np.array([-u[1], u[0]])
+    expected = d * (along * np.outer(u, u) + cross * np.outer(n, n))
+    np.testing.assert_allclose(ekf.P[:2, :2], expected, rtol=1e-12, atol=1e-20)
+    np.testing.assert_allclose(ekf.pose[:2], d * u, rtol=1e-12)
 
 
 def test_streaming_equals_batch_and_split_run(short_run):

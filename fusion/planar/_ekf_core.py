@@ -26,6 +26,7 @@ from fusion.planar.model import (
     gyro_jacobian,
     gyro_noise,
     motion_terms,
+    odometry_noise,
     process_noise_diagonal,
     ticks_measurement,
     twist_measurement,
@@ -81,7 +82,9 @@ P_MAX_RATE = 33
 P_MAX_SPEED = 34
 P_Q_G = 35
 P_Q_S = 36
-PAR_SIZE = 37
+P_ODO_ALONG = 37
+P_ODO_CROSS = 38
+PAR_SIZE = 39
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -370,8 +373,13 @@ def _predict_step(x, P, aux, par, t, h, q_v, q_w):
         P[3, 3] = 0.0
     if w_lost:
         P[4, 4] = 0.0
+    q_xx, q_xy, q_yy = odometry_noise(x, h, par[P_ODO_ALONG], par[P_ODO_CROSS])
     predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G],
                  par[P_Q_S])
+    P[0, 0] += q_xx
+    P[0, 1] += q_xy
+    P[1, 0] += q_xy
+    P[1, 1] += q_yy
     aux[A_PREDICTIONS] += 1.0
     if v_lost:
         P[3, 3] += p_vv

@@ -40,7 +40,9 @@ Model:
 - Prediction over ``dt`` (constant twist): ``yaw += u*dt`` with ``u = w/(1 + g)`` the true
   yaw rate, ``x += d*cos(yaw + u*dt/2)``, ``y += d*sin(yaw + u*dt/2)`` with ``d = v*dt/(1 + s)``;
   v, w, b, k, c, g and s are random walks (``q_v``, ``q_w``, ``q_b``, ...), in steps of at most
-  ``max_dt``.
+  ``max_dt``; the position gets a white noise per metre driven along and across the heading
+  (``odometry_along_var``, ``odometry_cross_var``): wheel distance errors that accumulate along
+  the path and that no constant scale represents.
 - Gap policy (bounded cost and bounded extrapolation for any interval without inputs): v and
   w are extrapolated at most ``max_extrapolation`` s (default 3) past their last
   measurement (v: a wheel frame, twist or ZUPT, or an encoder-fault frame while the IMU shows
@@ -215,6 +217,15 @@ class EkfNoise:
             error ``s`` (1): 1 % (tyre wear, pressure and load change the rolling radius;
             a value set by hand from that, not tuned on any run).
         distance_scale_psd: random walk of ``s``, 1/s.
+        odometry_along_var, odometry_cross_var: white noise of the position per metre
+            driven, along and across the heading, m^2/m (a standard deviation of
+            ``sqrt(var * d)`` m after ``d`` m): wheel distance errors that accumulate along
+            the path (slip on a low-friction floor, a rolling radius that changes with speed,
+            floor texture; across: tyre creep in turns) and that the constant scale ``s``
+            cannot stand for, since its error cancels when the robot drives back. They only
+            widen the pose covariance (rate measurements never correct the position), so
+            they change no estimate. Chosen by benchmarks/tune_ekf.py (cross-validation on
+            the physics simulator's seeds 100-105).
         initial_speed_std: prior standard deviation of v (m/s) and w (rad/s); also the least
             variance of a speed forgotten by the gap policy.
 
@@ -265,6 +276,8 @@ class EkfNoise:
     gyro_scale_psd: float = 1e-9
     distance_scale_std: float = 0.01
     distance_scale_psd: float = 1e-9
+    odometry_along_var: float = 0.0
+    odometry_cross_var: float = 0.0
     initial_speed_std: float = 0.05
 
     def __post_init__(self) -> None:
@@ -592,6 +605,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_MAX_SPEED] = n.max_speed
         par[core.P_Q_G] = n.gyro_scale_psd
         par[core.P_Q_S] = n.distance_scale_psd
+        par[core.P_ODO_ALONG] = n.odometry_along_var
+        par[core.P_ODO_CROSS] = n.odometry_cross_var
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan
