@@ -84,7 +84,8 @@ P_Q_G = 35
 P_Q_S = 36
 P_ODO_ALONG = 37
 P_ODO_CROSS = 38
-PAR_SIZE = 39
+P_SLIP_Q_V = 39
+PAR_SIZE = 40
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -429,6 +430,10 @@ def _advance(x, P, aux, par, t):
             # standing still: v and w stay (almost) where the ZUPT put them
             q_v *= par[P_STILL_SCALE]
             q_w *= par[P_STILL_SCALE]
+        if aux[A_FLAGS] == FLAG_SLIP and q_v < par[P_SLIP_Q_V]:
+            # after a slipping frame (its speed down-weighted) the speed changes as the robot
+            # drives, with no frame to hold it until the next one
+            q_v = par[P_SLIP_Q_V]
         # up to the next moment a speed state is forgotten, if one falls in this interval
         span = dt
         to_v = aux[A_V_T] + horizon - t_now  # NaN once forgotten: never smaller

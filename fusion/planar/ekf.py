@@ -155,6 +155,11 @@ class EkfNoise:
         gyro_std: white noise of one gyro sample, rad/s (MPU6050: 0.005 deg/s/sqrt(Hz) at
             100 Hz gives 8.7e-4).
         accel_psd: forward-speed random walk, (m/s)^2/s (how fast v may change).
+        slip_accel_psd: forward-speed random walk from a slipping wheel frame (its speed
+            down-weighted, see ``slip_inflation``) to the next frame, (m/s)^2/s, at least
+            ``accel_psd``: wheels slip when the robot accelerates harder than the floor
+            allows, and its speed then changes with no frame to hold it. Chosen by
+            benchmarks/tune_ekf.py.
         angular_accel_psd: yaw-rate random walk, (rad/s)^2/s.
         bias_psd: gyro-bias random walk, (rad/s)^2/s (square of the bias walk in rad/s/sqrt(s)).
         tick_std: encoder quantisation noise per period, ticks.
@@ -278,6 +283,7 @@ class EkfNoise:
     distance_scale_psd: float = 1e-9
     odometry_along_var: float = 0.0
     odometry_cross_var: float = 0.0
+    slip_accel_psd: float = 0.002
     initial_speed_std: float = 0.05
 
     def __post_init__(self) -> None:
@@ -607,6 +613,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_Q_S] = n.distance_scale_psd
         par[core.P_ODO_ALONG] = n.odometry_along_var
         par[core.P_ODO_CROSS] = n.odometry_cross_var
+        par[core.P_SLIP_Q_V] = n.slip_accel_psd
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan
