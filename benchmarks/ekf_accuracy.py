@@ -1,6 +1,7 @@
 """Fused-odometry accuracy: wheel-only, gyro baselines and fused EKF on two simulators and a bag.
 
 Run: python benchmarks/ekf_accuracy.py [--seeds N] [--duration S] [--skip-bag] [--breakdown SEED]
+[--calibrated-gyro]
 
 (i) The kinematic simulator, fusion.evaluation.synthetic.degraded_mission (robot.toml's
 wheel_distance 3 % off, 0.5 % left/right radius mismatch, gyro z bias 0.5 deg/s with a 2e-5
@@ -33,6 +34,9 @@ speed with every contender). Also printed: against the bag's own odometry pose, 
 step between consecutive fused rows against 3 x the largest twist speed x the row interval.
 
 With ``--breakdown SEED``: the physics simulator with one error at a time on that seed.
+With ``--calibrated-gyro``: section (ii) and the breakdown feed the EKF the gyro z divided by
+(1 + its true scale error) and set ``gyro_scale_std`` to 5e-4, as after a gyro-scale
+calibration (turns in place back to a mark) with that uncertainty.
 
 Printed per contender: final position error in % of the distance travelled and yaw RMSE (deg),
 mean and worst over the seeds.
@@ -43,6 +47,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -130,15 +135,24 @@ def kinematic_section(seeds: int, duration: float) -> None:
     _table(results)
 
 
-def score_physics_run(run, noise: EkfNoise | None = None
+#: gyro_scale_std after a gyro-scale calibration (--calibrated-gyro)
+CALIBRATED_SCALE_STD = 5e-4
+
+
+def score_physics_run(run, noise: EkfNoise | None = None, calibrated_gyro: bool = False
                       ) -> tuple[dict[str, tuple[float, float]], float]:
-    """Errors of the three contenders on one physics run, and the EKF's NEES fraction."""
+    """Errors of the three contenders on one physics run, and the EKF's NEES fraction
+    (``calibrated_gyro``: the EKF's gyro z corrected by its true scale error, see --help)."""
     robot = run.robot.chassis
     tw = run.truth_at(run.wheel_t)
     out = {"wheel only": _errors(wheel_only(robot, run.ticks), tw, run.distance)}
     stops = gyro_at_stops(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     out["gyro at stops"] = _errors(stops.poses, tw, run.distance)
-    track, _ = fuse(robot, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+    gyro_z = run.gyro[:, 2]
+    if calibrated_gyro:
+        gyro_z = gyro_z / (1.0 + run.sensors.gyro_scale[2])
+        noise = replace(noise or EkfNoise(), gyro_scale_std=CALIBRATED_SCALE_STD)
+    track, _ = fuse(robot, run.imu_t, gyro_z, run.wheel_t, run.ticks,
                     noise=noise, imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
     k = track.kind == GYRO_ROWS
     est = track.states[k, :3]
@@ -150,7 +164,7 @@ def score_physics_run(run, noise: EkfNoise | None = None
     return out, nees_fraction_within(values, 3)
 
 
-def physics_section(seeds: int, duration: float) -> None:
+def physics_section(seeds: int, duration: float, calibrated_gyro: bool = False) -> None:
     lo, hi = nees_bounds(3)
     for scenario in ("plain", "all", "all+dead"):
         results: dict[str, list[tuple[float, float]]] = {
@@ -158,20 +172,21 @@ def physics_section(seeds: int, duration: float) -> None:
         inside: list[float] = []
         for seed in range(seeds):
             scores, fraction = score_physics_run(
-                physics_scenario(scenario, seed=seed, duration=duration))
+                physics_scenario(scenario, seed=seed, duration=duration),
+                calibrated_gyro=calibrated_gyro)
             for name, value in scores.items():
                 results[name].append(value)
             inside.append(fraction)
         print(f"\n(ii) physics simulator, scenario {scenario!r}: {seeds} seeds x "
-              f"{duration:.0f} s")
+              f"{duration:.0f} s" + (", EKF gyro scale calibrated" if calibrated_gyro else ""))
         _table(results)
         f = np.array(inside)
         print(f"EKF pose NEES (x, y, yaw) inside its 95 % bounds [{lo:.3f}, {hi:.3f}]: "
               f"{100 * f.mean():.1f} % of the rows on average, {100 * f.min():.1f} % in the "
-              "worst run")
+              f"worst run (per seed: {' '.join(f'{100 * v:.1f}' for v in f)})")
 
 
-def breakdown_section(seed: int, duration: float) -> None:
+def breakdown_section(seed: int, duration: float, calibrated_gyro: bool = False) -> None:
     """One error at a time on the physics simulator (plain sensors plus that error)."""
     print(f"\n(ii-b) physics simulator, one error at a time, seed {seed}, {duration:.0f} s: "
           "final pos. error % / yaw RMSE deg; EKF NEES inside 95 %")
@@ -183,7 +198,7 @@ def breakdown_section(seed: int, duration: float) -> None:
         sensors = with_errors([name] if name in ERROR_GROUPS else [], seed=seed)
         run = simulate_physics(mission, sensors, seed,
                                dead_encoder_while_driving=8.0 if name == "dead-encoder" else 0)
-        scores, fraction = score_physics_run(run)
+        scores, fraction = score_physics_run(run, calibrated_gyro=calibrated_gyro)
         cells = " ".join(f"{a:7.2f} /{b:7.2f}" for a, b in scores.values())
         print(f"{name:16s} {cells} {100 * fraction:7.1f}%")
 
@@ -243,12 +258,15 @@ def main() -> None:
     ap.add_argument("--skip-bag", action="store_true", help="leave out section (iii)")
     ap.add_argument("--breakdown", type=int, metavar="SEED",
                     help="also one physics error at a time on this seed")
+    ap.add_argument("--calibrated-gyro", action="store_true",
+                    help="physics runs: the EKF's gyro z corrected by its true scale error, "
+                         f"gyro_scale_std {CALIBRATED_SCALE_STD:g}")
     args = ap.parse_args()
     kinematic_section(args.seeds, args.duration)
     sys.stdout.flush()
-    physics_section(args.seeds, args.duration)
+    physics_section(args.seeds, args.duration, args.calibrated_gyro)
     if args.breakdown is not None:
-        breakdown_section(args.breakdown, args.duration)
+        breakdown_section(args.breakdown, args.duration, args.calibrated_gyro)
     if not args.skip_bag:
         bag_section()
 

@@ -77,7 +77,7 @@ def _every_kind_of_event(run):
     return kinds, t, a, b
 
 
-@pytest.mark.parametrize("noise", [EkfNoise(gyro_limit=4.3, slip_accel_psd=0.05),
+@pytest.mark.parametrize("noise", [EkfNoise(gyro_limit=4.3, slip_accel_psd=0.01),
                                    EkfNoise(slip_inflation=0.0, zupt_frames=3,
                                             slip_accel_psd=0.05),
                                    EkfNoise(gyro_limit=4.3, turn_w_std=0.2,
