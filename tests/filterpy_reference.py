@@ -46,6 +46,7 @@ class FilterpyReference:
         self.zero_count = 0
         self.imu_motion = 0
         self.in_fault = False
+        self.after_slip = False  # the last wheel frame or twist was a slip
         self.wheel_t: float | None = None
         self.yaw_budget = noise.yaw_fix_burst
         self.yaw_owed = 0.0  # heading correction beyond the budget, rad
@@ -66,10 +67,16 @@ class FilterpyReference:
     def _predict(self, dt: float, still: bool) -> None:
         n, kf = self.noise, self.kf
         f = n.still_scale if still else 1.0
+        q_v = n.accel_psd * f
+        if self.after_slip:  # after a slipping frame the speed changes with nothing to hold it
+            q_v = max(q_v, n.slip_accel_psd)
         kf.F = model.transition_jacobian(kf.x, dt)
-        kf.Q = model.process_noise(dt, n.accel_psd * f, n.angular_accel_psd * f, n.bias_psd,
+        kf.Q = model.process_noise(dt, q_v, n.angular_accel_psd * f, n.bias_psd,
                                    n.calib_k_psd, n.calib_c_psd, n.gyro_scale_psd,
                                    n.distance_scale_psd)
+        q_xx, q_xy, q_yy = model.odometry_noise(kf.x, dt, n.odometry_along_var,
+                                                n.odometry_cross_var)
+        kf.Q[:2, :2] += np.array([[q_xx, q_xy], [q_xy, q_yy]])
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
 
@@ -199,6 +206,7 @@ class FilterpyReference:
             self._measured(4)
         elif kind in (WHEELS, TWIST):
             in_fault, self.in_fault = self.in_fault, False
+            self.after_slip = False
             interval = r.encode_sampling_time
             if self.wheel_t is not None and t - self.wheel_t > 0:
                 interval = t - self.wheel_t
@@ -277,6 +285,7 @@ class FilterpyReference:
                     slip = slip and not disproven  # disproven wheels: no slip test at all
                     if slip:
                         self.stats["slips"] += 1
+                        self.after_slip = True
                     elif disproven and turning:
                         self.stats["wheel_rate_distrusted"] += 1
                     inflation = n.slip_inflation if slip else 1.0

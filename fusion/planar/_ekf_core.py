@@ -26,6 +26,7 @@ from fusion.planar.model import (
     gyro_jacobian,
     gyro_noise,
     motion_terms,
+    odometry_noise,
     process_noise_diagonal,
     ticks_measurement,
     twist_measurement,
@@ -84,7 +85,10 @@ P_Q_S = 36
 P_TRUST_TIME = 37  # time constant of the wheel yaw rate's slip share, s
 P_MAX_SLIP_SHARE = 38  # above this slip share the wheels' yaw rates are not fused
 P_PROOF_TIME = 39  # s of agreeing turns before the wheels' yaw rates are fused
-PAR_SIZE = 40
+P_ODO_ALONG = 40
+P_ODO_CROSS = 41
+P_SLIP_Q_V = 42
+PAR_SIZE = 43
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -370,8 +374,13 @@ def _predict_step(x, P, aux, par, t, h, q_v, q_w):
         P[3, 3] = 0.0
     if w_lost:
         P[4, 4] = 0.0
+    q_xx, q_xy, q_yy = odometry_noise(x, h, par[P_ODO_ALONG], par[P_ODO_CROSS])
     predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G],
                  par[P_Q_S])
+    P[0, 0] += q_xx
+    P[0, 1] += q_xy
+    P[1, 0] += q_xy
+    P[1, 1] += q_yy
     aux[A_PREDICTIONS] += 1.0
     if v_lost:
         P[3, 3] += p_vv
@@ -422,6 +431,10 @@ def _advance(x, P, aux, par, t):
             # standing still: v and w stay (almost) where the ZUPT put them
             q_v *= par[P_STILL_SCALE]
             q_w *= par[P_STILL_SCALE]
+        if aux[A_FLAGS] == FLAG_SLIP and q_v < par[P_SLIP_Q_V]:
+            # after a slipping frame (its speed down-weighted) the speed changes as the robot
+            # drives, with no frame to hold it until the next one
+            q_v = par[P_SLIP_Q_V]
         # up to the next moment a speed state is forgotten, if one falls in this interval
         span = dt
         to_v = aux[A_V_T] + horizon - t_now  # NaN once forgotten: never smaller
