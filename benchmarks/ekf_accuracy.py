@@ -219,7 +219,7 @@ def physics_section(seeds: int, duration: float, accel_slip: bool = True) -> Non
             f = np.array(values)
             print(f"{name}: pose NEES (x, y, yaw) inside its 95 % bounds [{lo:.3f}, {hi:.3f}]: "
                   f"{100 * f.mean():.1f} % of the rows on average, {100 * f.min():.1f} % in "
-                  "the worst run")
+                  f"the worst run (per seed: {' '.join(f'{100 * v:.1f}' for v in f)})")
 
 
 def breakdown_section(seed: int, duration: float, accel_slip: bool = True) -> None:

@@ -46,8 +46,10 @@ class FilterpyReference:
         self.zero_count = 0
         self.imu_motion = 0
         self.in_fault = False
+        self.after_slip = False  # the last wheel frame or twist was a slip
         self.wheel_t: float | None = None
         self.yaw_budget = noise.yaw_fix_burst
+        self.yaw_owed = 0.0  # heading correction beyond the budget, rad
         self.stats = dict.fromkeys(("slips", "wheel_rate_distrusted", "zupts",
                                     "late_dropped", "late_applied", "invalid",
                                     "gyro_saturated", "encoder_faults", "updates",
@@ -65,10 +67,16 @@ class FilterpyReference:
     def _predict(self, dt: float, still: bool) -> None:
         n, kf = self.noise, self.kf
         f = n.still_scale if still else 1.0
+        q_v = n.accel_psd * f
+        if self.after_slip:  # after a slipping frame the speed changes with nothing to hold it
+            q_v = max(q_v, n.slip_accel_psd)
         kf.F = model.transition_jacobian(kf.x, dt)
-        kf.Q = model.process_noise(dt, n.accel_psd * f, n.angular_accel_psd * f, n.bias_psd,
+        kf.Q = model.process_noise(dt, q_v, n.angular_accel_psd * f, n.bias_psd,
                                    n.calib_k_psd, n.calib_c_psd, n.gyro_scale_psd,
                                    n.distance_scale_psd)
+        q_xx, q_xy, q_yy = model.odometry_noise(kf.x, dt, n.odometry_along_var,
+                                                n.odometry_cross_var)
+        kf.Q[:2, :2] += np.array([[q_xx, q_xy], [q_xy, q_yy]])
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
 
@@ -123,6 +131,10 @@ class FilterpyReference:
             return False
         if dt > 0:
             self.yaw_budget = min(self.yaw_budget + n.yaw_fix_rate * dt, n.yaw_fix_burst)
+            pay = min(abs(self.yaw_owed), self.yaw_budget)  # the owed correction, paid
+            self.kf.x[2] += math.copysign(pay, self.yaw_owed)
+            self.yaw_owed -= math.copysign(pay, self.yaw_owed)
+            self.yaw_budget -= pay
         now = self.t
         while dt > 0:
             # deadlines (time from now) of the speeds still extrapolated, within this interval
@@ -147,13 +159,15 @@ class FilterpyReference:
         K = kf.P @ H.T @ np.linalg.inv(S)
         K[0:2] = 0.0
         dyaw = float(K[2] @ y)
-        if abs(dyaw) > self.yaw_budget:
-            K[2] *= self.yaw_budget / abs(dyaw)
-        yaw = kf.x[2]
         kf.x = kf.x + K @ y
+        if abs(dyaw) > self.yaw_budget:  # beyond the budget: owed, paid later
+            applied = math.copysign(self.yaw_budget, dyaw)
+            self.yaw_owed += dyaw - applied
+            kf.x[2] -= dyaw - applied
+            dyaw = applied
         IKH = np.eye(model.NX) - K @ H
         kf.P = IKH @ kf.P @ IKH.T + K @ R @ K.T
-        self.yaw_budget = max(self.yaw_budget - abs(kf.x[2] - yaw), 0.0)
+        self.yaw_budget = max(self.yaw_budget - abs(dyaw), 0.0)
 
     def _measured(self, *states: int) -> None:
         for i in states:
@@ -196,6 +210,7 @@ class FilterpyReference:
             self._measured(4)
         elif kind in (WHEELS, TWIST):
             in_fault, self.in_fault = self.in_fault, False
+            self.after_slip = False
             interval = r.encode_sampling_time
             if self.wheel_t is not None and t - self.wheel_t > 0:
                 interval = t - self.wheel_t
@@ -268,7 +283,8 @@ class FilterpyReference:
                     elif self.slip_share < 0.5 * n.max_slip_share:
                         self.distrust = False
                     disproven = self.distrust
-                    fuse_rate = not disproven and self.agreed >= n.wheel_rate_proof_time
+                    fuse_rate = not disproven and (kind == WHEELS
+                                                   or self.agreed >= n.wheel_rate_proof_time)
                 if slip or not fuse_rate or accel_slip:
                     slip = slip and not disproven  # disproven wheels: no slip test at all
                     if disproven and turning:
@@ -278,6 +294,7 @@ class FilterpyReference:
                         slip = True
                     if slip:
                         self.stats["slips"] += 1
+                        self.after_slip = True
                     inflation = n.slip_inflation if slip else 1.0
                     if inflation <= 0:
                         self.stats["updates"] += 1
@@ -292,6 +309,8 @@ class FilterpyReference:
                 self._rate_update(y, H, R)
                 self._measured(3, 4)
         elif kind == YAW:
+            kf.x[2] += self.yaw_owed  # an absolute yaw: what is owed is paid at once
+            self.yaw_owed = 0.0
             kf.update(np.array([a]), model.yaw_jacobian, model.yaw_h, R=model.yaw_noise(b),
                       residual=model.yaw_residual)
         else:

@@ -196,3 +196,22 @@ def test_bias_is_learnt_within_a_minute_from_a_moving_start():
     rest = (v < 1e-6) & (w < 1e-6) & (run.imu_t >= 60.0)
     assert rest.sum() > 200
     assert abs(track.states[g][k, 5] - run.gyro[rest, 2].mean()) < math.radians(0.05)
+
+
+@pytest.mark.parametrize("seed", [4, 6])
+def test_heading_drifted_before_the_first_stop_is_paid_back(seed):
+    """A moving start whose first stop comes late (23 s and 27 s): until then the bias is
+    poorly known and the heading drifts; the stop teaches the bias, and through its
+    correlation the heading drift. The correction beyond the yaw budget is owed and paid as
+    the budget refills, not dropped. Oracle: the physics simulator's truth (plain sensors).
+    Measured: yaw RMSE 2.1 and 3.6 deg (with the excess dropped: 7.6 and 8.8 deg; with no
+    budget at all: 1.6 and 2.7)."""
+    from fusion.evaluation.physics_sim import plain_sensors
+    from fusion.evaluation.trajectory import yaw_rmse
+
+    run = simulate_physics(indoor_mission(seed, 300.0, moving_start=True),
+                           plain_sensors(seed), seed)
+    track, _ = fuse(run.robot.chassis, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+                    imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
+    g = track.kind == core.EV_GYRO
+    assert math.degrees(yaw_rmse(track.states[g, 2], run.truth_at(track.t[g])[:, 2])) < 4.5

@@ -26,6 +26,7 @@ from fusion.planar.model import (
     gyro_jacobian,
     gyro_noise,
     motion_terms,
+    odometry_noise,
     process_noise_diagonal,
     ticks_measurement,
     twist_measurement,
@@ -84,7 +85,10 @@ P_Q_S = 36
 P_TRUST_TIME = 37  # time constant of the wheel yaw rate's slip share, s
 P_MAX_SLIP_SHARE = 38  # above this slip share the wheels' yaw rates are not fused
 P_PROOF_TIME = 39  # s of agreeing turns before the wheels' yaw rates are fused
-PAR_SIZE = 40
+P_ODO_ALONG = 40
+P_ODO_CROSS = 41
+P_SLIP_Q_V = 42
+PAR_SIZE = 43
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -115,8 +119,9 @@ A_DISTRUST = 24  # 1: the wheels' yaw rates are not fused (their slip share is t
 A_DISTRUSTED = 25  # turning wheel frames or twists whose yaw rate was not fused for that
 A_CLIPPED = 26  # filter time of the last saturated gyro sample (NaN: none yet)
 A_AGREED = 27  # s of turning wheel frames or twists that agreed with the gyro
-A_ACCEL_SLIPS = 28  # wheel frames the accelerometer flagged as slipping (EV_WHEELS_SLIP)
-AUX_SIZE = 29
+A_YAW_PENDING = 28  # heading correction owed beyond the yaw budget, rad (_rate_update)
+A_ACCEL_SLIPS = 29  # wheel frames the accelerometer flagged as slipping (EV_WHEELS_SLIP)
+AUX_SIZE = 30
 # per-frame flags
 FLAG_ZUPT = 1
 FLAG_SLIP = 2
@@ -228,19 +233,18 @@ def _cholesky_solve_rows(S, B, m, out):
 
 
 @njit
-def update_core(x, P, y, H, R, gate_index, gate, inflation, first, yaw_cap):
+def update_core(x, P, y, H, R, gate_index, gate, inflation, first):
     """Kalman update (in place) with innovation ``y`` (m,), Jacobian ``H`` (m, NX), noise ``R``.
 
     Joseph form ``P = (I-KH) P (I-KH)^T + K R K^T``, gain by a Cholesky solve of ``S``.
     Only the states ``first..NX-1`` are corrected: the gain rows of the states before ``first``
     are zero (a Schmidt "consider" update; the Joseph form keeps ``P`` the covariance of the
     estimate for that gain). Rate measurements pass ``first = FIRST_RATE_STATE`` so that
-    they never move the position (x, y) except through the motion model. The yaw row of the
-    gain is scaled down, if need be, so that the update moves yaw by at most ``yaw_cap``
-    rad (``inf``: no limit); again any gain keeps the Joseph-form ``P`` consistent.
-    Gating: the squared Mahalanobis distance of component ``gate_index`` of the innovation
-    (``-1``: of the whole vector) is compared with ``gate``; above it, ``R`` is multiplied by
-    ``inflation`` before the update (``inflation <= 0``: the update is skipped).
+    they never move the position (x, y) except through the motion model (the heading's pace
+    is :func:`_rate_update`'s). Gating: the squared Mahalanobis distance of component
+    ``gate_index`` of the innovation (``-1``: of the whole vector) is compared with
+    ``gate``; above it, ``R`` is multiplied by ``inflation`` before the update
+    (``inflation <= 0``: the update is skipped).
 
     Returns ``(d2, status)`` with status 0 = applied, 1 = applied down-weighted,
     2 = skipped by the gate, 3 = skipped because S was not positive definite.
@@ -294,14 +298,6 @@ def update_core(x, P, y, H, R, gate_index, gate, inflation, first, yaw_cap):
     for j in range(m):
         for i in range(first):
             Kt[j, i] = 0.0
-    if first <= 2:
-        dyaw = 0.0
-        for j in range(m):
-            dyaw += Kt[j, 2] * y[j]
-        if abs(dyaw) > yaw_cap:
-            scale = yaw_cap / abs(dyaw)
-            for j in range(m):
-                Kt[j, 2] *= scale
     for i in range(NX):
         acc = 0.0
         for j in range(m):
@@ -382,8 +378,13 @@ def _predict_step(x, P, aux, par, t, h, q_v, q_w):
         P[3, 3] = 0.0
     if w_lost:
         P[4, 4] = 0.0
+    q_xx, q_xy, q_yy = odometry_noise(x, h, par[P_ODO_ALONG], par[P_ODO_CROSS])
     predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G],
                  par[P_Q_S])
+    P[0, 0] += q_xx
+    P[0, 1] += q_xy
+    P[1, 0] += q_xy
+    P[1, 1] += q_yy
     aux[A_PREDICTIONS] += 1.0
     if v_lost:
         P[3, 3] += p_vv
@@ -418,6 +419,7 @@ def _advance(x, P, aux, par, t):
     if dt > 0.0:
         aux[A_YAW_BUDGET] = min(aux[A_YAW_BUDGET] + par[P_YAW_FIX_RATE] * dt,
                                 par[P_YAW_FIX_BURST])
+        _release_pending_yaw(x, aux)
     if dt < 0.0:
         if -dt <= par[P_LATE_TOLERANCE]:
             aux[A_LATE_APPLIED] += 1.0
@@ -433,6 +435,10 @@ def _advance(x, P, aux, par, t):
             # standing still: v and w stay (almost) where the ZUPT put them
             q_v *= par[P_STILL_SCALE]
             q_w *= par[P_STILL_SCALE]
+        if aux[A_FLAGS] == FLAG_SLIP and q_v < par[P_SLIP_Q_V]:
+            # after a slipping frame (its speed down-weighted) the speed changes as the robot
+            # drives, with no frame to hold it until the next one
+            q_v = par[P_SLIP_Q_V]
         # up to the next moment a speed state is forgotten, if one falls in this interval
         span = dt
         to_v = aux[A_V_T] + horizon - t_now  # NaN once forgotten: never smaller
@@ -471,13 +477,35 @@ def _rate_update(x, P, aux, y, H, R):
 
     The budget refills at ``yaw_fix_rate`` rad/s up to ``yaw_fix_burst`` rad
     (:func:`_advance`): over any interval of ``T`` s, rate measurements change the heading by
-    at most ``yaw_fix_burst + yaw_fix_rate*T``. Returns ``(d2, status)``.
+    at most ``yaw_fix_burst + yaw_fix_rate*T``. What the update would move the heading beyond
+    the budget is owed, not dropped (``A_YAW_PENDING``): ``P`` is that of the full update,
+    and :func:`_release_pending_yaw` pays the rest as the budget refills. (Scaling the gain
+    instead would throw away what the measurement taught: a bias learnt at the first stop
+    after a moving start could no longer correct the heading drifted before it.) Returns
+    ``(d2, status)``.
     """
     yaw = x[2]
-    d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, FIRST_RATE_STATE,
-                             aux[A_YAW_BUDGET])
-    aux[A_YAW_BUDGET] = max(aux[A_YAW_BUDGET] - abs(x[2] - yaw), 0.0)
+    d2, status = update_core(x, P, y, H, R, -1, math.inf, 0.0, FIRST_RATE_STATE)
+    dyaw = x[2] - yaw
+    budget = aux[A_YAW_BUDGET]
+    if abs(dyaw) > budget:
+        applied = math.copysign(budget, dyaw)
+        aux[A_YAW_PENDING] += dyaw - applied
+        x[2] = yaw + applied
+    aux[A_YAW_BUDGET] = max(budget - abs(x[2] - yaw), 0.0)
     return d2, status
+
+
+@njit
+def _release_pending_yaw(x, aux):
+    """Pay the heading correction owed (``A_YAW_PENDING``, rad) from the yaw budget."""
+    owed = aux[A_YAW_PENDING]
+    if owed == 0.0:
+        return
+    pay = min(abs(owed), aux[A_YAW_BUDGET])
+    x[2] += math.copysign(pay, owed)
+    aux[A_YAW_PENDING] = owed - math.copysign(pay, owed)
+    aux[A_YAW_BUDGET] -= pay
 
 
 #: A frame whose measured or expected yaw rate exceeds this (rad/s, 6 deg/s) is a turn: only
@@ -487,16 +515,18 @@ TURN_RATE = 0.1
 
 
 @njit
-def _wheel_rate_trust(aux, par, interval, slip, turning):
+def _wheel_rate_trust(aux, par, interval, slip, turning, proven):
     """Account one wheel frame or twist (``slip``: above the gate; ``turning``; ``interval``
     s after the previous one) and return ``(fuse_rate, disproven)``: whether its yaw rate may
     be fused, and whether the wheels' yaw rate has shown it does not measure the rotation.
 
     Only turns test the wheels (standing or driving straight, any wheels agree with the
-    gyro). Proven: the wheels have agreed with the gyro over ``wheel_rate_proof_time`` s of
-    turning; before that their yaw rates are not fused (while the bias is still uncertain the
-    gate passes a skid-steer base's first turns, which would pull the bias), but a frame
-    above the gate is still a slip. Disproven: the share of turning frames above the gate,
+    gyro). Proven: the source is this library's two-wheel differential chassis (``proven``:
+    wheel ticks), or the wheels have agreed with the gyro over ``wheel_rate_proof_time`` s
+    of turning; before that an external odometry's yaw rates are not fused (it may come from
+    a skid-steer base, whose yaw rate is no measurement of the rotation even driving
+    straight, and while the bias is still uncertain the gate passes its first turns), but a
+    frame above the gate is still a slip. Disproven: the share of turning frames above the gate,
     an exponentially weighted mean with time constant ``wheel_rate_trust_time``, exceeds
     ``max_slip_share`` (a skid-steer base's odometry, a wrong wheel distance, a floor that
     slips everywhere); then a disagreement is no sign of slip, only the speed is fused, and
@@ -514,19 +544,21 @@ def _wheel_rate_trust(aux, par, interval, slip, turning):
     elif share < 0.5 * par[P_MAX_SLIP_SHARE]:
         aux[A_DISTRUST] = 0.0
     disproven = aux[A_DISTRUST] == 1.0
-    return (not disproven) and aux[A_AGREED] >= par[P_PROOF_TIME], disproven
+    return (not disproven) and (proven or aux[A_AGREED] >= par[P_PROOF_TIME]), disproven
 
 
 @njit
-def _wheel_update(x, P, aux, par, z, R, interval, accel_slip):
-    """Fuse a wheel twist ``z = [v_m, w_m]`` with noise ``R``, ``interval`` s after the
-    previous frame; returns ``(d2, status)``.
+def _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip):
+    """Fuse a wheel twist ``z = [v_m, w_m]`` (a wheel frame, ``kind`` 1, or an external
+    twist, 3) with noise ``R``, ``interval`` s after the previous frame; returns
+    ``(d2, status)``.
 
     The yaw-rate component is gated (chi-square, 1 dof, against the gyro-corrected rate
     state): a frame above the gate is a slip, and only its speed is fused, with its noise
     multiplied by ``slip_inflation`` (0: nothing is fused). A slipping frame's yaw rate is
-    never fused, so it cannot bend the heading. Nor is any frame's before the wheels have
-    proven themselves in turns, or once most turns disagree (:func:`_wheel_rate_trust`):
+    never fused, so it cannot bend the heading. Nor is any twist's before the external
+    odometry has proven itself in turns, or any frame's once most turns disagree
+    (:func:`_wheel_rate_trust`):
     then only the speed is fused, with its own noise (and, once disproven, no slip flag: the
     yaw rates' disagreement says nothing about slipping), unless the gyro was
     saturated within ``wheel_rate_proof_time`` (the wheels are then the only yaw rate; their
@@ -548,7 +580,8 @@ def _wheel_update(x, P, aux, par, z, R, interval, accel_slip):
         # rate state around the saturation is no test of them
         fuse_rate, disproven = True, False
     else:
-        fuse_rate, disproven = _wheel_rate_trust(aux, par, interval, slip, turning)
+        fuse_rate, disproven = _wheel_rate_trust(aux, par, interval, slip, turning,
+                                                 kind == EV_WHEELS)
     if not slip and fuse_rate and not accel_slip:
         _, status = _rate_update(x, P, aux, y, H, R)
         return d2, status
@@ -669,7 +702,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         R[1, 1] *= inflate
         R[0, 1] *= math.sqrt(inflate)
         R[1, 0] = R[0, 1]
-    return _wheel_update(x, P, aux, par, z, R, interval, accel_slip)
+    return _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip)
 
 
 @njit
@@ -750,9 +783,11 @@ def step_core(x, P, aux, par, kind, t, a, b):
                 aux[A_V_T] = aux[A_T]
             return status
     elif kind == 2:
+        # an absolute yaw is no rate measurement: what is owed is paid at once
+        x[2] += aux[A_YAW_PENDING]
+        aux[A_YAW_PENDING] = 0.0
         y = yaw_residual(np.array([a]), yaw_h(x))
-        d2, status = update_core(x, P, y, yaw_jacobian(x), yaw_noise(b), -1, math.inf, 0.0, 0,
-                                 math.inf)
+        d2, status = update_core(x, P, y, yaw_jacobian(x), yaw_noise(b), -1, math.inf, 0.0, 0)
     else:
         aux[A_ERROR] += 1.0
         return 6

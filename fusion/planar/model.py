@@ -11,7 +11,12 @@ the project restates this algebra.
   ``x += v*dt/(1 + s)*cos(yaw + w*dt/(2*(1 + g)))``, ``y += v*dt/(1 + s)*sin(...)`` likewise;
   v, w, b, k, c, g, s stay. :func:`transition` (f), :func:`transition_jacobian` (F); both from
   :func:`motion_terms`.
-- Process noise: random walks of v, w, b, k, c, g, s, :func:`process_noise` (Q).
+- Process noise: random walks of v, w, b, k, c, g, s, :func:`process_noise` (Q); and
+  :func:`odometry_noise`, white noise on the position per metre driven, along and across the
+  heading (Q's pose block): the distance the wheels report departs from the true one by
+  errors that accumulate along the path (slip, a rolling radius that changes with speed and
+  load, floor texture) and that no constant scale ``s`` stands for, since the error of a
+  constant scale cancels when the robot drives back.
 - Gyro: ``z = w + b`` (rad/s about the world vertical). ``w`` is the yaw rate *in the gyro's
   scale*: the true rate is ``w/(1 + g)``, with ``g`` the gyro's scale error (MPU6050 datasheet:
   sensitivity tolerance +-3 %). This is ``z = (1 + g)*w_true + b`` with the variables changed
@@ -49,6 +54,7 @@ __all__ = [
     "gyro_jacobian",
     "gyro_noise",
     "motion_terms",
+    "odometry_noise",
     "process_noise",
     "process_noise_diagonal",
     "ticks_measurement",
@@ -139,6 +145,18 @@ def process_noise(dt, q_v, q_w, q_b, q_k, q_c, q_g, q_s):
     for i in range(NX):
         Q[i, i] = q[i]
     return Q
+
+
+@njit
+def odometry_noise(x, dt, along_var, cross_var):
+    """Pose block of Q over ``dt`` s: ``(Q_xx, Q_xy, Q_yy)`` (m^2) of a white position noise
+    that grows with the distance driven ``d = |v| dt / (1 + s)`` (m): ``along_var`` and
+    ``cross_var`` (m^2 per m) along and across the heading ``yaw``."""
+    d = abs(x[3]) * dt / (1.0 + x[9])
+    c = math.cos(x[2])
+    s = math.sin(x[2])
+    return (d * (along_var * c * c + cross_var * s * s), d * (along_var - cross_var) * c * s,
+            d * (along_var * s * s + cross_var * c * c))
 
 
 # -- gyro: z = w + b (w in the gyro's scale) ----------------------------------------------------

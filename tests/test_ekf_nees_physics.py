@@ -1,0 +1,69 @@
+"""Consistency of the planar EKF's pose covariance on the independent physics simulator
+(issue 11): the pose NEES (x, y, yaw with the covariance the filter reports) against the
+simulator's truth, on scenario "all" (every sensor error, low-friction patches), seeds 0-7.
+None of these seeds was used to choose a parameter (benchmarks/tune_ekf.py tunes on 100-105).
+
+The gyro is taken as calibrated, as after the gyro-scale calibration (turns in place back to a
+mark): its z rate divided by (1 + the simulated scale error) and ``gyro_scale_std`` set to that
+calibration's uncertainty, 5e-4. Without it the heading error of a 0.5-2 % scale error
+dominates everything else.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion.evaluation.physics_sim import physics_scenario
+from fusion.evaluation.trajectory import nees, nees_fraction_within, pose_errors
+from fusion.planar import _ekf_core as core
+from fusion.planar.ekf import EkfNoise, fuse, pose_covariances
+from fusion.planar.imu_motion import imu_motion_codes
+
+SEEDS = range(8)
+CALIBRATED = EkfNoise(gyro_scale_std=5e-4)
+#: the former defaults: no random walk of its own for the speed after a slipping frame, whose
+#: speed was fused with a tenth of today's inflation
+FORMER = EkfNoise(gyro_scale_std=5e-4, slip_accel_psd=EkfNoise().accel_psd, slip_inflation=1e4)
+
+
+def _inside(run, noise: EkfNoise) -> float:
+    """Fraction of the gyro rows whose pose NEES lies inside its two-sided 95 % bounds."""
+    gyro_z = run.gyro[:, 2] / (1.0 + run.sensors.gyro_scale[2])
+    track, _ = fuse(run.robot.chassis, run.imu_t, gyro_z, run.wheel_t, run.ticks, noise=noise,
+                    imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
+    rows = track.kind == core.EV_GYRO
+    est = track.states[rows, :3]
+    values = nees(pose_errors(est, run.truth_at(track.t[rows])),
+                  pose_covariances(track.states[rows]))
+    return nees_fraction_within(values, 3)
+
+
+@pytest.fixture(scope="module")
+def fractions():
+    out = {"default": [], "former": []}
+    for seed in SEEDS:
+        run = physics_scenario("all", seed=seed)
+        out["default"].append(_inside(run, CALIBRATED))
+        out["former"].append(_inside(run, FORMER))
+    return {k: np.array(v) for k, v in out.items()}
+
+
+def test_the_speed_walk_after_slips_makes_the_covariance_more_honest(fractions):
+    # Measured when written (seeds 0-7, % of rows inside): 86.3 47.9 84.2 57.8 94.2 93.0 87.0
+    # 89.3 (mean 80.0) against 75.6 39.5 84.2 53.3 94.2 86.7 87.0 69.8 (mean 73.8) before.
+    new, old = fractions["default"], fractions["former"]
+    assert new.mean() >= old.mean() + 0.05, (new, old)
+    assert np.all(new >= old - 0.01), (new, old)
+    assert new.mean() >= 0.78, new
+    assert np.sum(new >= 0.85) >= 5, new
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 11 asks for the pose NEES inside its 95 % bounds on at least 85 % of EACH run; "
+    "measured 5 of 8: seed 1 (47.9 %) is overconfident in its first 100 s (position and yaw: "
+    "stamp latency and jitter, slip patches), seed 3 (57.8 %) underconfident (from 120 s "
+    "on its position errors are 0.1-0.2 and its yaw errors 0.5 standard deviations), seed 2 "
+    "84.2 %"))
+def test_pose_nees_is_inside_its_bounds_on_85_percent_of_every_run(fractions):
+    assert np.all(fractions["default"] >= 0.85), fractions["default"]
