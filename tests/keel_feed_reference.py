@@ -4,8 +4,9 @@ samples in arrival order, told by the newest wheel frame or twist that arrived b
 sample (at equal stamps the IMU sample arrives first), if that is at most 2.5 wheel periods
 old: the known acceleration (forward: the change of v since the source's previous event over
 the wheel period, or over the stamp difference for a twist, 0 for the first event and after a
-gap of more than 2.5 periods; centripetal ``v*w`` along +y), and stillness (False while v or w
-is not zero; True while both are zero and the IMU is quiet; else unknown).
+gap of more than 2.5 periods; centripetal ``v*w`` along +y with ``w`` the sample's own gyro
+rate about z, not the wheels'), and stillness (False while v or w is not zero; True while
+both are zero and the IMU is quiet; else unknown).
 """
 
 from __future__ import annotations
@@ -54,7 +55,7 @@ def keel_by_hand(robot: RobotConfig, imu_t, gyro, accel, wheel_t=(), ticks=(), t
             still = known = None
             if knowledge and newest is not None and t - newest[0] <= 2.5 * period:
                 _, v, w, acc = newest
-                known = np.array([acc, v * w, 0.0])
+                known = np.array([acc, v * g[2], 0.0])
                 quiet = (math.sqrt(g @ g) < par.bias_clip + par.rest_gyro_threshold
                          and abs(math.sqrt(a @ a) - par.gravity) < par.rest_accel_threshold)
                 if v != 0.0 or w != 0.0:

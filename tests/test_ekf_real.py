@@ -81,29 +81,9 @@ def test_worst_case_no_pose_jump():
     assert window.max() <= noise.yaw_fix_burst + noise.yaw_fix_rate * 1.1 + 1e-12
 
 
-def test_jackal_bag_has_no_step_beyond_three_times_the_fastest_twist():
-    from fusion.io.bags import read_bag
-
-    bag = read_bag(BAG, imu_topic="/imu/data", odom_topic="/jackal_velocity_controller/odom")
-    imu, odom = bag.imu, bag.odometry
-    robot = type(EXAMPLE_ROBOT)(wheel_distance=0.5, speed_ratio=1e-4, encode_sampling_time=0.02)
-    track, _ = fuse(robot, imu.t, imu.gyro[:, 2], twist_t=odom.t, twist_v=odom.v,
-                    twist_w=odom.w, imu_motion=imu_motion_codes(imu.t, imu.gyro, imu.accel))
-    rows = track.output_rows()
-    xy = track.states[rows, :2]
-    step = np.hypot(*np.diff(xy, axis=0).T)
-    bound = 3.0 * np.abs(odom.v).max() * np.diff(track.t[rows])
-    assert np.all(step <= bound), float(step.max())
-
-
-def test_jackal_skid_steer_twists_do_not_bend_the_gyro_bias():
-    # The bag's skid-steer twists turn 1.4-4 times as fast as the gyro (and not in a fixed
-    # ratio): their yaw rate is no measurement of the robot's rotation. The robot never stops,
-    # so nothing else tells the bias. Reference: the bag's own IMU orientation (the
-    # simulator's attitude), which the raw gyro integral follows within 1.1 deg RMS, so the
-    # true bias is about 0. Issue 11 measured a bias of 1.76 deg/s; before the slip-share
-    # trust and the vague prior on the first yaw rate: 1.80 deg/s and a yaw RMSE of 58.5 deg;
-    # now (measured) 0.003 deg/s and 0.97 deg.
+@pytest.fixture(scope="module")
+def jackal():
+    """The bundled Jackal bag fused from its IMU and odometry twists: ``(bag, track, ekf)``."""
     from fusion.io.bags import read_bag
 
     bag = read_bag(BAG, imu_topic="/imu/data", odom_topic="/jackal_velocity_controller/odom")
@@ -111,6 +91,28 @@ def test_jackal_skid_steer_twists_do_not_bend_the_gyro_bias():
     robot = type(EXAMPLE_ROBOT)(wheel_distance=0.5, speed_ratio=1e-4, encode_sampling_time=0.02)
     track, ekf = fuse(robot, imu.t, imu.gyro[:, 2], twist_t=odom.t, twist_v=odom.v,
                       twist_w=odom.w, imu_motion=imu_motion_codes(imu.t, imu.gyro, imu.accel))
+    return bag, track, ekf
+
+
+def test_jackal_bag_has_no_step_beyond_three_times_the_fastest_twist(jackal):
+    bag, track, _ = jackal
+    rows = track.output_rows()
+    xy = track.states[rows, :2]
+    step = np.hypot(*np.diff(xy, axis=0).T)
+    bound = 3.0 * np.abs(bag.odometry.v).max() * np.diff(track.t[rows])
+    assert np.all(step <= bound), float(step.max())
+
+
+def test_jackal_skid_steer_twists_do_not_bend_the_gyro_bias(jackal):
+    # The bag's skid-steer twists turn 1.4-4 times as fast as the gyro (and not in a fixed
+    # ratio): their yaw rate is no measurement of the robot's rotation. The robot never stops,
+    # so nothing else tells the bias. Reference: the bag's own IMU orientation (the
+    # simulator's attitude), which the raw gyro integral follows within 1.1 deg RMS, so the
+    # true bias is about 0. Issue 11 measured a bias of 1.76 deg/s; before the slip-share
+    # trust and the vague prior on the first yaw rate: 1.80 deg/s and a yaw RMSE of 58.5 deg;
+    # now (measured) 0.003 deg/s and 0.97 deg.
+    bag, track, ekf = jackal
+    imu, odom = bag.imu, bag.odometry
     q = imu.orientation
     ref = np.unwrap(np.arctan2(2 * (q[:, 0] * q[:, 3] + q[:, 1] * q[:, 2]),
                                1 - 2 * (q[:, 2] ** 2 + q[:, 3] ** 2)))

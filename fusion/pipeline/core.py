@@ -779,7 +779,10 @@ class FusionPipeline(Lifecycle):
 
         - known acceleration (N, 3), m/s^2, base frame: the forward acceleration dv/dt along x
           and the centripetal ``v*w`` along +y (to the left when turning left while driving
-          forward); the IMU's lever arm is left out (an IMU off the axle centre feels
+          forward), with ``w`` the gyro's rate about the base z axis, not the wheels' (a
+          skid-steer base's odometry turns several times as fast as the robot: on the
+          bundled Jackal bag the wheels' ``w`` tilted the attitude and leaked 6 deg out of
+          the heading); the IMU's lever arm is left out (an IMU off the axle centre feels
           ``w^2 r`` more); NaN rows where nothing is known;
         - stillness (N,): 0 moving (v or w not zero), 1 known still (v = w = 0 and the IMU
           quiet: ``|gyro|`` below Keel's ``bias_clip + rest_gyro_threshold`` and ``|accel|``
@@ -796,7 +799,7 @@ class FusionPipeline(Lifecycle):
         w = np.where(fresh, w, math.nan)
         known = np.zeros((t.size, 3))
         known[:, 0] = a
-        known[:, 1] = v * w
+        known[:, 1] = v * gyro[:, 2]
         known[~fresh] = math.nan
         gyro_max, gravity, accel_tol = self._quiet
         gx, gy, gz = gyro[:, 0], gyro[:, 1], gyro[:, 2]
@@ -824,7 +827,7 @@ class FusionPipeline(Lifecycle):
             still = ((gx * gx + gy * gy + gz * gz < gyro_max * gyro_max)
                      and abs(math.sqrt(ax * ax + ay * ay + az * az) - gravity) < accel_tol)
             still = True if still else None
-        return still, np.array([a, v * w, 0.0])
+        return still, np.array([a, v * float(gyro[2]), 0.0])
 
     def _attitude(self, t: NDArray[np.float64], gyro: NDArray[np.float64],
                   accel: NDArray[np.float64], motion) -> NDArray[np.float64]:
