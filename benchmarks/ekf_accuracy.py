@@ -18,9 +18,10 @@ Contenders:
 model): scenarios "plain" (white noise, constant gyro bias), "all" (every sensor error and
 low-friction patches) and "all+dead" (plus 8 s of zero ticks on both wheels while driving).
 Contenders: wheel only, gyro at stops, and the fused EKF with the DEFAULT EkfNoise fed the
-IMU's z rate as logged (robot.toml says the mount is level, as the owner believes) and the
-accelerometer's slip flags (fusion.planar.accel_slip on the logged x, y specific force;
-``--no-accel-slip``: the gyro gate alone). Then the
+IMU's z rate as logged (robot.toml says the mount is level, as the owner believes); the
+gyro gate alone judges slip, as in the pipeline's default (``--accel-slip``: also the
+accelerometer's slip flags, fusion.planar.accel_slip on the logged x, y specific force).
+Then the
 same two gyro contenders after the owner's gyro-scale calibration ("cal."): a separate
 simulated run of the same sensors, 10 turns in place back to a mark aligned by eye
 (fusion.evaluation.physics_sim.calibration_run, fusion.calibration.gyro_scale); they get the
@@ -152,7 +153,7 @@ def physics_slip_flags(run, rate=None) -> np.ndarray:
                             run.ticks)
 
 
-def _fused(run, rate, noise: EkfNoise | None, accel_slip: bool = True
+def _fused(run, rate, noise: EkfNoise | None, accel_slip: bool = False
            ) -> tuple[tuple[float, float], float]:
     """The EKF's errors on a physics run fed ``rate`` about the vertical (and, with
     ``accel_slip``, the accelerometer's slip flags), and the fraction of its rows whose pose
@@ -171,7 +172,7 @@ def _fused(run, rate, noise: EkfNoise | None, accel_slip: bool = True
 
 
 def score_physics_run(run, noise: EkfNoise | None = None, calibration_seed: int | None = None,
-                      accel_slip: bool = True
+                      accel_slip: bool = False
                       ) -> tuple[dict[str, tuple[float, float]], dict[str, float]]:
     """Errors of the contenders on one physics run, and the EKF's NEES fraction (per EKF
     contender). With ``calibration_seed``, also the gyro contenders after a simulated 10-turn
@@ -198,7 +199,7 @@ def score_physics_run(run, noise: EkfNoise | None = None, calibration_seed: int 
     return out, inside
 
 
-def physics_section(seeds: int, duration: float, accel_slip: bool = True) -> None:
+def physics_section(seeds: int, duration: float, accel_slip: bool = False) -> None:
     lo, hi = nees_bounds(3)
     for scenario in ("plain", "all", "all+dead"):
         results: dict[str, list[tuple[float, float]]] = {}
@@ -222,7 +223,7 @@ def physics_section(seeds: int, duration: float, accel_slip: bool = True) -> Non
                   f"the worst run (per seed: {' '.join(f'{100 * v:.1f}' for v in f)})")
 
 
-def breakdown_section(seed: int, duration: float, accel_slip: bool = True) -> None:
+def breakdown_section(seed: int, duration: float, accel_slip: bool = False) -> None:
     """One error at a time on the physics simulator (plain sensors plus that error)."""
     print(f"\n(ii-b) physics simulator, one error at a time, seed {seed}, {duration:.0f} s: "
           "final pos. error % / yaw RMSE deg; EKF NEES inside 95 %")
@@ -294,14 +295,15 @@ def main() -> None:
     ap.add_argument("--skip-bag", action="store_true", help="leave out section (iii)")
     ap.add_argument("--breakdown", type=int, metavar="SEED",
                     help="also one physics error at a time on this seed")
-    ap.add_argument("--no-accel-slip", action="store_true",
-                    help="physics runs: no accelerometer slip flags (the gyro gate alone)")
+    ap.add_argument("--accel-slip", action="store_true",
+                    help="physics runs: also the accelerometer's slip flags (off by default, "
+                         "as in the pipeline)")
     args = ap.parse_args()
     kinematic_section(args.seeds, args.duration)
     sys.stdout.flush()
-    physics_section(args.seeds, args.duration, not args.no_accel_slip)
+    physics_section(args.seeds, args.duration, args.accel_slip)
     if args.breakdown is not None:
-        breakdown_section(args.breakdown, args.duration, not args.no_accel_slip)
+        breakdown_section(args.breakdown, args.duration, args.accel_slip)
     if not args.skip_bag:
         bag_section()
 

@@ -24,9 +24,8 @@ from fusion.evaluation.physics_sim import (
     with_errors,
 )
 from fusion.geometry.kinematics import DiffDriveParams
-from fusion.io.fused_csv import read_fused_csv
-from fusion.io.logdir import write_logdir
-from fusion.jobs.replay import replay_logdir
+from fusion.io.fused_csv import read_fused_csv, write_fused_csv
+from fusion.jobs.replay import fused_table
 from fusion.pipeline.core import FusionPipeline
 from fusion.planar import _ekf_core as core
 from fusion.planar.accel_slip import (
@@ -242,18 +241,22 @@ def test_the_pipeline_flag_reaches_the_slip_column():
     assert out[False][0].sum() == 0 and out[False][1].accel_slips == 0
 
 
-def test_the_replay_csv_slip_column_carries_the_flag(tmp_path):
-    # a log directory replayed into the fused CSV (one row per IMU sample, the flags of the
-    # last wheel frame): slip rows appear only while the simulator's tyres slide (or within
-    # a window after), and the replay counts them as the accelerometer's
+def test_the_fused_csv_slip_column_carries_the_flag(tmp_path):
+    # the pipeline with the test on, written as the fused CSV (one row per IMU sample, the
+    # flags of the last wheel frame): slip rows appear only while the simulator's tyres slide
+    # (or within a window after), and the pipeline counts them as the accelerometer's
     run = _straight_onto_ice(seed=4)
-    d = write_logdir(tmp_path / "log", run.robot.chassis, run.imu_t, run.gyro, run.accel,
-                     run.wheel_t, run.ticks)
+    chassis = run.robot.chassis
+    with FusionPipeline(RobotConfig(chassis=chassis), sources=("imu", "wheels"),
+                        state_rows=("imu",), accel_slip=True) as pipe:
+        pipe.push_arrays(run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
+    stats = pipe.finish_stats()
     out = tmp_path / "fused.csv"
-    result = replay_logdir(d, out)
+    write_fused_csv(out, fused_table(pipe.state_rows,
+                                     chassis.speed_ratio / chassis.encode_sampling_time))
     f = read_fused_csv(out)
     slip = f["slip"] == 1.0
-    assert result.stats["accel_slips"] >= 10 and slip.sum() >= 5 * result.stats["accel_slips"]
+    assert stats.accel_slips >= 10 and slip.sum() >= 5 * stats.accel_slips
     slides = run.truth_t[run.truth_slip]
     assert slides.size > 0
     # every slip row lies within [first slide, last slide + window + one frame]

@@ -14,7 +14,6 @@ from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
 from fusion.geometry.quaternion import from_euler, rotate_inverse
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, read_fused_csv
 from fusion.io.logdir import write_logdir, write_synthetic_run
-from fusion.planar.accel_slip import accel_slip_flags
 from fusion.planar.ekf import fuse
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import RobotConfig
@@ -46,13 +45,9 @@ def test_replay_writes_the_fused_track(run, logdir, tmp_path, capsys):
     # one row per IMU sample: the whole run
     assert data.shape == (run.imu_t.size, len(FUSED_CSV_COLUMNS))
     np.testing.assert_allclose(data[:, 0], run.imu_t, atol=1e-9)
-    # the same numbers as the library on the same (level) gyro rates and accelerometer
-    codes = imu_motion_codes(run.imu_t, run.gyro, run.accel)
-    slip = accel_slip_flags(EXAMPLE_ROBOT.speed_ratio, EXAMPLE_ROBOT.encode_sampling_time,
-                            run.imu_t, run.accel[:, :2], run.gyro[:, 2], codes, run.wheel_t,
-                            run.ticks)
+    # the same numbers as the library on the same (level) gyro rates
     track, _ = fuse(EXAMPLE_ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
-                    imu_motion=codes, wheel_slip=slip)
+                    imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
     gyro = track.kind == 0
     np.testing.assert_allclose(data[:, 1:3], track.states[gyro, :2], rtol=1e-9, atol=1e-9)
     assert np.all(np.abs(data[:, 3]) <= math.pi)

@@ -69,7 +69,7 @@ def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
     t_rows = track.t_filter[track.kind == core.EV_WHEELS]
 
     records = []
-    pipe = FusionPipeline(robot, on_record=records.append, imu_rate_hz=100.0)
+    pipe = FusionPipeline(robot, on_record=records.append, imu_rate_hz=100.0, accel_slip=True)
     stats = replay(pipe, events(run))
     assert stats.records == len(records) == run.wheel_t.size == rows.shape[0]
     got = np.array([[r.t, r.x, r.y, r.yaw, r.v, r.w, r.pose_covariance[0, 0],

@@ -54,7 +54,7 @@ def run():
 
 def _records(robot: RobotConfig, run, **kw) -> list:
     recs: list = []
-    with FusionPipeline(robot, on_record=recs.append, **kw) as pipe:
+    with FusionPipeline(robot, on_record=recs.append, **{"accel_slip": True, **kw}) as pipe:
         pipe.push_arrays(run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     return recs
 

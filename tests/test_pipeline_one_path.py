@@ -134,7 +134,7 @@ def test_release_order_follows_the_stated_policy(run, window, sources):
     want, ekf = _reference(run, window, sources)
     rows = []
     pipe = FusionPipeline(RobotConfig(chassis=run.robot), reorder_window=window,
-                          sources=sources, tilt=True, on_record=rows.append)
+                          sources=sources, tilt=True, on_record=rows.append, accel_slip=True)
     with pipe:
         pipe.push_arrays(run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     assert len(rows) == want.shape[0] == run.wheel_t.size
