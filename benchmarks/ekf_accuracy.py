@@ -120,8 +120,13 @@ def _table(results: dict[str, list[tuple[float, float]]]) -> None:
               f"{v[:, 1].mean():10.3f} {v[:, 1].max():11.3f}")
 
 
+#: EkfNoise.accel_speed_psd of every EKF contender (``--accel-speed``; 0: the default, v a
+#: random walk). Every section feeds the forward specific force (IMU x, mounts level).
+ACCEL_SPEED = {"accel_speed_psd": 0.0}
+
+
 def kinematic_section(seeds: int, duration: float) -> None:
-    noise = EkfNoise(bias_psd=(2e-5) ** 2)
+    noise = EkfNoise(bias_psd=(2e-5) ** 2, **ACCEL_SPEED)
     results: dict[str, list[tuple[float, float]]] = {
         "wheel only": [], "gyro heading": [], "gyro at stops": [], "fused EKF": []}
     for seed in range(seeds):
@@ -133,7 +138,8 @@ def kinematic_section(seeds: int, duration: float) -> None:
         results["gyro heading"].append(_errors(gh, tw, run.distance))
         stops = gyro_at_stops(ROBOT, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
         results["gyro at stops"].append(_errors(stops.poses, tw, run.distance))
-        track, _ = fuse(ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, noise)
+        track, _ = fuse(ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, noise,
+                        accel_x=run.accel[:, 0])
         g = track.kind == GYRO_ROWS
         results["fused EKF"].append(_errors(track.states[g], run.truth_at(track.t[g]),
                                             run.distance))
@@ -159,8 +165,10 @@ def _fused(run, rate, noise: EkfNoise | None, accel_slip: bool = False
     ``accel_slip``, the accelerometer's slip flags), and the fraction of its rows whose pose
     NEES is inside the 95 % bounds."""
     track, _ = fuse(run.robot.chassis, run.imu_t, rate, run.wheel_t, run.ticks,
-                    noise=noise, imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel),
-                    wheel_slip=physics_slip_flags(run, rate) if accel_slip else None)
+                    noise=noise or EkfNoise(**ACCEL_SPEED),
+                    imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel),
+                    wheel_slip=physics_slip_flags(run, rate) if accel_slip else None,
+                    accel_x=run.accel[:, 0])
     k = track.kind == GYRO_ROWS
     est = track.states[k, :3]
     truth = run.truth_at(track.t[k])
@@ -193,7 +201,7 @@ def score_physics_run(run, noise: EkfNoise | None = None, calibration_seed: int 
         gyro[:, 2] = rate / (1.0 + cal.scale_error)
         stops = gyro_at_stops(robot, run.imu_t, gyro, run.accel, run.wheel_t, run.ticks)
         out["stops, cal."] = _errors(stops.poses, tw, run.distance)
-        cal_noise = replace(noise or EkfNoise(), **cal.ekf_fields())
+        cal_noise = replace(noise or EkfNoise(**ACCEL_SPEED), **cal.ekf_fields())
         out["fused EKF, cal."], inside["fused EKF, cal."] = _fused(run, rate, cal_noise,
                                                                    accel_slip)
     return out, inside
@@ -268,7 +276,8 @@ def bag_section() -> None:
                                                       odom.w).poses
     robot = DiffDriveParams(wheel_distance=0.5, speed_ratio=1e-4, encode_sampling_time=0.02)
     track, _ = fuse(robot, imu.t, imu.gyro[:, 2], twist_t=t, twist_v=odom.v, twist_w=odom.w,
-                    imu_motion=imu_motion_codes(imu.t, imu.gyro, imu.accel))
+                    imu_motion=imu_motion_codes(imu.t, imu.gyro, imu.accel),
+                    noise=EkfNoise(**ACCEL_SPEED), accel_x=imu.accel[:, 0])
     k = track.kind == GYRO_ROWS
     fused = track.states[k, :3]
     contenders["fused EKF"] = np.column_stack([np.interp(t, track.t[k], fused[:, j])
@@ -298,7 +307,11 @@ def main() -> None:
     ap.add_argument("--accel-slip", action="store_true",
                     help="physics runs: also the accelerometer's slip flags (off by default, "
                          "as in the pipeline)")
+    ap.add_argument("--accel-speed", type=float, default=0.0, metavar="PSD",
+                    help="EkfNoise.accel_speed_psd, (m/s)^2/s: the accelerometer drives the "
+                         "EKF's speed (default 0: off)")
     args = ap.parse_args()
+    ACCEL_SPEED["accel_speed_psd"] = args.accel_speed
     kinematic_section(args.seeds, args.duration)
     sys.stdout.flush()
     physics_section(args.seeds, args.duration, args.accel_slip)

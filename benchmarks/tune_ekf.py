@@ -78,9 +78,11 @@ SCENARIOS = ("plain", "all", "all+dead", "moving-start", "kinematic")
 # turn_w_std and wheel_w_corr_time the last one (see the last runs above); this one searches
 # the speed's random walk after a slipping frame and the position noise per metre driven (the
 # latter changes no estimate, only the covariance)
+# the last grid (5): the accelerometer driving the speed (accel_speed_psd 0: off, v a random
+# walk) and the time constant of its offset learnt from the wheels while driving
 GRID = {
-    "slip_accel_psd": [0.002, 0.005, 0.01, 0.02, 0.05],
-    "slip_inflation": [1e4, 1e5],
+    "accel_speed_psd": [0.0, 0.002, 0.005, 0.01, 0.02],
+    "accel_offset_time": [2.0, 5.0, 20.0],
 }
 # --calibrated-gyro: the physics runs' gyro z divided by (1 + its true scale error) and
 # gyro_scale_std set to a gyro-scale calibration's uncertainty, as after the turns-in-place
@@ -98,7 +100,7 @@ def score(run, robot, codes, noise: EkfNoise, gyro_z=None) -> float:
     replaces the run's gyro z when given."""
     gyro_z = run.gyro[:, 2] if gyro_z is None else gyro_z
     track, _ = fuse(robot, run.imu_t, gyro_z, run.wheel_t, run.ticks,
-                    noise=noise, imu_motion=codes)
+                    noise=noise, imu_motion=codes, accel_x=run.accel[:, 0])
     k = track.kind == core.EV_GYRO
     est = track.states[k, :3]
     if not np.isfinite(track.states[k]).all():

@@ -24,7 +24,8 @@ from fusion.planar.ekf import EkfNoise
 
 __all__ = ["FilterpyReference"]
 
-GYRO, WHEELS, YAW, TWIST, WHEELS_SLIP = 0, 1, 2, 3, 4
+GYRO, WHEELS, YAW, TWIST, WHEELS_SLIP, ACCEL = 0, 1, 2, 3, 4, 5
+ACCEL_HOLD = 0.1  # s: an older forward specific force drives v no more
 STILL, UNSURE, MOVING = 1, 2, 3  # fusion.planar.imu_motion
 
 
@@ -62,12 +63,27 @@ class FilterpyReference:
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
         self.forgotten: dict[int, tuple[float, float]] = {}  # i -> (time, second moment)
+        # the accelerometer's forward specific force: last value and time, learnt offset
+        self.fx: float | None = None
+        self.fx_t: float | None = None
+        self.offset: float | None = None
+        self.rest_n = 0  # samples of the current stop averaged into the offset
+
+    def _accel(self, now: float) -> float | None:
+        """The forward acceleration driving v from ``now`` on (None: v is a random walk)."""
+        n = self.noise
+        if (n.accel_speed_psd <= 0 or self.measured[3] is None or self.offset is None
+                or self.zero_count >= n.zupt_frames or self.fx_t is None
+                or now - self.fx_t > ACCEL_HOLD):
+            return None
+        return self.fx - self.offset
 
     # -- time ------------------------------------------------------------------------------------
-    def _predict(self, dt: float, still: bool) -> None:
+    def _predict(self, dt: float, still: bool, now: float) -> None:
         n, kf = self.noise, self.kf
         f = n.still_scale if still else 1.0
-        q_v = n.accel_psd * f
+        accel = self._accel(now)
+        q_v = n.accel_psd * f if accel is None else n.accel_speed_psd
         if self.after_slip:  # after a slipping frame the speed changes with nothing to hold it
             q_v = max(q_v, n.slip_accel_psd)
         kf.F = model.transition_jacobian(kf.x, dt)
@@ -79,6 +95,8 @@ class FilterpyReference:
         kf.Q[:2, :2] += np.array([[q_xx, q_xy], [q_xy, q_yy]])
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
+        if accel is not None:  # the accelerometer drives the speed: v += a dt
+            kf.x[3] += accel * dt
 
     def _forget(self, i: int, now: float) -> None:
         """Speed state i unknown: mean 0, variance max(x_i^2 + P_ii, prior), uncorrelated."""
@@ -105,7 +123,7 @@ class FilterpyReference:
             kept = {i: P[i, i] for i in lost}
             for i in lost:  # a forgotten speed takes no part in the propagation
                 P[i, i] = 0.0
-            self._predict(h, self.zero_count >= self.noise.zupt_frames)
+            self._predict(h, self.zero_count >= self.noise.zupt_frames, now)
             P = self.kf.P
             for i in lost:  # ... the pose gets the envelope r * s^2 of an unknown motion
                 P[i, i] += kept[i]
@@ -169,6 +187,13 @@ class FilterpyReference:
         kf.P = IKH @ kf.P @ IKH.T + K @ R @ K.T
         self.yaw_budget = max(self.yaw_budget - abs(dyaw), 0.0)
 
+    def _learn_offset(self, driven: bool, v_prior: float, interval: float) -> None:
+        """The wheels' correction of an accelerometer-driven v, per second, is the offset's
+        error: learnt with time constant accel_offset_time."""
+        if driven:
+            gain = min(1.0, interval / self.noise.accel_offset_time)
+            self.offset -= gain * (self.kf.x[3] - v_prior) / interval
+
     def _measured(self, *states: int) -> None:
         for i in states:
             self.measured[i] = self.t
@@ -208,7 +233,20 @@ class FilterpyReference:
                     kf.P[4, 4] += n.angular_accel_psd * r.encode_sampling_time
             self._rate_update(np.array([a]) - model.gyro_h(kf.x), H, R)
             self._measured(4)
+        elif kind == ACCEL:
+            self.fx, self.fx_t = a, self.t
+            if self.zero_count >= n.zupt_frames and self.imu_motion in (0, STILL):
+                # standing still: the offset is the mean over this stop
+                self.rest_n += 1
+                self.offset = a if self.rest_n == 1 else (
+                    self.offset + (a - self.offset) / self.rest_n)
+            else:
+                self.rest_n = 0
+            return 0
         elif kind in (WHEELS, TWIST):
+            # the accelerometer drove v till now, driving straight: the offset is learnt
+            driven = self._accel(self.t) is not None and abs(kf.x[4]) <= 0.1
+            v_prior = kf.x[3]
             in_fault, self.in_fault = self.in_fault, False
             self.after_slip = False
             interval = r.encode_sampling_time
@@ -303,10 +341,12 @@ class FilterpyReference:
                     H_v = np.zeros((1, model.NX))
                     H_v[0, 3] = H[0, 3]
                     self._rate_update(y[:1], H_v, R[:1, :1] * inflation)
+                    self._learn_offset(driven, v_prior, interval)
                     self._measured(3, 4)
                     self.stats["updates"] += 1
                     return 1 if slip else 0
                 self._rate_update(y, H, R)
+                self._learn_offset(driven, v_prior, interval)
                 self._measured(3, 4)
         elif kind == YAW:
             kf.x[2] += self.yaw_owed  # an absolute yaw: what is owed is paid at once

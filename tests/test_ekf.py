@@ -47,14 +47,16 @@ def _events(run, **kw):
                         ROBOT.encode_sampling_time, **kw)
 
 
-def _every_kind_of_event(run):
+def _every_kind_of_event(run, accel=False):
     """Gyro (a few saturated), wheel frames in the first half (slips, ZUPTs, some flagged by
     the accelerometer), the same frames as
     external twists in the second half, absolute yaws (the true yaw, some of them a turn away:
     the residual must wrap; contradictory yaws would drive the gyro scale state away), a late
     input
     fused at the filter time, one too late to use, a non-finite one, an implausible one, an
-    unknown kind, a gap longer than max_dt and one longer than max_extrapolation."""
+    unknown kind, a gap longer than max_dt and one longer than max_extrapolation. ``accel``:
+    also each IMU sample's forward specific force (the perturbations then hit the same
+    events of the other kinds)."""
     T, L, sr = ROBOT.encode_sampling_time, ROBOT.wheel_distance, ROBOT.speed_ratio
     dl, dr = run.ticks[:, 0] * sr, run.ticks[:, 1] * sr
     late = run.wheel_t > 0.5 * run.duration
@@ -68,15 +70,16 @@ def _every_kind_of_event(run):
         run.imu_t, gyro, run.wheel_t[~late], run.ticks[~late], T, wheel_slip=accel_slip,
         yaw_t=yaw_t, yaw_std=0.05, yaw=run.truth_at(yaw_t)[:, 2] + turns,
         twist_t=run.wheel_t[late] - 0.5 * T, twist_v=(0.5 * (dl + dr) / T)[late],
-        twist_w=((dr - dl) / (L * T))[late])
+        twist_w=((dr - dl) / (L * T))[late], accel_x=run.accel[:, 0] if accel else None)
     t, a = t.copy(), a.copy()
-    t[500] -= 0.03
-    t[900] -= 0.5
-    a[1200] = np.nan
-    kinds[1300] = 7
-    t[2000:] += 0.3
-    t[2600:] += 4.0  # longer than max_extrapolation: v and w forgotten
-    a[2700] = 1e200  # implausible
+    at = np.flatnonzero(kinds != core.EV_ACCEL)  # the n-th event of the other kinds
+    t[at[500]] -= 0.03
+    t[at[900]] -= 0.5
+    a[at[1200]] = np.nan
+    kinds[at[1300]] = 7
+    t[at[2000]:] += 0.3
+    t[at[2600]:] += 4.0  # longer than max_extrapolation: v and w forgotten
+    a[at[2700]] = 1e200  # implausible
     return kinds, t, a, b
 
 
@@ -85,13 +88,17 @@ def _every_kind_of_event(run):
                                             slip_accel_psd=0.05),
                                    EkfNoise(gyro_limit=4.3, turn_w_std=0.2,
                                             wheel_w_corr_time=0.1, odometry_along_var=3e-4,
-                                            odometry_cross_var=2e-5)],
-                         ids=["inflate-slips", "drop-slips", "turn-noise"])
+                                            odometry_cross_var=2e-5),
+                                   EkfNoise(gyro_limit=4.3, slip_accel_psd=0.01,
+                                            accel_speed_psd=0.005, accel_offset_time=2.0)],
+                         ids=["inflate-slips", "drop-slips", "turn-noise", "accel-speed"])
 def test_core_equals_filterpy_driven_by_the_model(short_run, noise):
     # filterpy's own ExtendedKalmanFilter (predict with the model's f, F, Q; update with each
     # sensor's h, H, R and the wrapped yaw residual; inv(S)) against the core (Cholesky),
-    # event by event over every kind of input.
-    kinds, t, a, b = _every_kind_of_event(short_run)
+    # event by event over every kind of input (with accel_speed_psd: and the forward
+    # specific force driving v, its offset learnt at stops and from the wheels).
+    accel = noise.accel_speed_psd > 0
+    kinds, t, a, b = _every_kind_of_event(short_run, accel)
     fast, ref, status = _core_and_reference(noise, kinds, t, a, b)
     expected = {0, 2, 4, 5, 6} | ({1} if noise.slip_inflation > 0 else set())
     assert expected <= set(status.tolist())

@@ -47,6 +47,7 @@ from fusion._jit import njit
 from fusion.planar._ekf_core import (
     A_FLAGS,
     A_T,
+    EV_ACCEL,
     EV_GYRO,
     EV_TWIST,
     EV_WHEELS,
@@ -116,8 +117,9 @@ def new_sched(use_imu: bool, use_wheels: bool, use_twist: bool) -> np.ndarray:
 
 @njit
 def source_of(kind):
-    """Watermark source of an event kind: 0 IMU, 1 wheels, 2 twist."""
-    if kind == EV_GYRO:
+    """Watermark source of an event kind: 0 IMU (gyro, forward specific force), 1 wheels,
+    2 twist."""
+    if kind == EV_GYRO or kind == EV_ACCEL:
         return 0
     if kind == EV_WHEELS or kind == EV_WHEELS_SLIP:
         return 1

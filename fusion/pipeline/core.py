@@ -661,6 +661,11 @@ class FusionPipeline(Lifecycle):
                 ref0 = self._imu_rows.append(q, gyro, accel)
                 parts.append((imu_t, _EV_GYRO, imu_t, rate, imu_codes,
                               np.arange(ref0, ref0 + imu_t.size)))
+                if self.ekf.noise.accel_speed_psd > 0.0:
+                    # the forward specific force drives the EKF's speed (EkfNoise), right
+                    # after each gyro sample as fusion.planar.ekf.merge_events orders it
+                    parts.append((imu_t, core.EV_ACCEL, imu_t, accel[:, 0].copy(),
+                                  np.zeros(imu_t.size), np.arange(ref0, ref0 + imu_t.size)))
         if motion is not None and motion[0].size:
             self._known_motion = tuple(float(m[-1]) for m in motion)
         wheel_slip = self._slip_flags(slip_imu, wheel_t, ticks)

@@ -41,8 +41,8 @@ from fusion.planar.model import (
     zupt_noise,
 )
 
-__all__ = ["AUX_SIZE", "PAR_SIZE", "ROW_WIDTH", "batch_core", "predict_core", "step_core",
-           "update_core"]
+__all__ = ["ACCEL_HOLD", "AUX_SIZE", "PAR_SIZE", "ROW_WIDTH", "batch_core", "predict_core",
+           "step_core", "update_core"]
 
 # par indices
 P_SPEED_RATIO = 0
@@ -88,7 +88,9 @@ P_PROOF_TIME = 39  # s of agreeing turns before the wheels' yaw rates are fused
 P_ODO_ALONG = 40
 P_ODO_CROSS = 41
 P_SLIP_Q_V = 42
-PAR_SIZE = 43
+P_ACCEL_Q_V = 43  # > 0: the forward specific force drives v, with this PSD, (m/s)^2/s
+P_OFFSET_TIME = 44  # s, time constant of the accelerometer offset learnt while driving
+PAR_SIZE = 45
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -121,7 +123,13 @@ A_CLIPPED = 26  # filter time of the last saturated gyro sample (NaN: none yet)
 A_AGREED = 27  # s of turning wheel frames or twists that agreed with the gyro
 A_YAW_PENDING = 28  # heading correction owed beyond the yaw budget, rad (_rate_update)
 A_ACCEL_SLIPS = 29  # wheel frames the accelerometer flagged as slipping (EV_WHEELS_SLIP)
-AUX_SIZE = 30
+A_FX = 30  # the last forward specific force (EV_ACCEL), m/s^2 (NaN: none yet)
+A_FX_T = 31  # its filter time, s
+A_FX_OFFSET = 32  # the accelerometer's forward offset (bias + gravity), m/s^2 (NaN: unknown)
+A_FX_REST_N = 33  # samples averaged into the offset during the current stop
+AUX_SIZE = 34
+#: s: a forward specific force older than this drives v no more (the IMU feed stopped)
+ACCEL_HOLD = 0.1
 # per-frame flags
 FLAG_ZUPT = 1
 FLAG_SLIP = 2
@@ -142,6 +150,8 @@ EV_TWIST = 3
 # a wheel frame that the accelerometer says slips (fusion.planar.accel_slip): fused as a
 # slipping frame whatever the gyro gate says
 EV_WHEELS_SLIP = 4
+# the forward specific force of an IMU sample (base frame x, m/s^2), at the IMU stamp
+EV_ACCEL = 5
 # a state row (batch output, pipeline trace): x (NX), diag(P) (NX), P[x,y], P[x,yaw], P[y,yaw]
 ROW_WIDTH = 2 * NX + 3
 
@@ -360,8 +370,24 @@ def _forget_speed(x, P, aux, i, t, var0):
 
 
 @njit
-def _predict_step(x, P, aux, par, t, h, q_v, q_w):
+def _accel_input(aux, par, t):
+    """The forward acceleration (m/s^2) that drives v in a prediction step starting at
+    filter time ``t``: the last forward specific force minus the learnt offset; NaN when the
+    accelerometer does not drive v (switched off, no sample within :data:`ACCEL_HOLD` s, no
+    offset learnt yet, standing still, or v forgotten)."""
+    if not (par[P_ACCEL_Q_V] > 0.0) or math.isnan(aux[A_V_T]):
+        return math.nan
+    if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES] or not t - aux[A_FX_T] <= ACCEL_HOLD:
+        return math.nan
+    return aux[A_FX] - aux[A_FX_OFFSET]
+
+
+@njit
+def _predict_step(x, P, aux, par, t, h, q_v, q_w, q_v_accel):
     """One prediction over ``h`` s from filter time ``t``.
+
+    When the accelerometer drives v (:func:`_accel_input` not NaN), ``v += a * h`` after
+    the constant-twist motion and v's process noise is ``q_v_accel`` instead of ``q_v``.
 
     A forgotten speed (mean 0, uncorrelated) takes no part in the motion's covariance
     propagation; instead the pose gets the envelope of an unknown motion at that speed's
@@ -378,9 +404,15 @@ def _predict_step(x, P, aux, par, t, h, q_v, q_w):
         P[3, 3] = 0.0
     if w_lost:
         P[4, 4] = 0.0
+    accel = _accel_input(aux, par, t)
+    driven = not math.isnan(accel)
+    if driven:
+        q_v = q_v_accel
     q_xx, q_xy, q_yy = odometry_noise(x, h, par[P_ODO_ALONG], par[P_ODO_CROSS])
     predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G],
                  par[P_Q_S])
+    if driven:
+        x[3] += accel * h
     P[0, 0] += q_xx
     P[0, 1] += q_xy
     P[1, 0] += q_xy
@@ -435,10 +467,12 @@ def _advance(x, P, aux, par, t):
             # standing still: v and w stay (almost) where the ZUPT put them
             q_v *= par[P_STILL_SCALE]
             q_w *= par[P_STILL_SCALE]
-        if aux[A_FLAGS] == FLAG_SLIP and q_v < par[P_SLIP_Q_V]:
+        q_v_accel = par[P_ACCEL_Q_V]
+        if aux[A_FLAGS] == FLAG_SLIP:
             # after a slipping frame (its speed down-weighted) the speed changes as the robot
             # drives, with no frame to hold it until the next one
-            q_v = par[P_SLIP_Q_V]
+            q_v = max(q_v, par[P_SLIP_Q_V])
+            q_v_accel = max(q_v_accel, par[P_SLIP_Q_V])
         # up to the next moment a speed state is forgotten, if one falls in this interval
         span = dt
         to_v = aux[A_V_T] + horizon - t_now  # NaN once forgotten: never smaller
@@ -451,13 +485,13 @@ def _advance(x, P, aux, par, t):
         forget_w = to_w <= span
         if math.isnan(aux[A_V_T]) and math.isnan(aux[A_W_T]):
             if span > 0.0:  # nothing moves the mean any more: one step
-                _predict_step(x, P, aux, par, t_now, span, q_v, q_w)
+                _predict_step(x, P, aux, par, t_now, span, q_v, q_w, q_v_accel)
         else:
             left = span
             t_step = t_now
             while left > 0.0:
                 h = left if left <= max_dt else max_dt
-                _predict_step(x, P, aux, par, t_step, h, q_v, q_w)
+                _predict_step(x, P, aux, par, t_step, h, q_v, q_w, q_v_accel)
                 left -= h
                 t_step += h
         dt -= span
@@ -639,6 +673,10 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
     accel_slip = kind == EV_WHEELS_SLIP
     if accel_slip:
         kind = EV_WHEELS
+    # the accelerometer drove v since the last input, driving straight: the wheels'
+    # correction of v then teaches the offset (in a turn an IMU off the axle adds its
+    # centripetal w^2 r: 0.07 m/s^2 spinning at 1.2 rad/s 5 cm ahead of it)
+    learn = abs(x[4]) <= TURN_RATE and not math.isnan(_accel_input(aux, par, aux[A_T]))
     in_fault = aux[A_FLAGS] == FLAG_FAULT
     interval = par[P_PERIOD]
     if not math.isnan(aux[A_WHEEL_T]) and t - aux[A_WHEEL_T] > 0.0:
@@ -702,7 +740,34 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         R[1, 1] *= inflate
         R[0, 1] *= math.sqrt(inflate)
         R[1, 0] = R[0, 1]
-    return _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip)
+    v_prior = x[3]
+    d2, status = _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip)
+    if learn and (status == 0 or status == 1):
+        # what the wheels corrected, per second, is the offset's error (a slope, a drifting
+        # bias), learnt slowly
+        gain = min(1.0, interval / par[P_OFFSET_TIME])
+        aux[A_FX_OFFSET] -= gain * (x[3] - v_prior) / interval
+    return d2, status
+
+
+@njit
+def _accel_sample(aux, par, f_x):
+    """Keep the forward specific force ``f_x`` (m/s^2) of an IMU sample for the prediction
+    of v; standing still (a ZUPT's conditions: ``zupt_frames`` zero frames, the IMU still
+    or unknown) it is the offset: the mean over the current stop."""
+    aux[A_FX] = f_x
+    aux[A_FX_T] = aux[A_T]
+    imu = aux[A_IMU_MOTION]
+    if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES] and (imu == MOTION_STILL
+                                                    or imu == MOTION_UNKNOWN):
+        n = aux[A_FX_REST_N] + 1.0
+        aux[A_FX_REST_N] = n
+        if n == 1.0:
+            aux[A_FX_OFFSET] = f_x
+        else:
+            aux[A_FX_OFFSET] += (f_x - aux[A_FX_OFFSET]) / n
+    else:
+        aux[A_FX_REST_N] = 0.0
 
 
 @njit
@@ -733,6 +798,10 @@ def step_core(x, P, aux, par, kind, t, a, b):
     kind 4 (wheels, slipping): as kind 1, for a frame the accelerometer flagged as slipping
     (:mod:`fusion.planar.accel_slip`): fused as a slip (status 1) whatever the gyro gate
     says, unless it is a stop or an encoder fault.
+    kind 5 (accelerometer): ``a`` = forward specific force (base frame x, m/s^2) of an IMU
+    sample, ``b`` unused (0); kept to drive v in the predictions that follow (when
+    ``par[P_ACCEL_Q_V]`` > 0), and averaged into the offset while standing still; status 0,
+    no update counted.
 
     Only the absolute yaw corrects the pose directly; the rate measurements (gyro, wheels,
     twist, ZUPT) correct v, w, b, k, c, and the pose follows through the motion model.
@@ -782,6 +851,9 @@ def step_core(x, P, aux, par, kind, t, a, b):
             if aux[A_IMU_MOTION] == MOTION_MOVING or aux[A_IMU_MOTION] == MOTION_UNSURE:
                 aux[A_V_T] = aux[A_T]
             return status
+    elif kind == EV_ACCEL:
+        _accel_sample(aux, par, a)
+        return 0
     elif kind == 2:
         # an absolute yaw is no rate measurement: what is owed is paid at once
         x[2] += aux[A_YAW_PENDING]

@@ -172,6 +172,19 @@ class EkfNoise:
             ``accel_psd``: wheels slip when the robot accelerates harder than the floor
             allows, and its speed then changes with no frame to hold it. Chosen with
             ``slip_inflation`` by benchmarks/tune_ekf.py (see its docstring).
+        accel_speed_psd: 0 (default): v is a random walk (``accel_psd``). > 0: the forward
+            specific force (base frame x) of each IMU sample drives v,
+            ``v += (f_x - offset) * dt``, and this is v's process noise, (m/s)^2/s: the
+            accelerometer's error (white noise and vibration while driving, ~1 m/s^2 RMS at
+            100-200 Hz: about 1 (m/s^2)^2 x 0.005 s; the offset's residual error between
+            wheel frames). The offset (accelerometer bias + gravity through the tilt) is
+            the mean of f_x over each stop (a ZUPT's conditions) and, while driving, follows
+            the wheels' corrections of v with time constant ``accel_offset_time`` (a slope:
+            gravity leaks ~0.17 m/s^2 per degree). Until the first stop v stays a random
+            walk. Needs the IMU's f_x fed (``accel_x`` of :func:`fuse`, or
+            :meth:`PlanarEKF.update_accel`).
+        accel_offset_time: time constant of the accelerometer offset learnt from the wheels
+            while driving, s.
         angular_accel_psd: yaw-rate random walk, (rad/s)^2/s.
         bias_psd: gyro-bias random walk, (rad/s)^2/s (square of the bias walk in rad/s/sqrt(s)).
         tick_std: encoder quantisation noise per period, ticks.
@@ -293,6 +306,8 @@ class EkfNoise:
 
     gyro_std: float = math.radians(0.005) * 10.0
     accel_psd: float = 0.002
+    accel_speed_psd: float = 0.0
+    accel_offset_time: float = 5.0
     angular_accel_psd: float = 0.2
     bias_psd: float = (1e-4) ** 2
     tick_std: float = 0.5
@@ -372,7 +387,7 @@ _POSITIVE = frozenset({
     "gyro_std", "tick_std", "zupt_v_std", "zupt_w_std", "twist_v_std", "twist_w_std",
     "initial_bias_std", "initial_speed_std", "max_dt", "max_extrapolation", "slip_gate",
     "max_rate", "max_speed", "wheel_rate_trust_time", "max_slip_share", "initial_rate_std",
-    "wheel_rate_proof_time",
+    "wheel_rate_proof_time", "accel_offset_time",
 })
 #: Upper bound on ``max_extrapolation / max_dt``: the prediction steps one input may cost.
 MAX_STEPS_PER_INPUT = 10_000
@@ -453,6 +468,7 @@ def merge_events(
     twist_w: ArrayLike | None = None,
     imu_motion: ArrayLike | None = None,
     wheel_slip: ArrayLike | None = None,
+    accel_x: ArrayLike | None = None,
 ):
     """Merge gyro, wheel, absolute-yaw and twist inputs into one time-ordered event list.
 
@@ -469,6 +485,8 @@ def merge_events(
         wheel_slip: (M,) bool, the wheel frames the accelerometer says slip
             (:func:`fusion.planar.accel_slip.accel_slip_flags`): their kind is
             ``EV_WHEELS_SLIP`` (fused as a slip), or None (none flagged).
+        accel_x: (N,) forward specific force of each IMU sample (base frame x, m/s^2): an
+            ``EV_ACCEL`` event at the sample's stamp, right after its gyro event; or None.
 
     Returns:
         ``(kinds, t_eff, a, b, stamp)`` arrays sorted by effective time (stable; at equal
@@ -507,6 +525,17 @@ def merge_events(
                 raise ValueError(f"{it.size} IMU stamps but {mc.size} motion codes")
             bb.append(mc)
         st.append(it)
+        if accel_x is not None:
+            fx = np.asarray(accel_x, dtype=float).reshape(-1)
+            if fx.size != it.size:
+                raise ValueError(f"{it.size} IMU stamps but {fx.size} forward specific forces")
+            kinds.append(np.full(it.size, core.EV_ACCEL))
+            ts.append(it)
+            aa.append(fx)
+            bb.append(np.zeros(it.size))
+            st.append(it)
+    elif accel_x is not None:
+        raise ValueError("accel_x needs the IMU stamps imu_t")
     if yaw_t is not None:
         yt = np.asarray(yaw_t, dtype=float).reshape(-1)
         kinds.append(np.full(yt.size, core.EV_YAW))
@@ -529,8 +558,10 @@ def merge_events(
         return (np.zeros(0, np.int64), *(np.zeros(0) for _ in range(4)))
     k = np.concatenate(kinds).astype(np.int64)
     t = np.concatenate(ts)
-    # at equal times a slipping wheel frame sorts as a wheel frame
-    order = np.lexsort((np.where(k == core.EV_WHEELS_SLIP, core.EV_WHEELS, k), t))
+    # at equal times a slipping wheel frame sorts as a wheel frame, a forward specific force
+    # as a gyro sample (after it: lexsort is stable), as the pipeline orders them
+    rank = np.where(k == core.EV_WHEELS_SLIP, core.EV_WHEELS, k)
+    order = np.lexsort((np.where(k == core.EV_ACCEL, core.EV_GYRO, rank), t))
     return (k[order], t[order], np.concatenate(aa)[order], np.concatenate(bb)[order],
             np.concatenate(st)[order])
 
@@ -694,12 +725,18 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_ODO_ALONG] = n.odometry_along_var
         par[core.P_ODO_CROSS] = n.odometry_cross_var
         par[core.P_SLIP_Q_V] = n.slip_accel_psd
+        par[core.P_ACCEL_Q_V] = n.accel_speed_psd
+        par[core.P_OFFSET_TIME] = n.accel_offset_time
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan
         self._aux[core.A_YAW_BUDGET] = n.yaw_fix_burst
         # the wheels' yaw rate: no disagreement seen, not yet proven in turns (A_AGREED 0)
         self._aux[core.A_CLIPPED] = math.nan
+        # no forward specific force yet, no accelerometer offset learnt
+        self._aux[core.A_FX] = math.nan
+        self._aux[core.A_FX_T] = math.nan
+        self._aux[core.A_FX_OFFSET] = math.nan
 
     # -- state -------------------------------------------------------------------------------
     @property
@@ -779,6 +816,12 @@ class PlanarEKF(ExtendedKalmanFilter):
         4 ZUPT, 5 too late, 7 encoder fault: not fused)."""
         t_eff = t - 0.5 * self.robot.encode_sampling_time - self.noise.wheel_latency
         return self._step(core.EV_WHEELS_SLIP if slip else core.EV_WHEELS, t_eff, left, right)
+
+    def update_accel(self, t: float, f_x: float) -> int:
+        """Feed the forward specific force ``f_x`` (m/s^2, base frame x, gravity included)
+        of the IMU sample stamped ``t`` (s): it drives v when ``accel_speed_psd`` > 0 (see
+        :class:`EkfNoise`). Returns the status (0 kept, 5 too late, 6 invalid)."""
+        return self._step(core.EV_ACCEL, t, f_x, 0.0)
 
     def update_twist(self, t: float, v: float, w: float) -> int:
         """Fuse an external wheel-odometry twist: forward speed ``v`` (m/s) and yaw rate ``w``
@@ -892,6 +935,7 @@ def fuse(
     twist_w: ArrayLike | None = None,
     imu_motion: ArrayLike | None = None,
     wheel_slip: ArrayLike | None = None,
+    accel_x: ArrayLike | None = None,
 ) -> tuple[FusedTrack, PlanarEKF]:
     """Fuse recorded streams offline (merged by effective time, see the module docstring).
 
@@ -911,6 +955,9 @@ def fuse(
         wheel_slip: (M,) bool per wheel frame, True where the accelerometer says it slips
             (:func:`fusion.planar.accel_slip.accel_slip_flags`): fused as a slip (yaw rate
             not fused, speed down-weighted); None: the gyro gate alone decides.
+        accel_x: (N,) forward specific force per IMU sample (base frame x, m/s^2), used
+            when ``noise.accel_speed_psd`` > 0 (see :class:`EkfNoise`); its events give no
+            rows in the track.
 
     Returns:
         ``(track, filter)``; the filter holds the final state.
@@ -918,9 +965,11 @@ def fuse(
     ekf = PlanarEKF(robot, noise)
     kinds, t_eff, a, b, stamp = merge_events(
         imu_t, gyro_z, wheel_t, ticks, robot.encode_sampling_time, ekf.noise.wheel_latency,
-        yaw_t, yaw, yaw_std, twist_t, twist_v, twist_w, imu_motion, wheel_slip,
+        yaw_t, yaw, yaw_std, twist_t, twist_v, twist_w, imu_motion, wheel_slip, accel_x,
     )
     states, status = ekf.process_batch(kinds, t_eff, a, b)
     # a flagged wheel frame is a wheel frame in the track (its status says slip)
     kinds = np.where(kinds == core.EV_WHEELS_SLIP, core.EV_WHEELS, kinds)
-    return FusedTrack(stamp, kinds, states, status, ekf.stats, t_eff), ekf
+    rows = kinds != core.EV_ACCEL
+    return FusedTrack(stamp[rows], kinds[rows], states[rows], status[rows], ekf.stats,
+                      t_eff[rows]), ekf
