@@ -40,6 +40,10 @@ reference: the odometry speed integrated along that yaw (a pseudo-reference, it 
 speed with every contender). Also printed: against the bag's own odometry pose, and the largest
 step between consecutive fused rows against 3 x the largest twist speed x the row interval.
 
+With ``--accel-speed PSD`` (and ``--accel-offset-time S``): every EKF contender with the
+accelerometer's forward specific force driving its speed (EkfNoise.accel_speed_psd; the
+forward specific force is fed in every case, and changes nothing while that is 0).
+
 With ``--breakdown SEED``: the physics simulator with one error at a time on that seed.
 
 Printed per contender: final position error in % of the distance travelled and yaw RMSE (deg),
@@ -120,9 +124,10 @@ def _table(results: dict[str, list[tuple[float, float]]]) -> None:
               f"{v[:, 1].mean():10.3f} {v[:, 1].max():11.3f}")
 
 
-#: EkfNoise.accel_speed_psd of every EKF contender (``--accel-speed``; 0: the default, v a
-#: random walk). Every section feeds the forward specific force (IMU x, mounts level).
-ACCEL_SPEED = {"accel_speed_psd": 0.0}
+#: EkfNoise.accel_speed_psd and accel_offset_time of every EKF contender (``--accel-speed``,
+#: ``--accel-offset-time``; psd 0: v a random walk). Every section feeds the forward
+#: specific force (IMU x; the mounts are taken as level).
+ACCEL_SPEED = {"accel_speed_psd": 0.0, "accel_offset_time": EkfNoise.accel_offset_time}
 
 
 def kinematic_section(seeds: int, duration: float) -> None:
@@ -310,8 +315,11 @@ def main() -> None:
     ap.add_argument("--accel-speed", type=float, default=0.0, metavar="PSD",
                     help="EkfNoise.accel_speed_psd, (m/s)^2/s: the accelerometer drives the "
                          "EKF's speed (default 0: off)")
+    ap.add_argument("--accel-offset-time", type=float, default=EkfNoise.accel_offset_time,
+                    metavar="S", help="EkfNoise.accel_offset_time, s")
     args = ap.parse_args()
     ACCEL_SPEED["accel_speed_psd"] = args.accel_speed
+    ACCEL_SPEED["accel_offset_time"] = args.accel_offset_time
     kinematic_section(args.seeds, args.duration)
     sys.stdout.flush()
     physics_section(args.seeds, args.duration, args.accel_slip)

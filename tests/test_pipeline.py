@@ -51,20 +51,24 @@ def events(run):
     return list(merge_by_time(imu, wheels))
 
 
-def test_streaming_pipeline_equals_the_filters_composed_by_hand(run):
+@pytest.mark.parametrize("noise", [EkfNoise(), EkfNoise(accel_speed_psd=0.005)],
+                         ids=["default", "accel-speed"])
+def test_streaming_pipeline_equals_the_filters_composed_by_hand(run, noise):
     """Oracle: Keel told the wheels' knowledge (tests/keel_feed_reference.py) ->
     ekf.vertical_rate, imu_motion_codes, the accelerometer slip flags of the base-frame
-    specific force -> ekf.fuse (batch, merge_events' own ordering), composed here from the
-    library's pieces. The pipeline, fed one event at a time in host order, must publish
-    exactly the fused state after every wheel frame."""
-    robot = RobotConfig(chassis=run.robot)
+    specific force -> ekf.fuse (batch, merge_events' own ordering; with accel_speed_psd also
+    the base-frame forward specific force), composed here from the library's pieces. The
+    pipeline, fed one event at a time in host order, must publish exactly the fused state
+    after every wheel frame."""
+    robot = RobotConfig(chassis=run.robot, ekf=noise)
     q = keel_by_hand(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     gz = vertical_rate(run.gyro, q)
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
     slip = accel_slip_flags(run.robot.speed_ratio, run.robot.encode_sampling_time, run.imu_t,
                             run.accel[:, :2], gz, motion, run.wheel_t, run.ticks)
-    track, ekf = fuse(run.robot, run.imu_t, gz, run.wheel_t, run.ticks, EkfNoise(),
-                      imu_motion=motion, wheel_slip=slip)
+    accel_x = run.accel[:, 0] if noise.accel_speed_psd > 0 else None
+    track, ekf = fuse(run.robot, run.imu_t, gz, run.wheel_t, run.ticks, noise,
+                      imu_motion=motion, wheel_slip=slip, accel_x=accel_x)
     rows = track.states[track.kind == core.EV_WHEELS]
     t_rows = track.t_filter[track.kind == core.EV_WHEELS]
 

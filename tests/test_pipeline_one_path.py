@@ -24,7 +24,7 @@ from fusion.geometry.mount import vertical_rate
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.sources import merge_by_time
 from fusion.planar.accel_slip import accel_slip_flags
-from fusion.planar.ekf import PlanarEKF
+from fusion.planar.ekf import EkfNoise, PlanarEKF
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import RobotConfig
 from fusion.sinks.text import JsonLinesSink
@@ -46,10 +46,10 @@ def _events(run):
     return list(merge_by_time(imu, wheels))
 
 
-def _jsonl(run, batch: bool, **kwargs) -> tuple[str, dict]:
+def _jsonl(run, batch: bool, noise: EkfNoise | None = None, **kwargs) -> tuple[str, dict]:
     buf = io.StringIO()
-    pipe = FusionPipeline(RobotConfig(chassis=run.robot), [JsonLinesSink(buf, flush=False)],
-                          **kwargs)
+    robot = RobotConfig(chassis=run.robot, ekf=noise or EkfNoise())
+    pipe = FusionPipeline(robot, [JsonLinesSink(buf, flush=False)], **kwargs)
     with pipe:
         if batch:
             pipe.push_arrays(run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
@@ -69,6 +69,17 @@ def test_batch_equals_streaming_for_any_window_and_sources(run, window, sources,
     assert stream.count("\n") > 0
     assert batch == stream
     assert b_stats == s_stats
+
+
+@pytest.mark.parametrize("window", [0.0, None])
+def test_batch_equals_streaming_with_the_accelerometer_driving_the_speed(run, window):
+    # the forward specific force's events (EkfNoise.accel_speed_psd) take the same path in
+    # both; and they change the output (the switch is live in the pipeline)
+    on = EkfNoise(accel_speed_psd=0.005)
+    stream, s_stats = _jsonl(run, False, noise=on, reorder_window=window)
+    batch, b_stats = _jsonl(run, True, noise=on, reorder_window=window)
+    assert batch == stream and b_stats == s_stats
+    assert stream != _jsonl(run, True, reorder_window=window)[0]
 
 
 def test_a_small_window_makes_late_frames_in_both_paths_alike(run):

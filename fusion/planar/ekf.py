@@ -91,6 +91,19 @@ Model:
 - External twist (kind 3, e.g. a nav_msgs/Odometry from a ROS bag): forward speed and yaw
   rate through the same wheel model, gate and ZUPT logic, noise ``twist_v_std``/``twist_w_std``.
 - Optional absolute yaw (a compass, a map match), residual wrapped to (-pi, pi].
+- Optional, off by default (``EkfNoise.accel_speed_psd`` > 0): the forward specific force of
+  each IMU sample (kind 5, base frame x, ``accel_x=`` of :func:`fuse`,
+  :meth:`PlanarEKF.update_accel`) drives the speed's prediction, ``v += (f_x - offset) dt``,
+  instead of the random walk; the offset is learnt at stops and from the wheels driving
+  straight (see :class:`EkfNoise`). It removes the speed's lag in ramps and carries the
+  speed through a dead encoder feed. Not the default: on benchmarks/ekf_accuracy.py
+  (``--accel-speed 0.002 --accel-offset-time 2``, chosen by benchmarks/tune_ekf.py's
+  cross-validation) it cuts the position error of the calibrated physics runs (0.17 -> 0.11 %
+  "all", 0.73 -> 0.29 % "all+dead") and puts the worst raw-gyro NEES run from 52-56 % to
+  75-85 %, but the pose NEES of "plain" (already underconfident) and the worst calibrated
+  "all+dead" run fall further below the lower bound, and the worst raw "all+dead" run ends
+  2.80 % off instead of 2.52 %; it needs a stop to learn the offset (the Jackal bag has none:
+  unchanged).
 
 Tuning (:class:`EkfNoise`): the defaults describe an MPU6050 at 100 Hz and a miiboo-like
 chassis with 40 ms frames. ``bias_psd`` should come from the gyro's Allan variance (the rate
@@ -117,7 +130,8 @@ Time policy (multi-rate, out of order), stated once:
 - An input older than the filter's time by at most ``late_tolerance`` s is fused at the current
   time (no re-prediction); an older one is dropped and counted in :attr:`PlanarEKF.stats`.
 - Offline, :func:`merge_events` sorts all inputs by effective time first (at equal times gyro,
-  then wheels, then yaw, then twists), so replay never sees late inputs;
+  the same sample's forward specific force, then wheels, then yaw, then twists), so replay
+  never sees late inputs;
   :meth:`PlanarEKF.process_batch` takes such a list.
   Live, feed inputs through a :class:`ReorderBuffer` whose window is at least the largest
   transport delay plus half a period.
@@ -511,28 +525,24 @@ def merge_events(
         st.append(wt)
     if imu_t is not None:
         it = np.asarray(imu_t, dtype=float).reshape(-1)
-        gz = np.asarray(gyro_z, dtype=float).reshape(-1)
-        if gz.size != it.size:
-            raise ValueError(f"{it.size} IMU stamps but {gz.size} gyro rates")
-        kinds.append(np.full(it.size, core.EV_GYRO))
-        ts.append(it)
-        aa.append(gz)
-        if imu_motion is None:
-            bb.append(np.zeros(it.size))
-        else:
-            mc = np.asarray(imu_motion, dtype=float).reshape(-1)
-            if mc.size != it.size:
-                raise ValueError(f"{it.size} IMU stamps but {mc.size} motion codes")
-            bb.append(mc)
-        st.append(it)
+
+        def per_sample(values, what: str) -> NDArray[np.float64]:
+            out = np.asarray(values, dtype=float).reshape(-1)
+            if out.size != it.size:
+                raise ValueError(f"{it.size} IMU stamps but {out.size} {what}")
+            return out
+
+        codes = np.zeros(it.size) if imu_motion is None else per_sample(imu_motion,
+                                                                         "motion codes")
+        imu_kinds = [(core.EV_GYRO, per_sample(gyro_z, "gyro rates"), codes)]
         if accel_x is not None:
-            fx = np.asarray(accel_x, dtype=float).reshape(-1)
-            if fx.size != it.size:
-                raise ValueError(f"{it.size} IMU stamps but {fx.size} forward specific forces")
-            kinds.append(np.full(it.size, core.EV_ACCEL))
+            imu_kinds.append((core.EV_ACCEL, per_sample(accel_x, "forward specific forces"),
+                              np.zeros(it.size)))
+        for kind, a_col, b_col in imu_kinds:
+            kinds.append(np.full(it.size, kind))
             ts.append(it)
-            aa.append(fx)
-            bb.append(np.zeros(it.size))
+            aa.append(a_col)
+            bb.append(b_col)
             st.append(it)
     elif accel_x is not None:
         raise ValueError("accel_x needs the IMU stamps imu_t")
