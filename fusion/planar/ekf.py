@@ -195,8 +195,10 @@ class EkfNoise:
             the mean of f_x over each stop (a ZUPT's conditions) and, while driving, follows
             the wheels' corrections of v with time constant ``accel_offset_time`` (a slope:
             gravity leaks ~0.17 m/s^2 per degree). Until the first stop v stays a random
-            walk. Needs the IMU's f_x fed (``accel_x`` of :func:`fuse`, or
-            :meth:`PlanarEKF.update_accel`).
+            walk. Needs the IMU's f_x fed (``accel_x`` of :func:`fuse`,
+            :meth:`PlanarEKF.update_accel`; the pipeline feeds it when this is > 0, e.g.
+            ``accel_speed_psd = 0.002`` under ``[ekf]`` in robot.toml: the value
+            benchmarks/tune_ekf.py's cross-validation chose, with ``accel_offset_time`` 2 s).
         accel_offset_time: time constant of the accelerometer offset learnt from the wheels
             while driving, s.
         angular_accel_psd: yaw-rate random walk, (rad/s)^2/s.
