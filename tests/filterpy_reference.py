@@ -70,7 +70,8 @@ class FilterpyReference:
         self.rest_n = 0  # samples of the current stop averaged into the offset
         # after the previous wheel twist (not an encoder fault): (time, wheel_h of the
         # posterior), for the stamp noise
-        self.last_twist: tuple[float, float, float] | None = None
+        self.last_twist: tuple[float, np.ndarray] | None = None
+        self.ramp = 0.0  # m/s^2: the speed's rate of change between the last two twists
 
     def _accel(self, now: float) -> float | None:
         """The forward acceleration driving v from ``now`` on (None: v is a random walk)."""
@@ -86,7 +87,11 @@ class FilterpyReference:
         n, kf = self.noise, self.kf
         f = n.still_scale if still else 1.0
         accel = self._accel(now)
-        q_v = n.accel_psd * f if accel is None else n.accel_speed_psd
+        q_v = n.accel_psd * f
+        if not still:  # the speed may go on changing as fast as it last did
+            q_v = max(q_v, self.ramp ** 2 * n.speed_ramp_time)
+        if accel is not None:
+            q_v = n.accel_speed_psd
         if self.after_slip:  # after a slipping frame the speed changes with nothing to hold it
             q_v = max(q_v, n.slip_accel_psd)
         kf.F = model.transition_jacobian(kf.x, dt)
@@ -198,8 +203,12 @@ class FilterpyReference:
             self.offset -= gain * (self.kf.x[3] - v_prior) / interval
 
     def _remember_twist(self, t: float) -> None:
-        """After a wheel twist's update at ``t``: the twist the wheels should now read."""
-        self.last_twist = (t, model.wheel_h(self.kf.x, self.robot.wheel_distance))
+        """After a wheel twist's update at ``t``: the twist the wheels should now read, and
+        the rate of change of its speed since the last one."""
+        h = model.wheel_h(self.kf.x, self.robot.wheel_distance)
+        if self.last_twist is not None and t > self.last_twist[0]:
+            self.ramp = (h[0] - self.last_twist[1][0]) / (t - self.last_twist[0])
+        self.last_twist = (t, h)
 
     def _measured(self, *states: int) -> None:
         for i in states:

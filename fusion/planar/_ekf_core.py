@@ -92,7 +92,8 @@ P_SLIP_Q_V = 42
 P_ACCEL_Q_V = 43  # > 0: the forward specific force drives v, with this PSD, (m/s)^2/s
 P_OFFSET_TIME = 44  # s, time constant of the accelerometer offset learnt while driving
 P_STAMP_STD = 45  # s, standard deviation of a wheel frame's or twist's stamp
-PAR_SIZE = 46
+P_SPEED_RAMP_TIME = 46  # s: v's random walk is at least (last rate of change)^2 x this
+PAR_SIZE = 47
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -134,7 +135,8 @@ A_FX_REST_N = 33  # samples averaged into the offset during the current stop
 A_TWIST_T = 34
 A_TWIST_V = 35
 A_TWIST_W = 36
-AUX_SIZE = 37
+A_SPEED_RATE = 37  # m/s^2, the speed's rate of change between the last two wheel twists
+AUX_SIZE = 38
 #: s: a forward specific force older than this drives v no more (the IMU feed stopped)
 ACCEL_HOLD = 0.1
 # per-frame flags
@@ -474,6 +476,10 @@ def _advance(x, P, aux, par, t):
             # standing still: v and w stay (almost) where the ZUPT put them
             q_v *= par[P_STILL_SCALE]
             q_w *= par[P_STILL_SCALE]
+        else:
+            # a speed ramp goes on: the speed may keep changing as fast as it last did
+            # (speed_ramp_time), which the constant-speed model does not predict
+            q_v = max(q_v, aux[A_SPEED_RATE] * aux[A_SPEED_RATE] * par[P_SPEED_RAMP_TIME])
         q_v_accel = par[P_ACCEL_Q_V]
         if aux[A_FLAGS] == FLAG_SLIP:
             # after a slipping frame (its speed down-weighted) the speed changes as the robot
@@ -666,8 +672,12 @@ def _impossible_stop(x, P, aux, par, t):
 @njit
 def _remember_twist(x, aux, par, t):
     """Keep the twist the wheels should read after an update at effective time ``t`` (s),
-    ``wheel_h`` of the posterior state ``x`` (m/s, rad/s), for :func:`_add_stamp_noise`."""
+    ``wheel_h`` of the posterior state ``x`` (m/s, rad/s), for :func:`_add_stamp_noise`,
+    and the rate of change of its speed since the previous one (m/s^2, ``A_SPEED_RATE``,
+    for the speed's random walk in :func:`_advance`)."""
     h = wheel_h(x, par[P_WHEEL_DISTANCE])
+    if t > aux[A_TWIST_T]:
+        aux[A_SPEED_RATE] = (h[0] - aux[A_TWIST_V]) / (t - aux[A_TWIST_T])
     aux[A_TWIST_T] = t
     aux[A_TWIST_V] = h[0]
     aux[A_TWIST_W] = h[1]

@@ -1,4 +1,5 @@
-"""The planar EKF's stamp noise (EkfNoise.stamp_std): a wheel twist whose stamp is uncertain."""
+"""The planar EKF and time: a wheel twist whose stamp is uncertain (EkfNoise.stamp_std), a speed
+that changes faster than its random walk allows (EkfNoise.speed_ramp_time)."""
 
 from __future__ import annotations
 
@@ -19,6 +20,7 @@ from fusion.evaluation.synthetic import (
 from fusion.io.logdir import read_robot_toml
 from fusion.planar import model
 from fusion.planar.ekf import EkfNoise, fuse
+from fusion.planar.model import NX
 
 
 def test_stamp_noise_is_the_covariance_of_a_twist_read_at_a_wrong_time():
@@ -66,21 +68,52 @@ def test_late_wheel_frames_in_spin_ups_are_no_slips(latency):
     assert uncertain <= 0.1 * exact, (uncertain, exact)
 
 
-def test_stamp_std_is_validated():
+def test_stamp_std_and_speed_ramp_time_are_validated():
     with pytest.raises(ValueError, match=r"EkfNoise.stamp_std must be finite and >= 0"):
         EkfNoise(stamp_std=-0.01)
+    with pytest.raises(ValueError, match=r"EkfNoise.speed_ramp_time must be finite and >= 0"):
+        EkfNoise(speed_ramp_time=math.inf)
     with pytest.raises(ValueError, match=r"EkfNoise.stamp_std"):
         EkfNoise(stamp_std=math.nan)
 
 
-def test_stamp_std_from_robot_toml(tmp_path):
+def test_stamp_std_and_speed_ramp_time_from_robot_toml(tmp_path):
     # the generic [ekf] loader carries the field, and names the file and line of a bad value
     text = ("[chassis]\nwheel_distance = 0.3\nspeed_ratio = 0.0001\n"
-            "encode_sampling_time = 0.04\n[ekf]\nstamp_std = {}\n")
+            "encode_sampling_time = 0.04\n[ekf]\nstamp_std = {}\nspeed_ramp_time = 0.2\n")
     good = tmp_path / "robot.toml"
     good.write_text(text.format("0.03"))
-    assert read_robot_toml(good).ekf.stamp_std == 0.03
+    ekf = read_robot_toml(good).ekf
+    assert ekf.stamp_std == 0.03 and ekf.speed_ramp_time == 0.2
     bad = tmp_path / "bad.toml"
     bad.write_text(text.format("-1"))
     with pytest.raises(ValueError, match=r"bad.toml:6: \[ekf\] EkfNoise.stamp_std"):
         read_robot_toml(bad)
+
+
+def test_the_speed_covariance_follows_the_ramps():
+    # Drives of 1.5 m at 0.6 m/s back and forth with stops between them (the simulator ramps
+    # the speed at 1 m/s^2), wheel frames 15 ms late: in the ramps the speed's squared error
+    # over its variance must lie below the chi-square 95 % bound (3.84, 1 dof) on most rows.
+    # The random walk alone lets v change by 9 mm/s per 40 ms frame where the ramp changes
+    # it by 40: measured 99 % of the ramp rows above the bound with speed_ramp_time 0, 9 %
+    # with the default (0.1 s).
+    segments = stop(2.0)
+    for _ in range(8):
+        segments += straight(1.5, 0.6) + stop(1.0) + straight(-1.5, 0.6) + stop(1.0)
+    run = simulate(segments, EXAMPLE_ROBOT, ImuModel(), EncoderModel(latency=0.015,
+                                                                      jitter=0.004), seed=3)
+
+    def above_bound(noise: EkfNoise) -> float:
+        track, _ = fuse(EXAMPLE_ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+                        noise=noise)
+        rows = track.kind == 0
+        v_true = np.interp(track.t[rows], run.truth_t, run.truth_v)
+        ramp = np.abs(np.gradient(v_true, track.t[rows])) > 0.3
+        z2 = (track.states[rows, 3] - v_true) ** 2 / track.states[rows, NX + 3]
+        assert ramp.sum() > 500
+        return float(np.mean(z2[ramp] > 3.84))
+
+    assert EkfNoise().speed_ramp_time > 0
+    assert above_bound(EkfNoise(speed_ramp_time=0.0)) > 0.8
+    assert above_bound(EkfNoise()) < 0.15
