@@ -34,10 +34,13 @@ class FilterpyReference:
 
     ``step(kind, t, a, b)`` takes the events of :func:`fusion.planar.ekf.merge_events` and
     returns the same status codes as :meth:`fusion.planar.ekf.PlanarEKF.process_batch`;
-    ``stats`` counts like :attr:`fusion.planar.ekf.PlanarEKF.stats`.
+    ``stats`` counts like :attr:`fusion.planar.ekf.PlanarEKF.stats`. ``first_gyro_sets_w``:
+    as :class:`fusion.planar.ekf.PlanarEKF` with its default ``P0`` (w unknown until the
+    first gyro sample); False for a ``P0`` given by hand.
     """
 
-    def __init__(self, robot: DiffDriveParams, noise: EkfNoise, x0, P0) -> None:
+    def __init__(self, robot: DiffDriveParams, noise: EkfNoise, x0, P0, *,
+                 first_gyro_sets_w: bool = True) -> None:
         self.robot = robot
         self.noise = noise
         self.kf = ExtendedKalmanFilter(dim_x=model.NX, dim_z=2)
@@ -72,6 +75,8 @@ class FilterpyReference:
         # posterior), for the stamp noise
         self.last_twist: tuple[float, np.ndarray] | None = None
         self.ramp = 0.0  # m/s^2: the speed's rate of change between the last two twists
+        # the default prior: w is unknown until the first gyro sample, which sets it alone
+        self.first_gyro = first_gyro_sets_w
 
     def _accel(self, now: float) -> float | None:
         """The forward acceleration driving v from ``now`` on (None: v is a random walk)."""
@@ -239,6 +244,9 @@ class FilterpyReference:
                 self.stats["gyro_saturated"] += 1
                 self.clipped_at = self.t
                 return 2
+            if self.first_gyro:
+                self.first_gyro = False
+                kf.P[4, 4] += 100.0 ** 2  # w forgotten: 100 rad/s, beyond any gyro's range
             H = model.gyro_jacobian(kf.x)
             R = model.gyro_noise(n.gyro_std ** 2)
             if self.zero_count >= n.zupt_frames:

@@ -218,7 +218,18 @@ def _print_warnings(warnings) -> None:
     """The trust warnings (:mod:`fusion.evaluation.trust`) of one replay."""
     for w in warnings:
         print(f"warning: inputs disagree ({w.name}): {w.message}")
-    if warnings:
+    if not warnings:
+        return
+    slip = next((w for w in warnings if w.name == "slip"), None)
+    gyro_alone = (slip is not None and {w.name for w in warnings} <= {"slip", "heading_divergence"}
+                  and slip.figures["wheel_rate_distrusted"] > slip.figures["slips"])
+    if gyro_alone:
+        # the EKF already stopped fusing the odometry's yaw rate: say what the heading rests on
+        print("warning: the fused odometry above should not be trusted unless the gyro is "
+              "right: its heading rests on the gyro alone (the odometry's yaw rate was not "
+              "fused; right for a skid-steer base, whose odometry turns unlike the robot; "
+              "otherwise check the IMU mount and axis signs, --imu-mount-rpy)")
+    else:
         print("warning: the fused odometry above should not be trusted")
 
 

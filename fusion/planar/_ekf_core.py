@@ -42,8 +42,8 @@ from fusion.planar.model import (
     zupt_noise,
 )
 
-__all__ = ["ACCEL_HOLD", "AUX_SIZE", "PAR_SIZE", "ROW_WIDTH", "batch_core", "predict_core",
-           "step_core", "update_core"]
+__all__ = ["ACCEL_HOLD", "AUX_SIZE", "PAR_SIZE", "ROW_WIDTH", "UNKNOWN_RATE_VAR", "batch_core",
+           "predict_core", "step_core", "update_core"]
 
 # par indices
 P_SPEED_RATIO = 0
@@ -130,15 +130,20 @@ A_FX = 30  # the last forward specific force (EV_ACCEL), m/s^2 (NaN: none yet)
 A_FX_T = 31  # its filter time, s
 A_FX_OFFSET = 32  # the accelerometer's forward offset (bias + gravity), m/s^2 (NaN: unknown)
 A_FX_REST_N = 33  # samples averaged into the offset during the current stop
-# the previous wheel twist (frame or external twist; not an encoder-fault frame): its
-# effective time (NaN: none yet), speed m/s and yaw rate rad/s, for the stamp noise
-A_TWIST_T = 34
-A_TWIST_V = 35
-A_TWIST_W = 36
-A_SPEED_RATE = 37  # m/s^2, the speed's rate of change between the last two wheel twists
-AUX_SIZE = 38
+A_FIRST_GYRO = 34  # 1: the next gyro sample is the first and measures w alone (see step_core)
+# after the previous wheel twist (frame or external twist; not an encoder-fault frame): its
+# effective time (NaN: none yet) and the twist wheel_h of the posterior, m/s and rad/s, for the
+# stamp noise
+A_TWIST_T = 35
+A_TWIST_V = 36
+A_TWIST_W = 37
+A_SPEED_RATE = 38  # m/s^2, the speed's rate of change between the last two wheel twists
+AUX_SIZE = 39
 #: s: a forward specific force older than this drives v no more (the IMU feed stopped)
 ACCEL_HOLD = 0.1
+#: (rad/s)^2 added to w's variance before the first gyro sample (A_FIRST_GYRO): w is then
+#: unknown (100 rad/s, above every MEMS gyro's full scale), so that sample sets w, not the bias
+UNKNOWN_RATE_VAR = 1e4
 # per-frame flags
 FLAG_ZUPT = 1
 FLAG_SLIP = 2
@@ -877,6 +882,15 @@ def step_core(x, P, aux, par, kind, t, a, b):
             aux[A_SATURATED] += 1.0
             aux[A_CLIPPED] = aux[A_T]
             return 2
+        if aux[A_FIRST_GYRO] == 1.0:
+            # The robot may be turning at any rate when the filter starts. Under w's prior
+            # the first reading would be split between w and the bias by their variances
+            # (0.1 % of it into the bias with 1 rad/s against 2 deg/s), and a robot that never
+            # stops, whose wheels' yaw rate is not trusted, never undoes that: starting at
+            # 0.45 rad/s, a bias error of 0.03 deg/s. So w is forgotten first: the reading
+            # sets w; the bias keeps its prior, correlated with w as it should be.
+            aux[A_FIRST_GYRO] = 0.0
+            P[4, 4] += UNKNOWN_RATE_VAR
         H = gyro_jacobian(x)
         R = gyro_noise(par[P_GYRO_VAR])
         y = gyro_h(x)

@@ -325,13 +325,14 @@ class EkfNoise:
             kinematic simulator 56.1 -> 49.1 %); the cross-validated objective prefers 0.
         initial_speed_std: prior standard deviation of v (m/s) and w (rad/s); also the least
             variance of a speed forgotten by the gap policy.
-        initial_rate_std: prior standard deviation of w at the first input, rad/s: the
-            robot may be turning at any rate when the filter starts, and the gyro measures
-            it. A tight prior (like ``initial_speed_std``) would split the first gyro
-            reading between w and the bias by their prior variances, and nothing but a stop
-            or trusted wheels would undo it (on the bundled Jackal bag, which never stops,
-            0.05 rad/s left a bias of 0.8 deg/s and a yaw RMSE of 27 deg; 1 rad/s: 0.003
-            deg/s and 1.0 deg). Set from that reasoning, not tuned.
+        initial_rate_std: prior standard deviation of w from the first input until the first
+            gyro sample, rad/s. That sample then sets w alone (w's variance is widened to
+            (100 rad/s)^2 first): the robot may be turning at any rate when the filter
+            starts, and under a prior the reading would be split between w and the bias by
+            their variances, which nothing but a stop or trusted wheels undoes (the bundled
+            Jackal bag, which never stops: a prior of 0.05 rad/s left a bias of 0.8 deg/s and
+            a yaw RMSE of 27 deg; 1 rad/s still 0.03 deg/s when the same drive is cut to start
+            turning at 0.45 rad/s; now 0.003 deg/s). Set from that reasoning, not tuned.
         wheel_rate_proof_time, wheel_rate_trust_time, max_slip_share: when the wheels' yaw
             rate is fused. Only turning frames (faster than 0.1 rad/s, measured or expected)
             test it. Proven: the wheels have agreed with the gyro over
@@ -685,7 +686,9 @@ class PlanarEKF(ExtendedKalmanFilter):
         noise: :class:`EkfNoise`.
         x0: initial state ``[x, y, yaw, v, w, b, k, c, g, s]`` (default zeros, except
             ``g = noise.gyro_scale``).
-        P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c/g/s from ``noise``).
+        P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c/g/s from ``noise``;
+            with the default, w counts as unknown at the first gyro sample, which sets it
+            alone: see ``EkfNoise.initial_rate_std``; a ``P0`` given here is taken as is).
         backend: deprecated, leave it out. There is one implementation, the core
             (:mod:`fusion.planar._ekf_core` over :mod:`fusion.planar.model`): compiled by numba
             when installed, interpreted otherwise, with the same results. ``"core"`` and
@@ -794,6 +797,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         self._aux[core.A_FX] = math.nan
         self._aux[core.A_FX_T] = math.nan
         self._aux[core.A_FX_OFFSET] = math.nan
+        # the default prior does not know w: the first gyro sample sets it (step_core)
+        self._aux[core.A_FIRST_GYRO] = 1.0 if P0 is None else 0.0
         self._aux[core.A_TWIST_T] = math.nan  # no wheel twist yet (stamp noise)
 
     # -- state -------------------------------------------------------------------------------
