@@ -100,12 +100,14 @@ Model:
   straight (see :class:`EkfNoise`). It removes the speed's lag in ramps and carries the
   speed through a dead encoder feed. Not the default: on benchmarks/ekf_accuracy.py
   (``--accel-speed 0.002 --accel-offset-time 2``, chosen by benchmarks/tune_ekf.py's
-  cross-validation) it cuts the position error of the calibrated physics runs (0.17 -> 0.11 %
-  "all", 0.73 -> 0.29 % "all+dead") and puts the worst raw-gyro NEES run from 52-56 % to
-  75-85 %, but the pose NEES of "plain" (already underconfident) and the worst calibrated
-  "all+dead" run fall further below the lower bound, and the worst raw "all+dead" run ends
-  2.80 % off instead of 2.52 %; it needs a stop to learn the offset (the Jackal bag has none:
-  unchanged).
+  cross-validation) it cuts the position error of the calibrated physics runs (0.16 -> 0.10 %
+  "all", 0.72 -> 0.29 % "all+dead") and puts the worst raw-gyro NEES run from 64-69 % to
+  81-87 %, but the pose NEES of "plain" (already underconfident: 32 -> 25 % inside) and of the
+  calibrated runs (all 84 -> 79 %, all+dead 84 -> 77 %, its worst run 63 -> 49 %) fall
+  further below the lower bound, and the worst raw "all+dead" run ends 2.79 % off instead of
+  2.51 % (figures with ``stamp_std`` 0.02 s and ``speed_ramp_time`` 0.1 s; the latter does
+  nothing while the accelerometer drives v); it needs a stop to learn the offset (the Jackal
+  bag has none: unchanged).
 
 Tuning (:class:`EkfNoise`): the defaults describe an MPU6050 at 100 Hz and a miiboo-like
 chassis with 40 ms frames. ``bias_psd`` should come from the gyro's Allan variance (the rate
