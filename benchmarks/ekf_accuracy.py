@@ -40,6 +40,9 @@ reference: the odometry speed integrated along that yaw (a pseudo-reference, it 
 speed with every contender). Also printed: against the bag's own odometry pose, and the largest
 step between consecutive fused rows against 3 x the largest twist speed x the row interval.
 
+With ``--stamp-std S``: every EKF contender with that EkfNoise.stamp_std (s) instead of the
+default.
+
 With ``--accel-speed PSD`` (and ``--accel-offset-time S``): every EKF contender with the
 accelerometer's forward specific force driving its speed (EkfNoise.accel_speed_psd; the
 forward specific force is fed in every case, and changes nothing while that is 0).
@@ -317,7 +320,10 @@ def main() -> None:
                          "EKF's speed (default 0: off)")
     ap.add_argument("--accel-offset-time", type=float, default=EkfNoise.accel_offset_time,
                     metavar="S", help="EkfNoise.accel_offset_time, s")
+    ap.add_argument("--stamp-std", type=float, default=EkfNoise.stamp_std, metavar="S",
+                    help="EkfNoise.stamp_std, s (default: the EkfNoise default)")
     args = ap.parse_args()
+    ACCEL_SPEED["stamp_std"] = args.stamp_std
     ACCEL_SPEED["accel_speed_psd"] = args.accel_speed
     ACCEL_SPEED["accel_offset_time"] = args.accel_offset_time
     kinematic_section(args.seeds, args.duration)

@@ -71,6 +71,10 @@ class FilterpyReference:
         self.fx_t: float | None = None
         self.offset: float | None = None
         self.rest_n = 0  # samples of the current stop averaged into the offset
+        # after the previous wheel twist (not an encoder fault): (time, wheel_h of the
+        # posterior), for the stamp noise
+        self.last_twist: tuple[float, np.ndarray] | None = None
+        self.ramp = 0.0  # m/s^2: the speed's rate of change between the last two twists
         # the default prior: w is unknown until the first gyro sample, which sets it alone
         self.first_gyro = first_gyro_sets_w
 
@@ -88,7 +92,11 @@ class FilterpyReference:
         n, kf = self.noise, self.kf
         f = n.still_scale if still else 1.0
         accel = self._accel(now)
-        q_v = n.accel_psd * f if accel is None else n.accel_speed_psd
+        q_v = n.accel_psd * f
+        if not still:  # the speed may go on changing as fast as it last did
+            q_v = max(q_v, self.ramp ** 2 * n.speed_ramp_time)
+        if accel is not None:
+            q_v = n.accel_speed_psd
         if self.after_slip:  # after a slipping frame the speed changes with nothing to hold it
             q_v = max(q_v, n.slip_accel_psd)
         kf.F = model.transition_jacobian(kf.x, dt)
@@ -199,6 +207,14 @@ class FilterpyReference:
             gain = min(1.0, interval / self.noise.accel_offset_time)
             self.offset -= gain * (self.kf.x[3] - v_prior) / interval
 
+    def _remember_twist(self, t: float) -> None:
+        """After a wheel twist's update at ``t``: the twist the wheels should now read, and
+        the rate of change of its speed since the last one."""
+        h = model.wheel_h(self.kf.x, self.robot.wheel_distance)
+        if self.last_twist is not None and t > self.last_twist[0]:
+            self.ramp = (h[0] - self.last_twist[1][0]) / (t - self.last_twist[0])
+        self.last_twist = (t, h)
+
     def _measured(self, *states: int) -> None:
         for i in states:
             self.measured[i] = self.t
@@ -293,6 +309,7 @@ class FilterpyReference:
                 H = model.zupt_jacobian(kf.x)
                 self._rate_update(-model.zupt_h(kf.x), H,
                                   model.zupt_noise(n.zupt_v_std, n.zupt_w_std))
+                self._remember_twist(t)
                 status = 4
                 self.stats["zupts"] += 1
                 self._measured(3, 4)
@@ -312,6 +329,12 @@ class FilterpyReference:
                 if inflate > 1:
                     R[1, 1] *= inflate
                     R[0, 1] = R[1, 0] = R[0, 1] * math.sqrt(inflate)
+                if self.last_twist is not None and t > self.last_twist[0]:
+                    # the stamp's error, with the filter's own rates of change of the twist
+                    # the wheels should read, from the last twist's posterior to this prior
+                    t0, h0 = self.last_twist
+                    rate = (model.wheel_h(kf.x, L) - h0) / (t - t0)
+                    model.stamp_noise(R, rate[0], rate[1], n.stamp_std)
                 H = model.wheel_jacobian(kf.x, L)
                 S = H @ kf.P @ H.T + R
                 y = z - model.wheel_h(kf.x, L)
@@ -343,17 +366,20 @@ class FilterpyReference:
                         self.after_slip = True
                     inflation = n.slip_inflation if slip else 1.0
                     if inflation <= 0:
+                        self._remember_twist(t)  # the prior: nothing fused
                         self.stats["updates"] += 1
                         return 2
                     # the speed alone (down-weighted if slipping); never the yaw rate
                     H_v = np.zeros((1, model.NX))
                     H_v[0, 3] = H[0, 3]
                     self._rate_update(y[:1], H_v, R[:1, :1] * inflation)
+                    self._remember_twist(t)
                     self._learn_offset(driven, v_prior, interval)
                     self._measured(3, 4)
                     self.stats["updates"] += 1
                     return 1 if slip else 0
                 self._rate_update(y, H, R)
+                self._remember_twist(t)
                 self._learn_offset(driven, v_prior, interval)
                 self._measured(3, 4)
         elif kind == YAW:

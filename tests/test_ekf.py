@@ -88,9 +88,10 @@ def _every_kind_of_event(run, accel=False):
                                             slip_accel_psd=0.05),
                                    EkfNoise(gyro_limit=4.3, turn_w_std=0.2,
                                             wheel_w_corr_time=0.1, odometry_along_var=3e-4,
-                                            odometry_cross_var=2e-5),
+                                            odometry_cross_var=2e-5, stamp_std=0.02),
                                    EkfNoise(gyro_limit=4.3, slip_accel_psd=0.01,
-                                            accel_speed_psd=0.005, accel_offset_time=2.0)],
+                                            accel_speed_psd=0.005, accel_offset_time=2.0,
+                                            stamp_std=0.01)],
                          ids=["inflate-slips", "drop-slips", "turn-noise", "accel-speed"])
 def test_core_equals_filterpy_driven_by_the_model(short_run, noise):
     # filterpy's own ExtendedKalmanFilter (predict with the model's f, F, Q; update with each

@@ -23,8 +23,10 @@ from fusion.planar.imu_motion import imu_motion_codes
 SEEDS = range(8)
 CALIBRATED = EkfNoise(gyro_scale_std=5e-4)
 #: the former defaults: no random walk of its own for the speed after a slipping frame, whose
-#: speed was fused with a tenth of today's inflation
-FORMER = EkfNoise(gyro_scale_std=5e-4, slip_accel_psd=EkfNoise().accel_psd, slip_inflation=1e4)
+#: speed was fused with a tenth of today's inflation, nor while its last rate of change says
+#: it is in a ramp; exact stamps
+FORMER = EkfNoise(gyro_scale_std=5e-4, slip_accel_psd=EkfNoise().accel_psd, slip_inflation=1e4,
+                  speed_ramp_time=0.0, stamp_std=0.0)
 
 
 def _inside(run, noise: EkfNoise) -> float:
@@ -49,21 +51,26 @@ def fractions():
     return {k: np.array(v) for k, v in out.items()}
 
 
-def test_the_speed_walk_after_slips_makes_the_covariance_more_honest(fractions):
-    # Measured when written (seeds 0-7, % of rows inside): 86.3 47.9 84.2 57.8 94.2 93.0 87.0
-    # 89.3 (mean 80.0) against 75.6 39.5 84.2 53.3 94.2 86.7 87.0 69.8 (mean 73.8) before.
+def test_the_speed_walks_and_stamp_noise_make_the_covariance_more_honest(fractions):
+    # Measured (seeds 0-7, % of rows inside): 94.5 61.2 90.2 64.4 95.5 93.7 88.6 94.7 (mean
+    # 85.4) against 75.6 39.5 84.2 53.3 94.2 86.7 87.0 69.8 (mean 73.8) with the former
+    # defaults; 86.3 47.9 84.2 57.8 94.2 93.0 87.0 89.3 (mean 80.0) with the speed's walk
+    # after slips alone (slip_accel_psd, slip_inflation).
     new, old = fractions["default"], fractions["former"]
-    assert new.mean() >= old.mean() + 0.05, (new, old)
+    assert new.mean() >= old.mean() + 0.08, (new, old)
     assert np.all(new >= old - 0.01), (new, old)
-    assert new.mean() >= 0.78, new
-    assert np.sum(new >= 0.85) >= 5, new
+    assert new.mean() >= 0.83, new
+    assert np.sum(new >= 0.85) >= 6, new
 
 
 @pytest.mark.xfail(strict=True, reason=(
     "issue 11 asks for the pose NEES inside its 95 % bounds on at least 85 % of EACH run; "
-    "measured 5 of 8: seed 1 (47.9 %) is overconfident in its first 100 s (position and yaw: "
-    "stamp latency and jitter, slip patches), seed 3 (57.8 %) underconfident (from 120 s "
-    "on its position errors are 0.1-0.2 and its yaw errors 0.5 standard deviations), seed 2 "
-    "84.2 %"))
+    "measured 6 of 8 (94.5 61.2 90.2 64.4 95.5 93.7 88.6 94.7 %; 47.9 and 57.8 % for seeds "
+    "1 and 3 before stamp_std and speed_ramp_time): seed 1 is overconfident in its first "
+    "100 s (along-track errors at each start: the random-walk speed lags the ramps, which "
+    "the opt-in accelerometer-driven speed removes), seed 3 underconfident (from 120 s on "
+    "its position errors are 0.1-0.2 and its yaw errors 0.5 standard deviations: the 1 % "
+    "distance-scale prior, against a common scale error of about 0.3 % in that run, and the "
+    "gyro bias's random walk)"))
 def test_pose_nees_is_inside_its_bounds_on_85_percent_of_every_run(fractions):
     assert np.all(fractions["default"] >= 0.85), fractions["default"]

@@ -28,6 +28,7 @@ from fusion.planar.model import (
     motion_terms,
     odometry_noise,
     process_noise_diagonal,
+    stamp_noise,
     ticks_measurement,
     twist_measurement,
     wheel_h,
@@ -90,7 +91,9 @@ P_ODO_CROSS = 41
 P_SLIP_Q_V = 42
 P_ACCEL_Q_V = 43  # > 0: the forward specific force drives v, with this PSD, (m/s)^2/s
 P_OFFSET_TIME = 44  # s, time constant of the accelerometer offset learnt while driving
-PAR_SIZE = 45
+P_STAMP_STD = 45  # s, standard deviation of a wheel frame's or twist's stamp
+P_SPEED_RAMP_TIME = 46  # s: v's random walk is at least (last rate of change)^2 x this
+PAR_SIZE = 47
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -128,7 +131,14 @@ A_FX_T = 31  # its filter time, s
 A_FX_OFFSET = 32  # the accelerometer's forward offset (bias + gravity), m/s^2 (NaN: unknown)
 A_FX_REST_N = 33  # samples averaged into the offset during the current stop
 A_FIRST_GYRO = 34  # 1: the next gyro sample is the first and measures w alone (see step_core)
-AUX_SIZE = 35
+# after the previous wheel twist (frame or external twist; not an encoder-fault frame): its
+# effective time (NaN: none yet) and the twist wheel_h of the posterior, m/s and rad/s, for the
+# stamp noise
+A_TWIST_T = 35
+A_TWIST_V = 36
+A_TWIST_W = 37
+A_SPEED_RATE = 38  # m/s^2, the speed's rate of change between the last two wheel twists
+AUX_SIZE = 39
 #: s: a forward specific force older than this drives v no more (the IMU feed stopped)
 ACCEL_HOLD = 0.1
 #: (rad/s)^2 added to w's variance before the first gyro sample (A_FIRST_GYRO): w is then
@@ -471,6 +481,10 @@ def _advance(x, P, aux, par, t):
             # standing still: v and w stay (almost) where the ZUPT put them
             q_v *= par[P_STILL_SCALE]
             q_w *= par[P_STILL_SCALE]
+        else:
+            # a speed ramp goes on: the speed may keep changing as fast as it last did
+            # (speed_ramp_time), which the constant-speed model does not predict
+            q_v = max(q_v, aux[A_SPEED_RATE] * aux[A_SPEED_RATE] * par[P_SPEED_RAMP_TIME])
         q_v_accel = par[P_ACCEL_Q_V]
         if aux[A_FLAGS] == FLAG_SLIP:
             # after a slipping frame (its speed down-weighted) the speed changes as the robot
@@ -661,6 +675,38 @@ def _impossible_stop(x, P, aux, par, t):
 
 
 @njit
+def _remember_twist(x, aux, par, t):
+    """Keep the twist the wheels should read after an update at effective time ``t`` (s),
+    ``wheel_h`` of the posterior state ``x`` (m/s, rad/s), for :func:`_add_stamp_noise`,
+    and the rate of change of its speed since the previous one (m/s^2, ``A_SPEED_RATE``,
+    for the speed's random walk in :func:`_advance`)."""
+    h = wheel_h(x, par[P_WHEEL_DISTANCE])
+    if t > aux[A_TWIST_T]:
+        aux[A_SPEED_RATE] = (h[0] - aux[A_TWIST_V]) / (t - aux[A_TWIST_T])
+    aux[A_TWIST_T] = t
+    aux[A_TWIST_V] = h[0]
+    aux[A_TWIST_W] = h[1]
+
+
+@njit
+def _add_stamp_noise(R, x, aux, par, t):
+    """Add to ``R`` the noise of a wheel twist's uncertain stamp at effective time ``t`` (s)
+    (``stamp_std``, :func:`fusion.planar.model.stamp_noise`), the speed's and yaw rate's
+    rates of change being the filter's own: the change of the twist the wheels should read
+    (``wheel_h``) from the previous wheel twist's posterior (:func:`_remember_twist`) to this
+    one's prior, per second. That is the gyro's change of the yaw rate (the state w follows
+    every gyro sample) and the accelerometer's of the speed when it drives v (else v does not
+    change between frames: no speed share). Not the measured twists' difference: a wheel
+    that starts to slip changes that abruptly, and its own noise would hide the slip from the
+    gate. Nothing is added for the first twist."""
+    dt = t - aux[A_TWIST_T]
+    if par[P_STAMP_STD] > 0.0 and dt > 0.0:
+        h = wheel_h(x, par[P_WHEEL_DISTANCE])
+        stamp_noise(R, (h[0] - aux[A_TWIST_V]) / dt, (h[1] - aux[A_TWIST_W]) / dt,
+                    par[P_STAMP_STD])
+
+
+@njit
 def _wheel_event(x, P, aux, par, kind, t, a, b):
     """A wheel frame (kind 1; kind 4: one the accelerometer flagged as slipping) or an
     external twist (kind 3); returns ``(d2, status)``.
@@ -716,6 +762,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
                 status = 4
                 aux[A_ZUPTS] += 1.0
                 aux[A_FLAGS] = FLAG_ZUPT
+            _remember_twist(x, aux, par, t)
             return d2, status
     else:
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
@@ -744,8 +791,10 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         R[1, 1] *= inflate
         R[0, 1] *= math.sqrt(inflate)
         R[1, 0] = R[0, 1]
+    _add_stamp_noise(R, x, aux, par, t)
     v_prior = x[3]
     d2, status = _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip)
+    _remember_twist(x, aux, par, t)
     if learn and (status == 0 or status == 1):
         # what the wheels corrected, per second, is the offset's error (a slope, a drifting
         # bias), learnt slowly

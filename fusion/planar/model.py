@@ -32,6 +32,10 @@ the project restates this algebra.
   ``v/(1 + s)``, ``s`` the common distance scale error of both wheels (``speed_ratio``), which
   no sensor here observes either (the same change of variables as for g): the position's
   covariance grows with the distance driven, along the track.
+  A twist's stamp is uncertain too (transport latency and jitter, and during a ramp a
+  period's mean is not exactly the speed at its midpoint): a stamp error of ``stamp_std`` s
+  makes the speed err by ``dv/dt * stamp_std`` and the yaw rate by ``dw/dt * stamp_std``,
+  :func:`stamp_noise`.
 - Zero-velocity update (ZUPT): ``z = [v, w] = [0, 0]``.
 - Absolute yaw: ``z = yaw``, the residual wrapped to (-pi, pi].
 
@@ -57,6 +61,7 @@ __all__ = [
     "odometry_noise",
     "process_noise",
     "process_noise_diagonal",
+    "stamp_noise",
     "ticks_measurement",
     "transition",
     "transition_jacobian",
@@ -249,6 +254,20 @@ def twist_measurement(v, w, v_std, w_std, scale_std, separation_std, wheel_w_std
     R[1, 1] = w_std ** 2
     _add_yaw_rate_noise(R, w, separation_std, wheel_w_std)
     return np.array([v, w]), R
+
+
+@njit
+def stamp_noise(R, dv_dt, dw_dt, stamp_std):
+    """Add the noise of a twist's uncertain stamp to its R (2, 2) in place: a stamp off by
+    ``stamp_std`` s (standard deviation) while the speed changes at ``dv_dt`` (m/s^2) and
+    the yaw rate at ``dw_dt`` (rad/s^2) adds ``(dv_dt*stamp_std)^2`` to the speed's variance
+    and ``(dw_dt*stamp_std)^2`` to the yaw rate's; both errors come from the same stamp, so
+    they are fully correlated (``dv_dt*dw_dt*stamp_std^2`` off the diagonal)."""
+    s2 = stamp_std * stamp_std
+    R[0, 0] += dv_dt * dv_dt * s2
+    R[1, 1] += dw_dt * dw_dt * s2
+    R[0, 1] += dv_dt * dw_dt * s2
+    R[1, 0] = R[0, 1]
 
 
 # -- zero-velocity update: z = [v, w] = 0 --------------------------------------------------------
