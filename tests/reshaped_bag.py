@@ -26,7 +26,7 @@ _SOURCE_ODOM = "/jackal_velocity_controller/odom"
 
 def _stamp(t: float) -> tuple[int, int]:
     sec = int(t)
-    nsec = int(round((t - sec) * 1e9))
+    nsec = round((t - sec) * 1e9)
     return (sec + 1, nsec - 1_000_000_000) if nsec >= 1_000_000_000 else (sec, nsec)
 
 
@@ -79,5 +79,5 @@ def reshape_jackal_bag(source: Path, dest: Path, *, cut: float = 10.0, imu_rate:
                  writer.add_connection(ODOM_TOPIC, "nav_msgs/msg/Odometry", typestore=store))
         types = ("sensor_msgs/msg/Imu", "nav_msgs/msg/Odometry")
         for t, kind, msg in events:
-            writer.write(conns[kind], int(round(t * 1e9)), store.serialize_ros1(msg, types[kind]))
+            writer.write(conns[kind], round(t * 1e9), store.serialize_ros1(msg, types[kind]))
     return float(grid[0])
