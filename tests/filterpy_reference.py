@@ -212,7 +212,9 @@ class FilterpyReference:
         the rate of change of its speed since the last one."""
         h = model.wheel_h(self.kf.x, self.robot.wheel_distance)
         if self.last_twist is not None and t > self.last_twist[0]:
-            self.ramp = (h[0] - self.last_twist[1][0]) / (t - self.last_twist[0])
+            # over at least one wheel period (frames a millisecond apart: one serial read)
+            span = max(t - self.last_twist[0], self.robot.encode_sampling_time)
+            self.ramp = (h[0] - self.last_twist[1][0]) / span
         self.last_twist = (t, h)
 
     def _measured(self, *states: int) -> None:
@@ -333,7 +335,8 @@ class FilterpyReference:
                     # the stamp's error, with the filter's own rates of change of the twist
                     # the wheels should read, from the last twist's posterior to this prior
                     t0, h0 = self.last_twist
-                    rate = (model.wheel_h(kf.x, L) - h0) / (t - t0)
+                    span = max(t - t0, r.encode_sampling_time)
+                    rate = (model.wheel_h(kf.x, L) - h0) / span
                     model.stamp_noise(R, rate[0], rate[1], n.stamp_std)
                 H = model.wheel_jacobian(kf.x, L)
                 S = H @ kf.P @ H.T + R

@@ -12,6 +12,7 @@ from fusion.evaluation.synthetic import (
     EXAMPLE_ROBOT,
     EncoderModel,
     ImuModel,
+    degraded_mission,
     simulate,
     spin,
     stop,
@@ -117,3 +118,27 @@ def test_the_speed_covariance_follows_the_ramps():
     assert EkfNoise().speed_ramp_time > 0
     assert above_bound(EkfNoise(speed_ramp_time=0.0)) > 0.8
     assert above_bound(EkfNoise()) < 0.15
+
+
+@pytest.mark.parametrize("apart", [0.00095, 1e-6])
+def test_frames_read_together_do_not_blow_up_the_speed_covariance(apart):
+    # A host that stalls reads two wheel frames at once and stamps them 0.95 ms apart
+    # (drivers/chassis.py FrameStamper: 11 bytes at 115200 baud), or 1 us apart: once a second
+    # over 120 s. The speed's rate of change between them is taken over a wheel period, not
+    # the stamps' difference; before that the variance of v reached (2.7 m/s)^2 (0.95 ms) and
+    # 1.8e7 (m/s)^2 (1 us; final position standard deviation 97 m instead of 1 m). Reference:
+    # the same run with its stamps as simulated.
+    run = degraded_mission(seed=0, duration=120.0)
+    stamps = run.wheel_t.copy()
+    later = np.arange(5, stamps.size, 25)
+    stamps[later - 1] = stamps[later] - apart
+
+    def spread(wheel_t) -> tuple[float, float]:
+        track, _ = fuse(EXAMPLE_ROBOT, run.imu_t, run.gyro[:, 2], wheel_t, run.ticks)
+        var = track.states[:, NX:2 * NX]
+        return float(np.sqrt(var[:, 3].max())), float(np.sqrt(var[-1, 0] + var[-1, 1]))
+
+    v_std, pos_std = spread(stamps)
+    v_ref, pos_ref = spread(run.wheel_t)
+    assert v_std < 1.5 * v_ref, (v_std, v_ref)
+    assert pos_std < 1.2 * pos_ref, (pos_std, pos_ref)

@@ -679,10 +679,11 @@ def _remember_twist(x, aux, par, t):
     """Keep the twist the wheels should read after an update at effective time ``t`` (s),
     ``wheel_h`` of the posterior state ``x`` (m/s, rad/s), for :func:`_add_stamp_noise`,
     and the rate of change of its speed since the previous one (m/s^2, ``A_SPEED_RATE``,
-    for the speed's random walk in :func:`_advance`)."""
+    for the speed's random walk in :func:`_advance`). Rates are taken over at least one
+    wheel period: two frames a millisecond apart (one serial read) must not make them huge."""
     h = wheel_h(x, par[P_WHEEL_DISTANCE])
     if t > aux[A_TWIST_T]:
-        aux[A_SPEED_RATE] = (h[0] - aux[A_TWIST_V]) / (t - aux[A_TWIST_T])
+        aux[A_SPEED_RATE] = (h[0] - aux[A_TWIST_V]) / max(t - aux[A_TWIST_T], par[P_PERIOD])
     aux[A_TWIST_T] = t
     aux[A_TWIST_V] = h[0]
     aux[A_TWIST_W] = h[1]
@@ -698,9 +699,10 @@ def _add_stamp_noise(R, x, aux, par, t):
     every gyro sample) and the accelerometer's of the speed when it drives v (else v does not
     change between frames: no speed share). Not the measured twists' difference: a wheel
     that starts to slip changes that abruptly, and its own noise would hide the slip from the
-    gate. Nothing is added for the first twist."""
-    dt = t - aux[A_TWIST_T]
-    if par[P_STAMP_STD] > 0.0 and dt > 0.0:
+    gate. Nothing is added for the first twist; rates over at least one wheel period (as in
+    :func:`_remember_twist`)."""
+    if par[P_STAMP_STD] > 0.0 and t > aux[A_TWIST_T]:
+        dt = max(t - aux[A_TWIST_T], par[P_PERIOD])
         h = wheel_h(x, par[P_WHEEL_DISTANCE])
         stamp_noise(R, (h[0] - aux[A_TWIST_V]) / dt, (h[1] - aux[A_TWIST_W]) / dt,
                     par[P_STAMP_STD])
