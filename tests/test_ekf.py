@@ -551,3 +551,28 @@ def test_the_removed_filterpy_backend_is_a_clear_error():
     with pytest.warns(DeprecationWarning, match="backend argument is deprecated"):
         ekf = PlanarEKF(ROBOT, backend="core")
     assert ekf.update_gyro(0.0, 0.01) == 0
+
+
+@pytest.mark.parametrize("hand_made", [False, True])
+def test_the_first_gyro_sample_sets_w_alone_under_the_default_prior(hand_made):
+    # One gyro sample z = w + b + noise at the first input, checked against the scalar
+    # Kalman update by hand: gain P[i, 4] + P[i, 5] over S = P_ww + P_bb + R (w and b
+    # uncorrelated a priori). Under the default prior w's variance is first widened by
+    # core.UNKNOWN_RATE_VAR, so the bias takes almost none of the reading (a robot starting in
+    # a turn); a P0 given by hand, even equal to the default, is taken as is.
+    noise = EkfNoise()
+    default = PlanarEKF(ROBOT, noise)
+    P0 = default.P.copy()
+    ekf = PlanarEKF(ROBOT, noise, P0=P0) if hand_made else default
+    z = 0.45  # rad/s
+    assert ekf.update_gyro(0.0, z) == 0
+    p_ww = P0[4, 4] + (0.0 if hand_made else core.UNKNOWN_RATE_VAR)
+    p_bb = P0[5, 5]
+    s = p_ww + p_bb + noise.gyro_std ** 2
+    np.testing.assert_allclose(ekf.x[4], p_ww * z / s, rtol=1e-12)
+    np.testing.assert_allclose(ekf.x[5], p_bb * z / s, rtol=1e-9)
+    np.testing.assert_allclose(ekf.P[5, 5], p_bb - p_bb ** 2 / s, rtol=1e-9)
+    if hand_made:
+        assert math.degrees(ekf.x[5]) > 0.03  # 0.1 % of the turn in the bias
+    else:
+        assert math.degrees(ekf.x[5]) < 1e-5

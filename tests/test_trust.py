@@ -267,3 +267,25 @@ def test_turn_counters_integrate_what_is_fused() -> None:
     one = stream.finish_stats()
     assert (one.gyro_turn, one.gyro_time, one.wheel_turn) == (s.gyro_turn, s.gyro_time,
                                                                s.wheel_turn)
+
+
+@pytest.mark.parametrize(("stats", "bias", "gyro_alone"), [
+    # most turning frames no longer fused for their yaw rate: the heading is the gyro's
+    ({"twist_messages": 100, "slips": 10, "wheel_rate_distrusted": 70}, 0.0, True),
+    # most frames flagged as slips, still fused for their speed and gated each time: the
+    # EKF has not settled on either source
+    ({"twist_messages": 100, "slips": 70, "wheel_rate_distrusted": 10}, 0.0, False),
+    # a bias beyond the sensor's tolerance: something else is wrong, whatever the slips
+    ({"twist_messages": 100, "slips": 10, "wheel_rate_distrusted": 70, "gyro_time": 60.0},
+     math.radians(30.0), False),
+])
+def test_the_verdict_names_what_the_heading_rests_on(stats, bias, gyro_alone, capsys) -> None:
+    from fusion.cli.replay import _print_warnings
+    from fusion.evaluation.trust import trust_warnings
+
+    warnings = trust_warnings(stats, bias)
+    assert warnings
+    _print_warnings(warnings)
+    last = capsys.readouterr().out.splitlines()[-1]
+    assert last.startswith("warning: the fused odometry above should not be trusted")
+    assert ("rests on the gyro alone" in last) == gyro_alone

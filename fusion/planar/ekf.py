@@ -281,9 +281,13 @@ class EkfNoise:
             slip (tests/test_ekf_timing.py). 0: stamps exact. Default 0.02 s, chosen by
             benchmarks/tune_ekf.py run (6): its cross-validation prefers 0.08 s, which
             breaks the bundled Jackal bag (a skid-steer's disagreeing turns hidden from the
-            slip gate: yaw RMSE 21.5 deg instead of 0.97) and a turn carried by the wheels
+            slip gate: yaw RMSE 21.5 deg instead of 1.07) and a turn carried by the wheels
             while the gyro saturates; 0.02 s is the largest value of its grid that keeps
-            both, and beats 0 in both of its modes. Held out (benchmarks/ekf_accuracy.py,
+            both, and beats 0 in both of its modes (so the Jackal bag's figures are
+            in-sample for this value). The margin is narrow on a noisy gyro: the Jackal's
+            (0.05 rad/s per sample) makes the filter's own dw/dt between twists mostly
+            sample noise, and 0.05 s already gives 18.5 deg there; keep it at or below
+            0.04 s unless the gyro is quiet. Held out (benchmarks/ekf_accuracy.py,
             seeds 0-7, with ``speed_ramp_time`` 0): final error and yaw RMSE unchanged
             within noise or better, pose NEES of "all" inside its bounds 85.2 % on average
             (84.4 % with 0), 79.8 % with the calibrated gyro (77.9 %); no false slips where
@@ -328,13 +332,15 @@ class EkfNoise:
         initial_speed_std: prior standard deviation of v (m/s) and w (rad/s); also the least
             variance of a speed forgotten by the gap policy.
         initial_rate_std: prior standard deviation of w from the first input until the first
-            gyro sample, rad/s. That sample then sets w alone (w's variance is widened to
-            (100 rad/s)^2 first): the robot may be turning at any rate when the filter
-            starts, and under a prior the reading would be split between w and the bias by
-            their variances, which nothing but a stop or trusted wheels undoes (the bundled
-            Jackal bag, which never stops: a prior of 0.05 rad/s left a bias of 0.8 deg/s and
-            a yaw RMSE of 27 deg; 1 rad/s still 0.03 deg/s when the same drive is cut to start
-            turning at 0.45 rad/s; now 0.003 deg/s). Set from that reasoning, not tuned.
+            gyro sample, rad/s. That sample then sets w alone (w's variance is widened by
+            (100 rad/s)^2 first, ``_ekf_core.UNKNOWN_RATE_VAR``): the robot may be turning at
+            any rate when the filter starts, and under a prior the reading would be split
+            between w and the bias by their variances, which nothing but a stop or trusted
+            wheels undoes (the bundled Jackal bag, which never stops: a prior of 0.05 rad/s
+            left a bias of 0.8 deg/s and a yaw RMSE of 27 deg; 1 rad/s still 0.03 deg/s when
+            the same drive is cut to start turning at 0.45 rad/s; now below 1e-5 deg/s on
+            both: nothing else tells this bag's bias, so it stays at its prior mean). Set
+            from that reasoning, not tuned.
         wheel_rate_proof_time, wheel_rate_trust_time, max_slip_share: when the wheels' yaw
             rate is fused. Only turning frames (faster than 0.1 rad/s, measured or expected)
             test it. Proven: the wheels have agreed with the gyro over
