@@ -101,9 +101,10 @@ Model:
   speed through a dead encoder feed. Not the default: on benchmarks/ekf_accuracy.py
   (``--accel-speed 0.002 --accel-offset-time 2``, chosen by benchmarks/tune_ekf.py's
   cross-validation) it cuts the position error of the calibrated physics runs (0.16 -> 0.10 %
-  "all", 0.72 -> 0.29 % "all+dead") and puts the worst raw-gyro NEES run from 64-69 % to
-  81-87 %, but the pose NEES of "plain" (already underconfident: 32 -> 25 % inside) and of the
-  calibrated runs (all 84 -> 79 %, all+dead 84 -> 77 %, its worst run 63 -> 49 %) fall
+  "all", 0.72 -> 0.29 % "all+dead") and puts the worst raw-gyro NEES run from 64-68 % to
+  81-87 % (raw "all+dead": every run at 85 % or more), but the pose NEES of "plain" (already
+  underconfident: 32 -> 25 % inside) and of the calibrated runs (all 83 -> 79 %, all+dead
+  83 -> 77 %, its worst run 62 -> 49 %) fall
   further below the lower bound, and the worst raw "all+dead" run ends 2.79 % off instead of
   2.51 % (figures with ``stamp_std`` 0.02 s and ``speed_ramp_time`` 0.1 s; the latter does
   nothing while the accelerometer drives v); it needs a stop to learn the offset (the Jackal
@@ -114,7 +115,7 @@ chassis with 40 ms frames. ``bias_psd`` should come from the gyro's Allan varian
 random walk squared); ``accel_psd`` is how much the speed may change between wheel frames
 (small, since every frame measures it precisely). How honest the pose covariance is
 (benchmarks/ekf_accuracy.py, pose NEES inside its 95 % bounds): on the physics simulator's
-"all" runs 91 % of the rows on average (84 % with a calibrated gyro), 60-69 % in the worst
+"all" runs 91 % of the rows on average (83 % with a calibrated gyro), 59-68 % in the worst
 run, where speed ramps the constant-speed model lags and an unmodelled 15 ms wheel latency
 make it overconfident in spite of ``speed_ramp_time`` and ``stamp_std``; runs whose common
 wheel scale error is well below the 1 % prior are underconfident; on the kinematic
