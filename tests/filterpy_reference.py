@@ -34,13 +34,14 @@ class FilterpyReference:
 
     ``step(kind, t, a, b)`` takes the events of :func:`fusion.planar.ekf.merge_events` and
     returns the same status codes as :meth:`fusion.planar.ekf.PlanarEKF.process_batch`;
-    ``stats`` counts like :attr:`fusion.planar.ekf.PlanarEKF.stats`. ``first_gyro_sets_w``:
+    ``stats`` counts like :attr:`fusion.planar.ekf.PlanarEKF.stats`. ``default_prior``:
     as :class:`fusion.planar.ekf.PlanarEKF` with its default ``P0`` (w unknown until the
-    first gyro sample); False for a ``P0`` given by hand.
+    first gyro sample, v until the first fused wheel frame or twist); False for a ``P0``
+    given by hand.
     """
 
     def __init__(self, robot: DiffDriveParams, noise: EkfNoise, x0, P0, *,
-                 first_gyro_sets_w: bool = True) -> None:
+                 default_prior: bool = True) -> None:
         self.robot = robot
         self.noise = noise
         self.kf = ExtendedKalmanFilter(dim_x=model.NX, dim_z=2)
@@ -75,8 +76,10 @@ class FilterpyReference:
         # posterior), for the stamp noise
         self.last_twist: tuple[float, np.ndarray] | None = None
         self.ramp = 0.0  # m/s^2: the speed's rate of change between the last two twists
-        # the default prior: w is unknown until the first gyro sample, which sets it alone
-        self.first_gyro = first_gyro_sets_w
+        # the default prior: w is unknown until the first gyro sample, which sets it alone,
+        # and v until the first fused wheel frame or twist
+        self.first_gyro = default_prior
+        self.first_speed = default_prior
 
     def _accel(self, now: float) -> float | None:
         """The forward acceleration driving v from ``now`` on (None: v is a random walk)."""
@@ -338,6 +341,10 @@ class FilterpyReference:
                     span = max(t - t0, r.encode_sampling_time)
                     rate = (model.wheel_h(kf.x, L) - h0) / span
                     model.stamp_noise(R, rate[0], rate[1], n.stamp_std)
+                if self.first_speed:
+                    self.first_speed = False
+                    kf.P[3, 3] += 100.0 ** 2  # v forgotten: 100 m/s, beyond any robot's speed
+                    driven = False  # v's jump teaches the accelerometer's offset nothing
                 H = model.wheel_jacobian(kf.x, L)
                 S = H @ kf.P @ H.T + R
                 y = z - model.wheel_h(kf.x, L)
@@ -358,8 +365,12 @@ class FilterpyReference:
                     fuse_rate = not disproven and (kind == WHEELS
                                                    or self.agreed >= n.wheel_rate_proof_time)
                 if slip or not fuse_rate or accel_slip:
-                    slip = slip and not disproven  # disproven wheels: no slip test at all
-                    if disproven and turning:
+                    # disproven wheels, or an external odometry not yet proven in turns: a
+                    # disagreement is no sign of slip
+                    unproven = kind == TWIST and self.agreed < n.wheel_rate_proof_time
+                    slip_gated = slip
+                    slip = slip and not disproven and not unproven
+                    if (disproven or (unproven and slip_gated)) and turning:
                         self.stats["wheel_rate_distrusted"] += 1
                     if accel_slip:  # the accelerometer says so: a slip whatever the gyro says
                         self.stats["accel_slips"] += 1

@@ -576,3 +576,55 @@ def test_the_first_gyro_sample_sets_w_alone_under_the_default_prior(hand_made):
         assert math.degrees(ekf.x[5]) > 0.03  # 0.1 % of the turn in the bias
     else:
         assert math.degrees(ekf.x[5]) < 1e-5
+
+
+@pytest.mark.parametrize("hand_made", [False, True])
+def test_the_first_wheel_frame_sets_v_alone_under_the_default_prior(hand_made):
+    # A robot driving off at once at 1.5 m/s whose first frame slips (the wheels turn at
+    # 1 rad/s, the gyro reads 0): its speed is fused 1e5 times down-weighted. Checked against
+    # the scalar update of v by hand, p_vv / (p_vv + R_vv * slip_inflation). Under the
+    # default prior v's variance is first widened by core.UNKNOWN_SPEED_VAR, so the frame
+    # sets v; a P0 given by hand, even equal to the default, keeps v near its prior of 0.
+    noise = EkfNoise()
+    default = PlanarEKF(ROBOT, noise)
+    ekf = PlanarEKF(ROBOT, noise, P0=default.P.copy()) if hand_made else default
+    assert ekf.update_gyro(0.0, 0.0) == 0
+    period = ROBOT.encode_sampling_time
+    ekf.predict_to(0.5 * period)  # the first frame's midpoint
+    v0, p_vv = ekf.x[3], ekf.P[3, 3] + (0.0 if hand_made else core.UNKNOWN_SPEED_VAR)
+    left, right = 540, 660  # ticks in one period: 1.5 m/s, 1 rad/s
+    z, R = model.ticks_measurement(left, right, ROBOT.speed_ratio, period,
+                                   ROBOT.wheel_distance, noise.tick_std, noise.scale_std,
+                                   noise.separation_std, noise.wheel_w_std)
+    assert z[0] == pytest.approx(1.5) and z[1] == pytest.approx(1.0)
+    assert ekf.update_wheels(period, left, right) == 1  # a slip
+    s = p_vv + R[0, 0] * noise.slip_inflation
+    np.testing.assert_allclose(ekf.x[3], v0 + p_vv * (z[0] - v0) / s, rtol=1e-9)
+    np.testing.assert_allclose(ekf.P[3, 3], p_vv - p_vv ** 2 / s, rtol=1e-6)
+    if hand_made:
+        assert abs(ekf.x[3]) < 0.01
+    else:
+        assert ekf.x[3] > 1.49
+
+
+def test_an_unproven_odometry_that_turns_unlike_the_gyro_keeps_its_speed():
+    # Issue 11's outdoor bag: a skid-steer base's twists at 10 Hz, the robot never at rest at
+    # the start. Here it speeds up from 1 to 2 m/s while the twists' yaw rate is 2.5 times
+    # the gyro's. Until most turns have disagreed (wheel_rate_trust_time) the twists are not
+    # proven either way, so their disagreement is no slip: the speed is fused as measured.
+    # Before, it was fused as a slip's (1e5 times down-weighted) and lagged by up to 1 m/s
+    # for the first 3.5 s.
+    ekf = PlanarEKF(ROBOT, EkfNoise())
+    lag = []
+    for k in range(600):  # 6 s, gyro at 100 Hz
+        t = 0.01 * k
+        assert ekf.update_gyro(t, 0.4) == 0
+        if k % 10 == 0:
+            v = 1.0 + min(t, 2.0) / 2.0
+            assert ekf.update_twist(t, v, 1.0) == 0
+            lag.append(v - ekf.x[3])
+    assert ekf.stats["slips"] == 0
+    # every turning twist: first not proven and disagreeing, then disproven
+    assert ekf.stats["wheel_rate_distrusted"] == 60
+    assert np.max(np.abs(lag)) < 0.05, np.round(lag, 3)
+    assert ekf.x[4] == pytest.approx(0.4, abs=1e-3)  # the heading follows the gyro

@@ -174,7 +174,8 @@ class PipelineStats:
             (:mod:`fusion.planar.accel_slip`).
         wheel_rate_distrusted: turning wheel frames (or twists) whose yaw rate was not fused
             because most turns disagreed with the gyro (a skid-steer base, a wrong
-            wheel_distance; :class:`fusion.planar.ekf.EkfNoise` ``max_slip_share``).
+            wheel_distance; :class:`fusion.planar.ekf.EkfNoise` ``max_slip_share``), or
+            twists that disagreed before the external odometry was proven in turns.
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).

@@ -42,7 +42,8 @@ from fusion.planar.model import (
     zupt_noise,
 )
 
-__all__ = ["ACCEL_HOLD", "AUX_SIZE", "PAR_SIZE", "ROW_WIDTH", "UNKNOWN_RATE_VAR", "batch_core",
+__all__ = ["ACCEL_HOLD", "AUX_SIZE", "PAR_SIZE", "ROW_WIDTH", "UNKNOWN_RATE_VAR",
+           "UNKNOWN_SPEED_VAR", "batch_core",
            "predict_core", "step_core", "update_core"]
 
 # par indices
@@ -122,6 +123,7 @@ A_PREDICTIONS = 22  # predict_core calls
 A_SLIP_SHARE = 23  # exponentially weighted share of wheel frames or twists above the gate
 A_DISTRUST = 24  # 1: the wheels' yaw rates are not fused (their slip share is too high)
 A_DISTRUSTED = 25  # turning wheel frames or twists whose yaw rate was not fused for that
+# (disproven), or that disagreed before an external odometry was proven
 A_CLIPPED = 26  # filter time of the last saturated gyro sample (NaN: none yet)
 A_AGREED = 27  # s of turning wheel frames or twists that agreed with the gyro
 A_YAW_PENDING = 28  # heading correction owed beyond the yaw budget, rad (_rate_update)
@@ -138,12 +140,17 @@ A_TWIST_T = 35
 A_TWIST_V = 36
 A_TWIST_W = 37
 A_SPEED_RATE = 38  # m/s^2, the speed's rate of change between the last two wheel twists
-AUX_SIZE = 39
+A_FIRST_SPEED = 39  # 1: the next fused wheel frame or twist is the first and sets v alone
+AUX_SIZE = 40
 #: s: a forward specific force older than this drives v no more (the IMU feed stopped)
 ACCEL_HOLD = 0.1
 #: (rad/s)^2 added to w's variance before the first gyro sample (A_FIRST_GYRO): w is then
 #: unknown (100 rad/s, above every MEMS gyro's full scale), so that sample sets w, not the bias
 UNKNOWN_RATE_VAR = 1e4
+#: (m/s)^2 added to v's variance before the first wheel frame or twist that is fused
+#: (A_FIRST_SPEED): v is then unknown (100 m/s, above every robot's speed), so that frame sets
+#: v, whatever the slip gate says of its yaw rate
+UNKNOWN_SPEED_VAR = 1e4
 # per-frame flags
 FLAG_ZUPT = 1
 FLAG_SLIP = 2
@@ -577,12 +584,12 @@ def _wheel_rate_trust(aux, par, interval, slip, turning, proven):
     wheel ticks), or the wheels have agreed with the gyro over ``wheel_rate_proof_time`` s
     of turning; before that an external odometry's yaw rates are not fused (it may come from
     a skid-steer base, whose yaw rate is no measurement of the rotation even driving
-    straight, and while the bias is still uncertain the gate passes its first turns), but a
-    frame above the gate is still a slip. Disproven: the share of turning frames above the gate,
-    an exponentially weighted mean with time constant ``wheel_rate_trust_time``, exceeds
-    ``max_slip_share`` (a skid-steer base's odometry, a wrong wheel distance, a floor that
-    slips everywhere); then a disagreement is no sign of slip, only the speed is fused, and
-    trust returns below half that share.
+    straight, and while the bias is still uncertain the gate passes its first turns), nor is
+    a twist above the gate a slip (:func:`_wheel_update`). Disproven: the share of turning
+    frames above the gate, an exponentially weighted mean with time constant
+    ``wheel_rate_trust_time``, exceeds ``max_slip_share`` (a skid-steer base's odometry, a
+    wrong wheel distance, a floor that slips everywhere); then a disagreement is no sign of
+    slip, only the speed is fused, and trust returns below half that share.
     """
     share = aux[A_SLIP_SHARE]
     if turning:
@@ -641,6 +648,15 @@ def _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip):
         # wheels whose yaw rate does not measure the rotation: a disagreement with the gyro
         # says nothing about slipping, and the speed is as good as ever
         if turning:
+            aux[A_DISTRUSTED] += 1.0
+        slip = False
+    elif kind == EV_TWIST and aux[A_AGREED] < par[P_PROOF_TIME]:
+        # an external odometry not yet proven in turns: its disagreement is no sign of slip
+        # either (a skid-steer base's twists disagree from the first turn, and the Jackal
+        # bag's even driving straight), and its speed is as good as ever; down-weighted as a
+        # slip's, the speed of a robot driving off at once lagged by 1 m/s for the 4 s until
+        # most turns had disagreed. It still counts in the slip share that disproves it.
+        if turning and slip:
             aux[A_DISTRUSTED] += 1.0
         slip = False
     if accel_slip:
@@ -794,6 +810,15 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         R[0, 1] *= math.sqrt(inflate)
         R[1, 0] = R[0, 1]
     _add_stamp_noise(R, x, aux, par, t)
+    if aux[A_FIRST_SPEED] == 1.0:
+        # The robot may be driving at any speed when the filter starts (issue 11's outdoor
+        # bag starts at 1-2 m/s). Under v's prior (0.05 m/s: at rest) a first frame whose yaw
+        # rate fails the slip gate has its speed fused 1e5 times down-weighted, and v stays
+        # near 0 for as long as the frames slip. So v is forgotten first: this frame sets it,
+        # slipping or not (a slipping one leaves v's variance wide, for the next to correct).
+        aux[A_FIRST_SPEED] = 0.0
+        P[3, 3] += UNKNOWN_SPEED_VAR
+        learn = False  # v's jump is no error of the accelerometer's offset
     v_prior = x[3]
     d2, status = _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip)
     _remember_twist(x, aux, par, t)

@@ -331,7 +331,13 @@ class EkfNoise:
             without such errors become more underconfident ("plain" 49.7 -> 37.6 %, the
             kinematic simulator 56.1 -> 49.1 %); the cross-validated objective prefers 0.
         initial_speed_std: prior standard deviation of v (m/s) and w (rad/s); also the least
-            variance of a speed forgotten by the gap policy.
+            variance of a speed forgotten by the gap policy. Under the default prior v is
+            forgotten just before the first fused wheel frame or twist (its variance widened
+            by (100 m/s)^2, ``_ekf_core.UNKNOWN_SPEED_VAR``), which then sets v alone: the
+            robot may be driving when the filter starts (issue 11's outdoor bag); under a
+            prior at rest, first frames whose yaw rate fails the slip gate would have their
+            speed fused 1e5 times down-weighted, and v would stay near 0 for as long as they
+            do.
         initial_rate_std: prior standard deviation of w from the first input until the first
             gyro sample, rad/s. That sample then sets w alone (w's variance is widened by
             (100 rad/s)^2 first, ``_ekf_core.UNKNOWN_RATE_VAR``): the robot may be turning at
@@ -347,7 +353,9 @@ class EkfNoise:
             test it. Proven: the wheels have agreed with the gyro over
             ``wheel_rate_proof_time`` s of turning; before that their yaw rates are not fused
             (while the bias is still uncertain the gate passes a skid-steer base's first
-            turns, which would pull the bias), but a frame above the gate is still a slip.
+            turns, which would pull the bias), and a twist above the gate is no slip either
+            (its speed is fused with its own noise): until then nothing says whether its
+            disagreement is slip or the base's way of turning.
             Disproven: the share of turning frames above the slip gate, an exponentially
             weighted mean with time constant ``wheel_rate_trust_time`` (s of turning),
             exceeds ``max_slip_share`` (1): the wheels' yaw rate does not measure this
@@ -708,7 +716,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         t: filter time, s (None before the first input).
         stats: counters: ``slips`` (frames fused as slipping), ``accel_slips`` (of those, the
             ones the accelerometer flagged), ``wheel_rate_distrusted`` (turning frames or
-            twists whose yaw rate was not fused because most turns disagreed with the gyro),
+            twists whose yaw rate was not fused because most turns disagreed with the gyro, or
+            twists that disagreed before the external odometry was proven in turns),
             ``zupts``, ``late_dropped``, ``late_applied``,
             ``invalid`` (non-finite or implausible inputs), ``gyro_saturated``,
             ``encoder_faults``, ``updates``, ``speed_resets`` (v or w forgotten by the gap
@@ -808,6 +817,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         self._aux[core.A_FX_OFFSET] = math.nan
         # the default prior does not know w: the first gyro sample sets it (step_core)
         self._aux[core.A_FIRST_GYRO] = 1.0 if P0 is None else 0.0
+        # nor v: the first fused wheel frame or twist sets it (_ekf_core._wheel_event)
+        self._aux[core.A_FIRST_SPEED] = 1.0 if P0 is None else 0.0
         self._aux[core.A_TWIST_T] = math.nan  # no wheel twist yet (stamp noise)
 
     # -- state -------------------------------------------------------------------------------
