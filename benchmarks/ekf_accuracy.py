@@ -37,8 +37,9 @@ independent ground truth. Yaw reference: the bag's IMU orientation (the simulato
 its yaw agrees with the integrated gyro within 0.03 rad over the run, while the bag's wheel
 odometry turns 7.5 times as far: the skid-steer twist is not a yaw reference). Position
 reference: the odometry speed integrated along that yaw (a pseudo-reference, it shares the
-speed with every contender). Also printed: against the bag's own odometry pose, and the largest
-step between consecutive fused rows against 3 x the largest twist speed x the row interval.
+speed with every contender): final error and RMSE. Also printed: against the bag's own
+odometry pose, and the largest step between consecutive fused rows against 3 x the largest
+twist speed x the row interval.
 
 With ``--stamp-std S``: every EKF contender with that EkfNoise.stamp_std (s) instead of the
 default.
@@ -293,12 +294,14 @@ def bag_section() -> None:
     print(f"\n(iii) {BAG.name}: {t[-1] - t[0]:.0f} s, {distance:.1f} m (reference path), "
           f"{len(odom)} odometry twists, {len(imu)} IMU messages; yaw reference: the IMU "
           "orientation (simulator attitude); position reference: odometry speed along that yaw")
-    print(f"{'odometry':14s} {'final pos. err. %':>18s} {'yaw RMSE deg':>13s}   "
-          f"{'vs bag odometry pose: %':>24s} {'yaw deg':>8s}")
+    print(f"{'odometry':14s} {'final pos. err. %':>18s} {'pos. RMSE m':>12s} {'yaw RMSE deg':>13s}"
+          f"   {'vs bag odometry pose: %':>24s} {'yaw deg':>8s}")
     for name, poses in contenders.items():
         e_ref = _errors(poses, ref, distance)
         e_own = _errors(poses, own, distance)
-        print(f"{name:14s} {e_ref[0]:18.3f} {e_ref[1]:13.3f}   {e_own[0]:24.3f} {e_own[1]:8.3f}")
+        pos_rmse = float(np.sqrt(np.mean(np.sum((poses[:, :2] - ref[:, :2]) ** 2, axis=1))))
+        print(f"{name:14s} {e_ref[0]:18.3f} {pos_rmse:12.3f} {e_ref[1]:13.3f}   "
+              f"{e_own[0]:24.3f} {e_own[1]:8.3f}")
     step = np.hypot(np.diff(fused[:, 0]), np.diff(fused[:, 1]))
     bound = 3 * np.abs(odom.v).max() * np.diff(track.t[k])
     print(f"fused EKF: largest step between consecutive rows {step.max():.3f} m; rows above "
