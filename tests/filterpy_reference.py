@@ -356,7 +356,10 @@ class FilterpyReference:
                     if turning:
                         w = min(1.0, interval / n.wheel_rate_trust_time)
                         self.slip_share += w * (float(slip) - self.slip_share)
-                        self.agreed += 0.0 if slip else interval
+                        # agreeing: below the gate and within 10 % of the gyro-corrected rate
+                        # (_ekf_core.PROOF_TOLERANCE)
+                        close = abs(y[1]) <= 0.1 * abs(kf.x[4])
+                        self.agreed += interval if not slip and close else 0.0
                     if self.slip_share > n.max_slip_share:
                         self.distrust = True
                     elif self.slip_share < 0.5 * n.max_slip_share:

@@ -571,32 +571,43 @@ def _release_pending_yaw(x, aux):
 #: turns test whether the wheels' yaw rate can be trusted (standing or driving straight,
 #: any wheels agree with the gyro).
 TURN_RATE = 0.1
+#: A turning twist proves its source only if its yaw rate is within this share of the
+#: gyro-corrected one (1): a two-wheel base's twist is off by its wheel distance's error (a few
+#: %), a skid-steer base's by 30-100 %. The slip gate alone passes a skid-steer's gentle
+#: turns while the bias and the wheel calibration are still uncertain: yaw rates 1.6 times
+#: the gyro's, starting to drive at once, proved themselves after 14 s of arcs, were fused and
+#: pulled the bias by 3 deg/s (yaw RMSE 105 deg over 3 minutes without a stop). 0.2 still let
+#: 1.3 times through on gentle turns (an unknown bias of 0.5 deg/s makes up the rest); with
+#: 0.1 twists 1.3-2 times the gyro's are never proven, 1.05 times ones still are (their bias
+#: learnt within a minute; seeds 0-2 of that drive).
+PROOF_TOLERANCE = 0.1
 
 
 @njit
-def _wheel_rate_trust(aux, par, interval, slip, turning, proven):
+def _wheel_rate_trust(aux, par, interval, slip, turning, proven, close):
     """Account one wheel frame or twist (``slip``: above the gate; ``turning``; ``interval``
-    s after the previous one) and return ``(fuse_rate, disproven)``: whether its yaw rate may
-    be fused, and whether the wheels' yaw rate has shown it does not measure the rotation.
+    s after the previous one; ``close``: its yaw rate within :data:`PROOF_TOLERANCE` of the
+    gyro-corrected one) and return ``(fuse_rate, disproven)``: whether its yaw rate may be
+    fused, and whether the wheels' yaw rate has shown it does not measure the rotation.
 
     Only turns test the wheels (standing or driving straight, any wheels agree with the
     gyro). Proven: the source is this library's two-wheel differential chassis (``proven``:
-    wheel ticks), or the wheels have agreed with the gyro over ``wheel_rate_proof_time`` s
-    of turning; before that an external odometry's yaw rates are not fused (it may come from
-    a skid-steer base, whose yaw rate is no measurement of the rotation even driving
-    straight, and while the bias is still uncertain the gate passes its first turns), nor is
-    a twist above the gate a slip (:func:`_wheel_update`). Disproven: the share of turning
-    frames above the gate, an exponentially weighted mean with time constant
-    ``wheel_rate_trust_time``, exceeds ``max_slip_share`` (a skid-steer base's odometry, a
-    wrong wheel distance, a floor that slips everywhere); then a disagreement is no sign of
-    slip, only the speed is fused, and trust returns below half that share.
+    wheel ticks), or the wheels have agreed with the gyro (below the gate and ``close``) over
+    ``wheel_rate_proof_time`` s of turning; before that an external odometry's yaw rates are
+    not fused (it may come from a skid-steer base, whose yaw rate is no measurement of the
+    rotation even driving straight, and while the bias is still uncertain the gate passes its
+    first turns), nor is a twist above the gate a slip (:func:`_wheel_update`). Disproven:
+    the share of turning frames above the gate, an exponentially weighted mean with time
+    constant ``wheel_rate_trust_time``, exceeds ``max_slip_share`` (a skid-steer base's
+    odometry, a wrong wheel distance, a floor that slips everywhere); then a disagreement is
+    no sign of slip, only the speed is fused, and trust returns below half that share.
     """
     share = aux[A_SLIP_SHARE]
     if turning:
         alpha = min(1.0, interval / par[P_TRUST_TIME])
         share += alpha * ((1.0 if slip else 0.0) - share)
         aux[A_SLIP_SHARE] = share
-        if not slip:
+        if not slip and close:
             aux[A_AGREED] += interval
     if share > par[P_MAX_SLIP_SHARE]:
         aux[A_DISTRUST] = 1.0
@@ -639,8 +650,9 @@ def _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip):
         # rate state around the saturation is no test of them
         fuse_rate, disproven = True, False
     else:
+        close = abs(y[1]) <= PROOF_TOLERANCE * abs(x[4])
         fuse_rate, disproven = _wheel_rate_trust(aux, par, interval, slip, turning,
-                                                 kind == EV_WHEELS)
+                                                 kind == EV_WHEELS, close)
     if not slip and fuse_rate and not accel_slip:
         _, status = _rate_update(x, P, aux, y, H, R)
         return d2, status

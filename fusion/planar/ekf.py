@@ -350,7 +350,9 @@ class EkfNoise:
             from that reasoning, not tuned.
         wheel_rate_proof_time, wheel_rate_trust_time, max_slip_share: when the wheels' yaw
             rate is fused. Only turning frames (faster than 0.1 rad/s, measured or expected)
-            test it. Proven: the wheels have agreed with the gyro over
+            test it. Proven: the wheels have agreed with the gyro (below the slip gate and
+            within 10 % of its rate, ``_ekf_core.PROOF_TOLERANCE``: the gate alone passes a
+            skid-steer's gentle turns while the bias is uncertain) over
             ``wheel_rate_proof_time`` s of turning; before that their yaw rates are not fused
             (while the bias is still uncertain the gate passes a skid-steer base's first
             turns, which would pull the bias), and a twist above the gate is no slip either
