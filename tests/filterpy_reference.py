@@ -63,6 +63,7 @@ class FilterpyReference:
         self.slip_share = 0.0
         self.distrust = False  # disproven: most turns disagree
         self.agreed = 0.0  # s of turning frames that agreed (proven at wheel_rate_proof_time)
+        self.fit: list[tuple[float, float]] = []  # (gyro rate with bias, wheels' rate), turns
         self.clipped_at = -math.inf  # filter time of the last saturated gyro sample
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
@@ -317,6 +318,7 @@ class FilterpyReference:
                 self._remember_twist(t)
                 status = 4
                 self.stats["zupts"] += 1
+                self.first_speed = False  # standing still: v is known
                 self._measured(3, 4)
             else:
                 L = r.wheel_distance
@@ -341,7 +343,8 @@ class FilterpyReference:
                     span = max(t - t0, r.encode_sampling_time)
                     rate = (model.wheel_h(kf.x, L) - h0) / span
                     model.stamp_noise(R, rate[0], rate[1], n.stamp_std)
-                if self.first_speed:
+                first = self.first_speed
+                if first:
                     self.first_speed = False
                     kf.P[3, 3] += 100.0 ** 2  # v forgotten: 100 m/s, beyond any robot's speed
                     driven = False  # v's jump teaches the accelerometer's offset nothing
@@ -356,9 +359,16 @@ class FilterpyReference:
                     if turning:
                         w = min(1.0, interval / n.wheel_rate_trust_time)
                         self.slip_share += w * (float(slip) - self.slip_share)
-                        # agreeing: below the gate and within 10 % of the gyro-corrected rate
-                        # (_ekf_core.PROOF_TOLERANCE)
-                        close = abs(y[1]) <= 0.1 * abs(kf.x[4])
+                        # agreeing: below the gate, and the slope of the wheels' yaw rate
+                        # against the gyro's (bias included) over every turn so far within
+                        # 10 % of 1, once those gyro rates spread by 0.05 rad/s
+                        # (_ekf_core.PROOF_TOLERANCE, PROOF_SPREAD)
+                        self.fit.append((kf.x[4] + kf.x[5], z[1]))
+                        gx, wy = np.array(self.fit).T
+                        close = False
+                        if len(self.fit) >= 2 and np.var(gx) >= 0.05 ** 2:
+                            slope = np.polyfit(gx, wy, 1)[0]
+                            close = abs(slope - 1.0) <= 0.1
                         self.agreed += interval if not slip and close else 0.0
                     if self.slip_share > n.max_slip_share:
                         self.distrust = True
@@ -383,6 +393,9 @@ class FilterpyReference:
                         self.after_slip = True
                     inflation = n.slip_inflation if slip else 1.0
                     if inflation <= 0:
+                        if first:  # nothing fused: v stays unknown for the next frame
+                            kf.P[3, 3] -= 100.0 ** 2
+                            self.first_speed = True
                         self._remember_twist(t)  # the prior: nothing fused
                         self.stats["updates"] += 1
                         return 2

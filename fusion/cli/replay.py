@@ -226,8 +226,9 @@ def _print_warnings(warnings) -> None:
     if gyro_alone:
         # the EKF already stopped fusing the odometry's yaw rate: say what the heading rests on
         print("warning: the fused odometry above should not be trusted unless the gyro is "
-              "right: its heading rests on the gyro alone (the odometry's yaw rate was no "
-              "longer fused once most turns disagreed; right for a skid-steer base, whose "
+              "right: its heading rests on the gyro alone (the odometry's yaw rate was not "
+              "fused in the turns that disagreed, before or after most did; right for a "
+              "skid-steer base, whose "
               "odometry turns unlike the robot; "
               "otherwise check the IMU mount and axis signs, --imu-mount-rpy)")
     else:

@@ -97,7 +97,8 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None) -> list[Tr
             f"{100 * disagree / frames:.0f} % of the {frames} odometry frames disagree with "
             f"the gyro on the yaw rate or with the accelerometer on the speed ({slips} "
             f"flagged as slip, {distrusted} turning frames "
-            "whose yaw rate was no longer fused because most turns disagreed; more than "
+            "whose yaw rate was not fused because the odometry was not yet proven in turns "
+            "or most turns disagreed; more than "
             f"{100 * SLIP_FRACTION_LIMIT:.0f} % means the two inputs describe different "
             "motions: a skid-steer base, or check wheel_distance, the IMU mount and the "
             "topics)" + ("; the fused heading followed the gyro alone" if distrusted > slips

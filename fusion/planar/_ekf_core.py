@@ -141,7 +141,14 @@ A_TWIST_V = 36
 A_TWIST_W = 37
 A_SPEED_RATE = 38  # m/s^2, the speed's rate of change between the last two wheel twists
 A_FIRST_SPEED = 39  # 1: the next fused wheel frame or twist is the first and sets v alone
-AUX_SIZE = 40
+# least-squares fit of the wheels' yaw rate against the gyro's (bias included) over turning
+# frames: count and sums of x, y, x^2, x*y (rad/s; _rate_scale_agrees)
+A_FIT_N = 40
+A_FIT_SX = 41
+A_FIT_SY = 42
+A_FIT_SXX = 43
+A_FIT_SXY = 44
+AUX_SIZE = 45
 #: s: a forward specific force older than this drives v no more (the IMU feed stopped)
 ACCEL_HOLD = 0.1
 #: (rad/s)^2 added to w's variance before the first gyro sample (A_FIRST_GYRO): w is then
@@ -571,28 +578,57 @@ def _release_pending_yaw(x, aux):
 #: turns test whether the wheels' yaw rate can be trusted (standing or driving straight,
 #: any wheels agree with the gyro).
 TURN_RATE = 0.1
-#: A turning twist proves its source only if its yaw rate is within this share of the
-#: gyro-corrected one (1): a two-wheel base's twist is off by its wheel distance's error (a few
-#: %), a skid-steer base's by 30-100 %. The slip gate alone passes a skid-steer's gentle
-#: turns while the bias and the wheel calibration are still uncertain: yaw rates 1.6 times
-#: the gyro's, starting to drive at once, proved themselves after 14 s of arcs, were fused and
-#: pulled the bias by 3 deg/s (yaw RMSE 105 deg over 3 minutes without a stop). 0.2 still let
-#: 1.3 times through on gentle turns (an unknown bias of 0.5 deg/s makes up the rest); with
-#: 0.1 twists 1.3-2 times the gyro's are never proven, 1.05 times ones still are (their bias
-#: learnt within a minute; seeds 0-2 of that drive).
+#: Turning twists prove their source only while the slope of their yaw rate against the
+#: gyro's, fitted over all turning frames so far, is within this share of 1: a two-wheel base's
+#: twist is off by its wheel distance's error (a few %), a skid-steer base's by 30-100 %. The
+#: slip gate alone passes a skid-steer's gentle turns while the bias and the wheel calibration
+#: are still uncertain: yaw rates 1.6 times the gyro's, starting to drive at once, proved
+#: themselves after 14 s of arcs, were fused and pulled the bias by 3 deg/s (yaw RMSE 105 deg
+#: over 3 minutes without a stop). A slope, unlike a per-frame ratio, does not see the bias (it
+#: goes into the intercept): comparing each frame with the bias-corrected rate kept a correct
+#: two-wheel twist from being proven on gentle arcs with 2 deg/s of bias not yet learnt.
 PROOF_TOLERANCE = 0.1
+#: rad/s: the standard deviation the fitted gyro rates must spread over before the slope
+#: counts: turns of one rate and direction alone cannot tell a scale error from the bias, so
+#: on gentle arcs one way a correct twist source waits for a turn the other way (36 s on
+#: tests/test_ekf.py's gentle drive; 0.03-0.1 rad/s gave the same)
+PROOF_SPREAD = 0.05
+
+
+@njit
+def _rate_scale_agrees(aux, gyro_rate, wheel_rate, turning):
+    """Add a turning frame (the gyro-scale rate with its bias, ``gyro_rate``, and the wheels'
+    ``wheel_rate``, rad/s) to the least-squares fit of the one against the other; True once
+    the fitted rates spread by :data:`PROOF_SPREAD` and the slope is within
+    :data:`PROOF_TOLERANCE` of 1."""
+    if turning:
+        aux[A_FIT_N] += 1.0
+        aux[A_FIT_SX] += gyro_rate
+        aux[A_FIT_SY] += wheel_rate
+        aux[A_FIT_SXX] += gyro_rate * gyro_rate
+        aux[A_FIT_SXY] += gyro_rate * wheel_rate
+    n = aux[A_FIT_N]
+    if n < 2.0:
+        return False
+    mean_x = aux[A_FIT_SX] / n
+    var_x = aux[A_FIT_SXX] / n - mean_x * mean_x
+    if var_x < PROOF_SPREAD * PROOF_SPREAD:
+        return False
+    slope = (aux[A_FIT_SXY] / n - mean_x * aux[A_FIT_SY] / n) / var_x
+    return abs(slope - 1.0) <= PROOF_TOLERANCE
 
 
 @njit
 def _wheel_rate_trust(aux, par, interval, slip, turning, proven, close):
     """Account one wheel frame or twist (``slip``: above the gate; ``turning``; ``interval``
-    s after the previous one; ``close``: its yaw rate within :data:`PROOF_TOLERANCE` of the
-    gyro-corrected one) and return ``(fuse_rate, disproven)``: whether its yaw rate may be
-    fused, and whether the wheels' yaw rate has shown it does not measure the rotation.
+    s after the previous one; ``close``: the wheels' yaw-rate scale fitted so far agrees
+    with the gyro's, :func:`_rate_scale_agrees`) and return ``(fuse_rate, disproven)``:
+    whether its yaw rate may be fused, and whether the wheels' yaw rate has shown it does not
+    measure the rotation.
 
     Only turns test the wheels (standing or driving straight, any wheels agree with the
     gyro). Proven: the source is this library's two-wheel differential chassis (``proven``:
-    wheel ticks), or the wheels have agreed with the gyro (below the gate and ``close``) over
+    wheel ticks), or the wheels have agreed with the gyro (below the gate, and ``close``) over
     ``wheel_rate_proof_time`` s of turning; before that an external odometry's yaw rates are
     not fused (it may come from a skid-steer base, whose yaw rate is no measurement of the
     rotation even driving straight, and while the bias is still uncertain the gate passes its
@@ -650,7 +686,7 @@ def _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip):
         # rate state around the saturation is no test of them
         fuse_rate, disproven = True, False
     else:
-        close = abs(y[1]) <= PROOF_TOLERANCE * abs(x[4])
+        close = _rate_scale_agrees(aux, x[4] + x[5], z[1], turning)
         fuse_rate, disproven = _wheel_rate_trust(aux, par, interval, slip, turning,
                                                  kind == EV_WHEELS, close)
     if not slip and fuse_rate and not accel_slip:
@@ -666,8 +702,9 @@ def _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip):
         # an external odometry not yet proven in turns: its disagreement is no sign of slip
         # either (a skid-steer base's twists disagree from the first turn, and the Jackal
         # bag's even driving straight), and its speed is as good as ever; down-weighted as a
-        # slip's, the speed of a robot driving off at once lagged by 1 m/s for the 4 s until
-        # most turns had disagreed. It still counts in the slip share that disproves it.
+        # slip's, the speed of a robot speeding up from 1 to 2 m/s lagged by up to 2 m/s, and
+        # by more than 0.1 m/s for 3.3 s, until most turns had disagreed. It still counts in
+        # the slip share that disproves it.
         if turning and slip:
             aux[A_DISTRUSTED] += 1.0
         slip = False
@@ -792,6 +829,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
                 status = 4
                 aux[A_ZUPTS] += 1.0
                 aux[A_FLAGS] = FLAG_ZUPT
+                aux[A_FIRST_SPEED] = 0.0  # standing still: v is known
             _remember_twist(x, aux, par, t)
             return d2, status
     else:
@@ -822,7 +860,8 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         R[0, 1] *= math.sqrt(inflate)
         R[1, 0] = R[0, 1]
     _add_stamp_noise(R, x, aux, par, t)
-    if aux[A_FIRST_SPEED] == 1.0:
+    first = aux[A_FIRST_SPEED] == 1.0
+    if first:
         # The robot may be driving at any speed when the filter starts (issue 11's outdoor
         # bag starts at 1-2 m/s). Under v's prior (0.05 m/s: at rest) a first frame whose yaw
         # rate fails the slip gate has its speed fused 1e5 times down-weighted, and v stays
@@ -833,6 +872,11 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         learn = False  # v's jump is no error of the accelerometer's offset
     v_prior = x[3]
     d2, status = _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip)
+    if first and status == 2:
+        # nothing fused (a slip with slip_inflation 0): v is as unknown as before the frame,
+        # so its prior comes back and the next fused frame sets it
+        P[3, 3] -= UNKNOWN_SPEED_VAR
+        aux[A_FIRST_SPEED] = 1.0
     _remember_twist(x, aux, par, t)
     if learn and (status == 0 or status == 1):
         # what the wheels corrected, per second, is the offset's error (a slope, a drifting

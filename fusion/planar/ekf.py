@@ -91,7 +91,9 @@ Model:
   cannot explain (chi-square above ``slip_gate``) ends the stationary phase at once, so the
   start of a turn does not leak into the bias before the first moving wheel frame arrives.
 - External twist (kind 3, e.g. a nav_msgs/Odometry from a ROS bag): forward speed and yaw
-  rate through the same wheel model, gate and ZUPT logic, noise ``twist_v_std``/``twist_w_std``.
+  rate through the same wheel model, gate and ZUPT logic, noise ``twist_v_std``/``twist_w_std``;
+  its yaw rate is fused only once proven in turns (``wheel_rate_proof_time``), and until then
+  a twist that fails the gate is no slip (its speed is fused as measured).
 - Optional absolute yaw (a compass, a map match), residual wrapped to (-pi, pi].
 - Optional, off by default (``EkfNoise.accel_speed_psd`` > 0): the forward specific force of
   each IMU sample (kind 5, base frame x, ``accel_x=`` of :func:`fuse`,
@@ -350,9 +352,10 @@ class EkfNoise:
             from that reasoning, not tuned.
         wheel_rate_proof_time, wheel_rate_trust_time, max_slip_share: when the wheels' yaw
             rate is fused. Only turning frames (faster than 0.1 rad/s, measured or expected)
-            test it. Proven: the wheels have agreed with the gyro (below the slip gate and
-            within 10 % of its rate, ``_ekf_core.PROOF_TOLERANCE``: the gate alone passes a
-            skid-steer's gentle turns while the bias is uncertain) over
+            test it. Proven: the wheels have agreed with the gyro (below the slip gate, and
+            the slope of their yaw rate against the gyro's over the turns so far within 10 %
+            of 1, ``_ekf_core.PROOF_TOLERANCE``: the gate alone passes a skid-steer's gentle
+            turns while the bias is uncertain) over
             ``wheel_rate_proof_time`` s of turning; before that their yaw rates are not fused
             (while the bias is still uncertain the gate passes a skid-steer base's first
             turns, which would pull the bias), and a twist above the gate is no slip either
