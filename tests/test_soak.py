@@ -1,5 +1,5 @@
-"""Soak test: the demo's live pipeline at 2x real time for a bounded 30 s of wall time
-(1 minute of robot time: ~1500 wheel frames, ~6000 IMU samples through the real pty,
+"""Soak test: the demo's live pipeline at 2x real time for a bounded 69 s of wall time
+(45 s of warm-up, then 24 s measured: ~3400 wheel frames, ~14000 IMU samples through the real pty,
 link, driver, Keel, EKF and a JSON lines file sink), checking that memory stays flat
 (tracemalloc, after a warm-up), that latency does not creep up and that every event is
 accounted for (fused or counted by reason).
@@ -32,7 +32,11 @@ from fusion.sinks.text import JsonLinesSink
 SPEED = float(os.environ.get("FUSION_SOAK_SPEED", "2"))
 # Wall seconds. The suite runs a bounded soak; for a long one (many minutes), e.g. before a
 # release: FUSION_SOAK_SECONDS=1800 FUSION_SOAK_SPEED=4 pytest tests/test_soak.py -s
-WARM_S = 6.0
+# Wall seconds before the first mark. Some bounded buffers of the run take about 85 s of robot
+# time to fill (traced memory grows ~35 bytes per event until then, then ~8: measured with a
+# 72 s soak from a 6 s warm-up, 2026-11-26); measured from a shorter warm-up the fill passed
+# for growth, and whether the test failed depended on how many marks fitted in (CI flake).
+WARM_S = float(os.environ.get("FUSION_SOAK_WARM", "45"))
 SOAK_S = float(os.environ.get("FUSION_SOAK_SECONDS", "24"))
 WINDOW_S = float(os.environ.get("FUSION_SOAK_WINDOW", min(300.0, SOAK_S / 4)))
 
@@ -87,13 +91,17 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     def tick() -> bool:
         mission()
         elapsed = time.monotonic() - wall0
+        done = elapsed >= WARM_S + SOAK_S
         if state["mark"] is None and elapsed >= WARM_S:
-            tracemalloc.start()
             mark(elapsed)
-        elif state["mark"] is not None and elapsed >= state["mark"] + WINDOW_S:
-            mark(elapsed)
-        return elapsed >= WARM_S + SOAK_S
+        elif state["mark"] is not None and (done or elapsed >= state["mark"] + WINDOW_S):
+            mark(elapsed)  # the last mark is always at the end: a fixed span is measured
+        return done
 
+    # Traced from the start: bounded buffers (ring buffers, caches) fill with traced objects
+    # during the warm-up and then only replace them. Started at the end of the warm-up, a
+    # full buffer of untraced objects would show as growth until it has turned over.
+    tracemalloc.start()
     try:
         runner.run(until=tick, poll=0.01)
     finally:
@@ -114,24 +122,25 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     print(f"ledger {led}")
     assert led["unaccounted"] == 0 and led["held"] == led["queued"] == 0
 
-    # memory: traced Python memory from the second mark to the end grows by less than
-    # 100 kB + 20 bytes per event. The latency history alone takes ~30 bytes per frame (~6 per
-    # event, 4 IMU samples per frame); measured 7-13 bytes per event. Keeping one sample or
-    # record per event (hundreds of bytes each) exceeds it, over any soak length.
+    # memory: traced Python memory from the first mark (after the warm-up) to the last, at
+    # the end, grows by less than 100 kB + 20 bytes per event. The latency history alone
+    # takes ~30 bytes per frame (~6 per event, 4 IMU samples per frame); measured 8 bytes per
+    # event (2026-11-26). Keeping one sample or record per event (hundreds of bytes each)
+    # exceeds it, over any soak length.
     mem = [m[0] for m in marks]
     assert len(mem) >= 4, marks
-    growth = mem[-1] - mem[1]
-    events = (marks[-1][2] - marks[1][2]) * 5  # records ~ frames; 4 IMU samples per frame
-    wall_h = np.array([m[4] for m in marks[1:]]) / 3600.0
-    slope = np.polyfit(wall_h, np.array(mem[1:], dtype=float), 1)[0] if len(mem) > 2 else 0.0
-    rss = np.array([m[5] for m in marks[1:]], dtype=float)
+    growth = mem[-1] - mem[0]
+    events = (marks[-1][2] - marks[0][2]) * 5  # records ~ frames; 4 IMU samples per frame
+    wall_h = np.array([m[4] for m in marks]) / 3600.0
+    slope = np.polyfit(wall_h, np.array(mem, dtype=float), 1)[0] if len(mem) > 2 else 0.0
+    rss = np.array([m[5] for m in marks], dtype=float)
     rss_slope = np.polyfit(wall_h, rss, 1)[0] if len(mem) > 2 else 0.0
     print(f"traced memory at the marks: {[round(m / 1e6, 2) for m in mem]} MB; growth "
           f"{growth / 1e3:.0f} kB over ~{events} events; slope {slope / 1e3:.1f} kB/h traced, "
           f"{rss_slope / 1e6:.2f} MB/h resident (wall hours; {SOAK_S:g} s soak at {SPEED:g}x)")
     half = len(wall_h) // 2
     if len(wall_h) - half > 2:  # the second half: after the latency history is full
-        late = np.polyfit(wall_h[half:], np.array(mem[1:], dtype=float)[half:], 1)[0]
+        late = np.polyfit(wall_h[half:], np.array(mem, dtype=float)[half:], 1)[0]
         late_rss = np.polyfit(wall_h[half:], rss[half:], 1)[0]
         print(f"second half: slope {late / 1e3:.1f} kB/h traced, {late_rss / 1e6:.2f} MB/h "
               "resident")
