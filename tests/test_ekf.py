@@ -431,6 +431,7 @@ def _twists(run):
     return run.wheel_t - 0.5 * T, 0.5 * (dl + dr) / T, (dr - dl) / (L * T)
 
 
+@pytest.mark.slow  # a long drive: not repeated without numba (.ci/run)
 def test_twist_input_matches_the_tick_path():
     run = degraded_mission(seed=6, duration=60.0)
     tt, tv, tw = _twists(run)
@@ -660,6 +661,7 @@ def _odometry_twists(run, factor):
     return dict(twist_t=run.wheel_t - 0.5 * ROBOT.encode_sampling_time, twist_v=v, twist_w=w)
 
 
+@pytest.mark.slow  # a long drive: not repeated without numba (.ci/run)
 @pytest.mark.parametrize("factor", [1.3, 1.6, 2.0])
 def test_a_skid_steer_odometry_never_proves_itself(factor):
     # A skid-steer base's twists turn `factor` times as fast as the robot; it drives off at
@@ -687,6 +689,7 @@ def test_a_skid_steer_odometry_never_proves_itself(factor):
     assert abs(track.states[g][-1, 5]) < math.radians(0.01)  # the bias at its prior mean
 
 
+@pytest.mark.slow  # a long drive: not repeated without numba (.ci/run)
 @pytest.mark.parametrize("separation_error", [0.0, 0.05])
 def test_a_two_wheel_odometry_proves_itself_before_the_bias_is_known(separation_error):
     # The same drive with a correct two-wheel base's twists (wheel distance exact or 5 % off)
