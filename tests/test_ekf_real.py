@@ -3,7 +3,8 @@ the IMU, dead encoders flagged, slips that do not bend the heading, a bias learn
 
 Oracles: the motion model's own bound (a rate measurement never moves the position; the
 heading only within its stated budget), the simulators' truth (fusion.evaluation.synthetic and
-the independent physics simulator), and the bundled Jackal bag's twist speeds.
+the independent physics simulator), the bundled Jackal bag's twist speeds, and a real MPU6050's
+recordings at rest and turned by hand (datasets/mpu6050_raw) for the stillness detector.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from fusion.evaluation.synthetic import (
     simulate,
     straight,
 )
+from fusion.io.mpu6050_csv import read_mpu6050_csv
 from fusion.planar import _ekf_core as core
 from fusion.planar.ekf import EkfNoise, PlanarEKF, fuse, merge_events
 from fusion.planar.imu_motion import (
@@ -35,8 +37,10 @@ from fusion.planar.imu_motion import (
     imu_motion_codes,
 )
 from fusion.planar.model import NX
+from fusion.types.constants import STANDARD_GRAVITY
 
 BAG = Path(__file__).resolve().parent.parent / "datasets" / "rosbag" / "jackal_sim_test2.bag"
+RAW_MPU6050 = Path(__file__).resolve().parent.parent / "datasets" / "mpu6050_raw"
 
 
 def _heading_corrections(states, t):
@@ -147,6 +151,42 @@ def test_imu_motion_separates_rest_from_driving_vibration():
     parts = [det.update_batch(t[i:i + 37], gyro[i:i + 37], accel[i:i + 37])
              for i in range(0, t.size, 37)]
     np.testing.assert_array_equal(np.concatenate(parts), codes)
+
+
+def _real_mpu6050(name: str):
+    """A bundled raw MPU6050 recording (100 Hz, datasets/mpu6050_raw) in SI units."""
+    log = read_mpu6050_csv(RAW_MPU6050 / name)
+    gyro = np.radians(log.gyro / log.gyro_lsb_per_dps)
+    accel = log.accel / log.accel_lsb_per_g * STANDARD_GRAVITY
+    return log.t, gyro, accel
+
+
+def test_a_real_mpu6050_at_rest_is_still_at_100_and_33_hz():
+    # 100 s of a real sensor lying still (noise 0.0013-0.002 rad/s, 0.03-0.05 m/s^2 per
+    # sample): thresholds chosen on simulated noise must hold on the real chip's, at its
+    # rate and at an outdoor robot's 30-odd Hz (every third sample).
+    t, gyro, accel = _real_mpu6050("imu_static_test.csv")
+    settled = t > t[0] + MotionThresholds().still_time + 0.05
+    for step in (1, 3):
+        codes = imu_motion_codes(t[::step], gyro[::step], accel[::step])
+        assert not np.any(codes == MOTION_MOVING), step
+        assert np.mean(codes[settled[::step]] == MOTION_STILL) > 0.99, step
+
+
+def test_a_real_mpu6050_turned_by_hand_is_never_still_while_it_turns():
+    # The recording turned by hand 90 deg about x: every sample turning faster than 0.1
+    # rad/s above the gyro's bias counts as moving (432 of them), while the rest before and
+    # after the turn is still again.
+    t, gyro, accel = _real_mpu6050("imu_90_x_rot.csv")
+    codes = imu_motion_codes(t, gyro, accel)
+    rate = gyro[:, 0] - np.median(gyro[t < t[0] + 5.0, 0])
+    turning = np.abs(rate) > 0.1
+    assert turning.sum() > 300
+    assert np.all(codes[turning] == MOTION_MOVING)
+    quiet_before = (t > t[0] + 1.0) & (t < t[0] + 12.0)
+    quiet_after = t > t[0] + 50.0
+    assert np.mean(codes[quiet_before] == MOTION_STILL) > 0.95
+    assert np.mean(codes[quiet_after] == MOTION_STILL) > 0.95
 
 
 @pytest.fixture(scope="module")
