@@ -1,8 +1,8 @@
-"""Soak test: the demo's live pipeline at 2x real time for a bounded 69 s of wall time
-(45 s of warm-up, then 24 s measured: ~3400 wheel frames, ~14000 IMU samples through the real pty,
-link, driver, Keel, EKF and a JSON lines file sink), checking that memory stays flat
-(tracemalloc, after a warm-up), that latency does not creep up and that every event is
-accounted for (fused or counted by reason).
+"""Soak test: the demo's live pipeline at 2x real time for a bounded ~30 s of wall time
+(6 s of warm-up, then 24 s measured: ~1500 wheel frames, ~6000 IMU samples through the real
+pty, link, driver, Keel, EKF and a JSON lines file sink), checking that memory stays flat
+(tracemalloc, live objects after a full collection at each mark), that latency does not
+creep up and that every event is accounted for (fused or counted by reason).
 
 Figures over time (printed with ``-s``): per window (``FUSION_SOAK_WINDOW`` wall s; default a
 quarter of the soak, at most 300 s) the traced Python memory, the process's resident memory,
@@ -13,6 +13,8 @@ robot time)."""
 
 from __future__ import annotations
 
+import gc
+import math
 import os
 import time
 import tracemalloc
@@ -32,13 +34,22 @@ from fusion.sinks.text import JsonLinesSink
 SPEED = float(os.environ.get("FUSION_SOAK_SPEED", "2"))
 # Wall seconds. The suite runs a bounded soak; for a long one (many minutes), e.g. before a
 # release: FUSION_SOAK_SECONDS=1800 FUSION_SOAK_SPEED=4 pytest tests/test_soak.py -s
-# Wall seconds before the first mark. Some bounded buffers of the run take about 85 s of robot
-# time to fill (traced memory grows ~35 bytes per event until then, then ~8: measured with a
-# 72 s soak from a 6 s warm-up, 2026-11-26); measured from a shorter warm-up the fill passed
-# for growth, and whether the test failed depended on how many marks fitted in (CI flake).
-WARM_S = float(os.environ.get("FUSION_SOAK_WARM", "45"))
+# Wall seconds before the first mark (the numba cores are compiled before the clock starts).
+# Traced memory is measured after a full collection at every mark (see mark() below): what
+# grew ~47 bytes per event for the first ~80 s of robot time was not the library's: CPython's
+# tuple free lists (2000 tuples per size) filling, one tuple of sizes 1, 3 and 4 per wheel
+# frame, and the dead ctypes array types of the I2C messages (cyclic garbage, ~75-100 kB,
+# there or not depending on when the collector last ran).
+WARM_S = float(os.environ.get("FUSION_SOAK_WARM", "6"))
 SOAK_S = float(os.environ.get("FUSION_SOAK_SECONDS", "24"))
 WINDOW_S = float(os.environ.get("FUSION_SOAK_WINDOW", min(300.0, SOAK_S / 4)))
+# marks at fixed times: WARM_S, + WINDOW_S, ..., and the last at WARM_S + SOAK_S
+MARKS_AT = [WARM_S + min(k * WINDOW_S, SOAK_S)
+            for k in range(math.ceil(SOAK_S / WINDOW_S - 1e-9) + 1)]
+# a mark waits (at most MARK_WAIT_S wall s) until the consumer has caught up: events waiting
+# in the runner's queue at a mark are live objects that would count as growth
+MARK_QUIET = 20
+MARK_WAIT_S = 5.0
 
 
 def _rss_bytes() -> int:
@@ -70,33 +81,43 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     runner = LiveRunner(pipe, link=link, imu=imu).start()
     t0 = clock()
     mission = LoopingMission(link, ch, clock, t0)
-    state = {"mark": None}
     wall0 = time.monotonic()
     marks = []  # (traced bytes, latencies kept, records, queued, wall s, rss bytes)
+    freed = []  # bytes each mark's full collection released (free lists, cyclic garbage)
 
     def mark(elapsed: float) -> None:
-        state["mark"] = elapsed
-        marks.append((tracemalloc.get_traced_memory()[0], len(pipe.latencies),
-                      pipe.stats.records, runner.queued, elapsed, _rss_bytes()))
+        # A full collection first: it frees unreachable cycles and empties CPython's free
+        # lists (tuples, floats, lists, dicts), so what is traced is what is alive. The free
+        # lists are the interpreter's bounded caches: CPython keeps up to 2000 freed tuples
+        # per size, and this run moves one tuple of each of sizes 1, 3 and 4 per wheel frame
+        # into them (e.g. the pipeline's ``tuple(genexpr)``: allocated for 10 items, resized
+        # down), so uncollected they filled for 2000 frames (~80 s of robot time) at ~180
+        # bytes per frame, then stopped. Dead cycles (ctypes array types of the I2C messages)
+        # come and go with the collector. Live objects kept by the library survive it.
+        before = tracemalloc.get_traced_memory()[0]
+        gc.collect()
+        traced = tracemalloc.get_traced_memory()[0]
+        freed.append(before - traced)
+        marks.append((traced, len(pipe.latencies), pipe.stats.records, runner.queued, elapsed,
+                      _rss_bytes()))
         if len(marks) > 1:
             new = marks[-1][2] - marks[-2][2]  # the window's records: the newest latencies
             lat = np.fromiter(pipe.latencies, dtype=float)[-new:] if new else np.zeros(1)
             p50, p99 = np.percentile(lat, [50, 99])
             led = runner.ledger()
-            print(f"soak {elapsed - WARM_S:7.0f} s: traced {marks[-1][0] / 1e6:7.3f} MB, rss "
-                  f"{marks[-1][5] / 1e6:7.1f} MB, latency p50/p99 {p50 * 1e3:5.0f}/"
-                  f"{p99 * 1e3:5.0f} ms, records {marks[-1][2]}, events in {led['in']}, "
-                  f"unaccounted {led['unaccounted']}, queued {marks[-1][3]}", flush=True)
+            print(f"soak {elapsed - WARM_S:7.0f} s: traced {marks[-1][0] / 1e6:7.3f} MB (the "
+                  f"collection freed {freed[-1] / 1e3:.0f} kB), rss {marks[-1][5] / 1e6:7.1f} "
+                  f"MB, latency p50/p99 {p50 * 1e3:5.0f}/{p99 * 1e3:5.0f} ms, records "
+                  f"{marks[-1][2]}, events in {led['in']}, unaccounted {led['unaccounted']}, "
+                  f"queued {marks[-1][3]}", flush=True)
 
     def tick() -> bool:
         mission()
         elapsed = time.monotonic() - wall0
-        done = elapsed >= WARM_S + SOAK_S
-        if state["mark"] is None and elapsed >= WARM_S:
-            mark(elapsed)
-        elif state["mark"] is not None and (done or elapsed >= state["mark"] + WINDOW_S):
-            mark(elapsed)  # the last mark is always at the end: a fixed span is measured
-        return done
+        due = MARKS_AT[len(marks)]
+        if elapsed >= due and (runner.queued <= MARK_QUIET or elapsed >= due + MARK_WAIT_S):
+            mark(elapsed)  # one mark per scheduled time, the last at the end: always all
+        return len(marks) == len(MARKS_AT)
 
     # Traced from the start: bounded buffers (ring buffers, caches) fill with traced objects
     # during the warm-up and then only replace them. Started at the end of the warm-up, a
@@ -122,13 +143,15 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     print(f"ledger {led}")
     assert led["unaccounted"] == 0 and led["held"] == led["queued"] == 0
 
-    # memory: traced Python memory from the first mark (after the warm-up) to the last, at
-    # the end, grows by less than 100 kB + 20 bytes per event. The latency history alone
-    # takes ~30 bytes per frame (~6 per event, 4 IMU samples per frame); measured 8 bytes per
-    # event (2026-11-26). Keeping one sample or record per event (hundreds of bytes each)
-    # exceeds it, over any soak length.
+    # memory: traced Python memory (live, after a full collection) from the first mark (after
+    # the warm-up) to the last, at the end, grows by less than 100 kB + 20 bytes per event.
+    # The latency history alone takes ~32 bytes per frame (~6 per event, 4 IMU samples per
+    # frame); measured 8-10 bytes per event (2026-11-26). Without the collections the same
+    # span measured 20-47 (the free lists filling, see mark()). A sink keeping every record
+    # measured ~390 bytes per event; keeping one sample or record per event exceeds the
+    # limit, over any soak length.
     mem = [m[0] for m in marks]
-    assert len(mem) >= 4, marks
+    assert len(marks) == len(MARKS_AT), marks  # every scheduled mark, the last at the end
     growth = mem[-1] - mem[0]
     events = (marks[-1][2] - marks[0][2]) * 5  # records ~ frames; 4 IMU samples per frame
     wall_h = np.array([m[4] for m in marks]) / 3600.0
@@ -136,7 +159,9 @@ def test_soak_memory_flat_and_latency_stable(tmp_path):
     rss = np.array([m[5] for m in marks], dtype=float)
     rss_slope = np.polyfit(wall_h, rss, 1)[0] if len(mem) > 2 else 0.0
     print(f"traced memory at the marks: {[round(m / 1e6, 2) for m in mem]} MB; growth "
-          f"{growth / 1e3:.0f} kB over ~{events} events; slope {slope / 1e3:.1f} kB/h traced, "
+          f"{growth / 1e3:.0f} kB over ~{events} events ({growth / max(events, 1):.1f} "
+          f"bytes per event); the collections at the marks freed "
+          f"{[round(f / 1e3) for f in freed]} kB; slope {slope / 1e3:.1f} kB/h traced, "
           f"{rss_slope / 1e6:.2f} MB/h resident (wall hours; {SOAK_S:g} s soak at {SPEED:g}x)")
     half = len(wall_h) // 2
     if len(wall_h) - half > 2:  # the second half: after the latency history is full
