@@ -146,6 +146,28 @@ def test_fast_record_equals_the_validating_constructor(run):
         _fast_record({**f, "x": math.nan})
 
 
+def test_single_lost_wheel_frames_are_counted_and_stamp_jitter_is_not():
+    # 25 Hz frames for 20 s with every 10th one lost (50 frames, each alone: no interval
+    # reaches gap_periods), then a 5-frame hole, and stamps jittered by up to 0.4 periods:
+    # every lost frame is counted, the hole alone is a gap, and jitter loses nothing.
+    T = EXAMPLE_ROBOT.encode_sampling_time
+    rng = np.random.default_rng(3)
+    k = np.arange(1, 502)  # the last one kept: a frame lost after the last is unobservable
+    kept = k[(k % 10 != 0) & ((k < 300) | (k > 304))]
+    stamps = kept * T + rng.uniform(-0.2, 0.2, kept.size) * T
+    lost = k.size - kept.size  # 49 single frames (k = 10 .. 500 but 300) + the hole's 5
+    g, a = np.zeros(3), np.array([0.0, 0.0, 9.80665])
+    pipe = FusionPipeline(RobotConfig(chassis=EXAMPLE_ROBOT))
+    with pipe:
+        for t in stamps:
+            pipe.push(ImuSample(float(t) - 0.001, g, a))
+            pipe.push(WheelTicks(float(t), 0, 0))
+    s = pipe.finish_stats()
+    assert s.wheel_frames == kept.size
+    assert s.frames_missing == lost == 54
+    assert s.gap_count == 1 and s.gaps[0].missing == 5  # k = 300 .. 304
+
+
 def test_out_of_order_inputs_are_dropped_and_counted_and_gaps_reported():
     robot = RobotConfig(chassis=EXAMPLE_ROBOT)
     recs = []

@@ -192,8 +192,9 @@ def _print_result(r, level_note: bool = True) -> None:
           f"turning frames whose yaw rate was not trusted {s['wheel_rate_distrusted']}, "
           f"encoder faults (zero ticks while the IMU moved, not "
           f"fused) {s['encoder_faults']}, late inputs fused {s['late_applied']}, dropped "
-          f"{s['late_dropped']}, invalid {s['invalid']}; wheel gaps {s['gap_count']} "
-          f"({s['frames_missing']} frames missing), IMU gaps {s['attitude_gaps']}, "
+          f"{s['late_dropped']}, invalid {s['invalid']}; wheel frames missing "
+          f"{s['frames_missing']} ({s['gap_count']} gaps), "
+          f"IMU gaps {s['attitude_gaps']}, "
           f"speeds forgotten after a gap {s['speed_resets']}")
     for note in r.notes:
         print(f"warning: {note}")

@@ -408,7 +408,7 @@ def _status(pipe, runner) -> str:
     s = pipe.finish_stats()
     p50, p99 = pipe.latency_percentiles(50, 99)
     parts = [f"{s.wheel_frames} frames, {s.imu_samples} IMU samples, {s.records} records",
-             f"{s.gap_count} wheel gaps ({s.frames_missing} frames missing), "
+             f"{s.frames_missing} wheel frames missing ({s.gap_count} gaps), "
              f"{s.attitude_gaps} IMU gaps, {s.speed_resets} speeds forgotten after a gap",
              f"{s.slips} slips, {s.zupts} ZUPTs"]
     if runner is not None:

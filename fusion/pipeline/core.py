@@ -179,7 +179,9 @@ class PipelineStats:
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
-        gap_count: gaps seen in total; frames_missing: frames missing in them.
+        gap_count: gaps seen in total. frames_missing: wheel frames missing in all (every
+            interval of at least 1.5 periods counts ``round(interval/period) - 1``: single
+            lost frames too, not only those in gaps).
         gyro_turn: rad, the gyro's yaw rate about the vertical (as fused, bias included)
             integrated over the accepted IMU samples; gyro_time: s it spans.
         wheel_turn: rad, the heading change of the wheel frames ((right - left) travel /
@@ -863,16 +865,20 @@ class FusionPipeline(Lifecycle):
         return f.update_batch(gyro, accel, timestamps=t, still=still, known_accel=known)
 
     def _note_gaps(self, wheel_t: NDArray[np.float64]) -> None:
-        """Record the wheel-frame gaps before each accepted frame (the first frame has none)."""
+        """Count the wheel frames missing before each accepted frame (an interval of at
+        least 1.5 periods: ``round(dt/T) - 1`` frames; a single lost frame too) and record
+        the gaps longer than ``gap_periods`` periods (the first frame has none)."""
         prev = np.concatenate([[self._last_wheel_t], wheel_t[:-1]])
         dt = wheel_t - prev
+        # before the first frame prev is -inf: dt is inf, nothing missing
+        finite = np.isfinite(dt)
+        lost = np.rint(dt[finite] / self.period) - 1.0
+        self.stats.frames_missing += int(lost[lost >= 1.0].sum())
         limit = self._gap_periods * self.period
-        # before the first frame prev is -inf: dt is inf, not a gap
-        for i in np.flatnonzero((dt > limit) & np.isfinite(dt)).tolist():
+        for i in np.flatnonzero((dt > limit) & finite).tolist():
             missing = max(1, round(float(dt[i]) / self.period) - 1)
             self.stats.gaps.append(WheelGap(float(prev[i]), float(wheel_t[i]), missing))
             self.stats.gap_count += 1
-            self.stats.frames_missing += missing
 
     def _run(self, kinds, t_eff, a, b, stamps, refs, flush: bool) -> None:
         """Feed arrival-ordered events to the compiled core in chunks and publish."""

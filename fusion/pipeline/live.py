@@ -402,8 +402,8 @@ class LiveRunner:
 
     def status(self) -> dict[str, Any]:
         """A status record: the ledger, per-source health, what is known missing upstream
-        (IMU samples the driver lost, wheel frames missing in gaps, frames the link's own
-        queue dropped), latency percentiles (s, robot time)."""
+        (IMU samples the driver lost, wheel frames missing, singly or in gaps, frames the
+        link's own queue dropped), latency percentiles (s, robot time)."""
         p50, p99 = self.pipeline.latency_percentiles(50, 99)
         return {"ledger": self.ledger(),
                 "sources": {n: dict(h.__dict__, last_error=None if h.last_error is None
