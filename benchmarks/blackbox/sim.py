@@ -188,6 +188,14 @@ def ar1(rng, n, dt, tau, rms):
 
 
 # ----------------------------------------------------------------------------- simulate
+def _friction_circle(fx: float, fy: float, limit: float) -> tuple[float, float]:
+    """A contact force (N) scaled down onto the friction circle of radius ``limit`` (N)."""
+    mag = math.sqrt(fx * fx + fy * fy)
+    if mag > limit:
+        return fx * limit / mag, fy * limit / mag
+    return fx, fy
+
+
 def simulate(c: SimConfig) -> dict:
     rng = np.random.default_rng(
         c.seed * 7919 + {"plain": 1, "all": 2, "dead": 3, "moving": 4}[c.scenario]
@@ -279,18 +287,8 @@ def simulate(c: SimConfig) -> dict:
         fyl = -cy * vl
         fxr = kx * (rim_R[i] - vxr)
         fyr = -cy * vl
-        lim = mu_L[i] * Nw
-        mag = sqrt(fxl * fxl + fyl * fyl)
-        if mag > lim:
-            s = lim / mag
-            fxl *= s
-            fyl *= s
-        lim = mu_R[i] * Nw
-        mag = sqrt(fxr * fxr + fyr * fyr)
-        if mag > lim:
-            s = lim / mag
-            fxr *= s
-            fyr *= s
+        fxl, fyl = _friction_circle(fxl, fyl, mu_L[i] * Nw)
+        fxr, fyr = _friction_circle(fxr, fyr, mu_R[i] * Nw)
         # caster: rolling resistance opposite its contact velocity
         vcx = u
         vcy = vl + r * cxp
