@@ -37,7 +37,6 @@ from fusion.planar.imu_motion import (
     imu_motion_codes,
 )
 from fusion.planar.model import NX
-from fusion.types.constants import STANDARD_GRAVITY
 
 BAG = Path(__file__).resolve().parent.parent / "datasets" / "rosbag" / "jackal_sim_test2.bag"
 RAW_MPU6050 = Path(__file__).resolve().parent.parent / "datasets" / "mpu6050_raw"
@@ -156,9 +155,7 @@ def test_imu_motion_separates_rest_from_driving_vibration():
 def _real_mpu6050(name: str):
     """A bundled raw MPU6050 recording (100 Hz, datasets/mpu6050_raw) in SI units."""
     log = read_mpu6050_csv(RAW_MPU6050 / name)
-    gyro = np.radians(log.gyro / log.gyro_lsb_per_dps)
-    accel = log.accel / log.accel_lsb_per_g * STANDARD_GRAVITY
-    return log.t, gyro, accel
+    return log.t, log.gyro_si(), log.accel_si()
 
 
 def test_a_real_mpu6050_at_rest_is_still_at_100_and_33_hz():

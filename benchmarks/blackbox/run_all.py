@@ -12,6 +12,9 @@ run as a log directory, replays it with ``python -m fusion replay`` exactly as a
 (a subprocess on this checkout), and scores the fused CSV, wheel-only dead reckoning and a
 gyro-at-stops baseline (its own, written from the logs alone) against the truth.
 
+It imports nothing of the library (its own CSV reading, angle wrapping and baselines): what
+it scores comes from the files alone, as an outside check should.
+
 Scenarios: plain (white noise, constant bias), all (every error), dead (all + 8 s of zero ticks
 while driving), moving (all, driving from the first sample, first stop after ~70 s).
 
