@@ -454,6 +454,7 @@ def simulate(c: SimConfig) -> dict:
         imu=(imu_t, g_s, a_s),
         truth=truth,
         bias_vert=bias_vert,
+        imu_to_base=R_bi,
         gyro_scale_eff=float((R_bi @ M @ R_ib)[2, 2]),
         slips=slip_list,
         dead=dead,
