@@ -20,6 +20,7 @@ from fusion.evaluation.physics_sim.mission import Mission, indoor_mission
 from fusion.evaluation.physics_sim.sensor_model import SensorModel, all_errors, plain_sensors
 from fusion.evaluation.physics_sim.sensors import sample_encoders, sample_imu
 from fusion.geometry.kinematics import DiffDriveParams
+from fusion.geometry.mount import mount_matrix
 from fusion.planar.robot import RobotConfig
 
 __all__ = ["SCENARIOS", "PhysicsRun", "driving_window", "physics_scenario", "simulate_physics"]
@@ -83,6 +84,26 @@ class PhysicsRun:
         interpolation of the 1 kHz truth."""
         t = np.asarray(t, dtype=float)
         return np.column_stack([np.interp(t, self.truth_t, self.truth[:, j]) for j in range(3)])
+
+    def reference_heading(self) -> NDArray[np.float64]:
+        """(N,) heading (rad, continuous) at the IMU stamps ``imu_t``, integrated from the gyro
+        with the TRUE bias removed (its temperature drift and the g-sensitivity's share of
+        gravity included) about the TRUE base vertical (the real mount), from the true start.
+
+        What is left are the errors nothing on the robot reveals: the gyro's scale and
+        cross-axis errors, the rest of its g-sensitivity, vibration and noise. Without an
+        absolute heading or a gyro-scale calibration no estimator is expected to do much
+        better on yaw (errors can cancel, so it is a reference, not a strict bound).
+        """
+        s = self.sensors
+        R = mount_matrix(s.mount_rpy)  # IMU frame -> base frame
+        gravity = R.T @ np.array([0.0, 0.0, self.body.gravity])  # specific force at rest
+        g_sens = np.asarray(s.gyro_g_sensitivity, dtype=float).reshape(3, 3)
+        bias = s.gyro_bias_at(self.imu_t_true) + g_sens @ gravity
+        rate = (self.gyro - bias) @ R[2]  # about the base vertical
+        t = self.imu_t
+        turned = np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))))
+        return self.truth_at(t[:1])[0, 2] + turned
 
     def dead_windows(self) -> tuple[tuple[float, float], ...]:
         """The dead-encoder windows, ``(start s, duration s)``."""
