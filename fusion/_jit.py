@@ -6,18 +6,57 @@ environment variable ``FUSION_DISABLE_JIT=1`` to force the interpreted path (tes
 check that both paths agree).
 
 numba's on-disk cache (``cache=True``, files in ``__pycache__``) is keyed by the source file of
-each compiled function only: a compiled function that calls one from another module (the EKF
-core calls :mod:`fusion.planar.model`) keeps its cached machine code when only that other
-module changes. After editing such a module, delete the ``*.nbi``/``*.nbc`` files or touch the
-caller's file (tests/test_ekf.py's filterpy reference, which calls the model directly, fails
-on such a stale core).
+each compiled function only: a compiled function that calls one from another module (the
+pipeline's event core calls the EKF core, which calls :mod:`fusion.planar.model`) would keep
+its cached machine code when only that other module changed, and run the old code. So on
+import, when the compiled sources (every module of the package that uses :func:`njit`) differ
+from those the cache was built from, every cached file of the package is dropped first
+(:func:`_drop_stale_caches`; a fingerprint in ``fusion/__pycache__``): editing one core costs
+one recompilation of all of them, never a stale one.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
+from pathlib import Path
 
 __all__ = ["HAVE_NUMBA", "compiled_entry_point", "njit"]
+
+_PACKAGE = Path(__file__).resolve().parent
+_FINGERPRINT = "numba-sources.sha256"
+
+
+def _compiled_sources_digest(root: Path) -> str:
+    """SHA-256 over the path and bytes of every module under ``root`` that uses ``njit``."""
+    digest = hashlib.sha256()
+    for path in sorted(root.rglob("*.py")):
+        data = path.read_bytes()
+        if b"njit" in data:
+            digest.update(path.relative_to(root).as_posix().encode() + b"\0" + data + b"\0")
+    return digest.hexdigest()
+
+
+def _drop_stale_caches(root: Path = _PACKAGE) -> bool:
+    """Delete numba's cached files (``*.nbi``, ``*.nbc``) under ``root`` when the compiled
+    sources changed since they were written; returns True when it did. Best effort: a
+    read-only install (nothing of ours cached there) is left alone."""
+    digest = _compiled_sources_digest(root)
+    stamp = root / "__pycache__" / _FINGERPRINT
+    try:
+        if stamp.read_text() == digest:
+            return False
+    except OSError:
+        pass
+    try:
+        for cached in root.rglob("__pycache__/*.nb[ic]"):
+            cached.unlink(missing_ok=True)
+        stamp.parent.mkdir(exist_ok=True)
+        stamp.write_text(digest)
+    except OSError:
+        return False
+    return True
+
 
 try:
     if os.environ.get("FUSION_DISABLE_JIT", "") not in ("", "0"):
@@ -28,6 +67,8 @@ try:
 except ImportError:
     _numba = None
     HAVE_NUMBA = False
+else:
+    _drop_stale_caches()
 
 
 def njit(*args, **kwargs):
