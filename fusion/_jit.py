@@ -5,14 +5,19 @@ it the very same Python functions run interpreted, giving identical results more
 environment variable ``FUSION_DISABLE_JIT=1`` to force the interpreted path (tests use it to
 check that both paths agree).
 
-numba's on-disk cache (``cache=True``, files in ``__pycache__``) is keyed by the source file of
-each compiled function only: a compiled function that calls one from another module (the
-pipeline's event core calls the EKF core, which calls :mod:`fusion.planar.model`) would keep
-its cached machine code when only that other module changed, and run the old code. So on
-import, when the compiled sources (every module of the package that uses :func:`njit`) differ
-from those the cache was built from, every cached file of the package is dropped first
-(:func:`_drop_stale_caches`; a fingerprint in ``fusion/__pycache__``): editing one core costs
-one recompilation of all of them, never a stale one.
+numba's on-disk cache (``cache=True``) checks each compiled function against its own source
+file only: a function that calls one from another module (the pipeline's event core calls the
+EKF core, which calls :mod:`fusion.planar.model`), or reads a module-level constant frozen into
+its machine code, kept its cached code when only that other module changed, and ran the old
+code. So every function of this package is cached under a stamp that also holds a SHA-256 of
+all the package's Python sources, taken when this module is imported
+(:class:`_PackageStampLocator`, placed first in numba's list of cache locators; the files go
+where numba would put them, ``__pycache__`` or ``NUMBA_CACHE_DIR``). numba treats a cache entry
+with another stamp as missing and overwrites it, so a process that imported older sources can
+only write entries that a newer one ignores. Left: a file edited between this module's import
+and the import of the module compiled from it is stamped with the older digest (the same window
+numba's own per-file stamp has). When numba's internal caching API is not what this expects,
+caching is switched off rather than risk running stale code.
 """
 
 from __future__ import annotations
@@ -24,38 +29,73 @@ from pathlib import Path
 __all__ = ["HAVE_NUMBA", "compiled_entry_point", "njit"]
 
 _PACKAGE = Path(__file__).resolve().parent
-_FINGERPRINT = "numba-sources.sha256"
 
 
-def _compiled_sources_digest(root: Path) -> str:
-    """SHA-256 over the path and bytes of every module under ``root`` that uses ``njit``."""
+def package_sources_digest(root: Path = _PACKAGE) -> str:
+    """SHA-256 over the relative path and bytes of every ``*.py`` file under ``root``."""
     digest = hashlib.sha256()
     for path in sorted(root.rglob("*.py")):
-        data = path.read_bytes()
-        if b"njit" in data:
-            digest.update(path.relative_to(root).as_posix().encode() + b"\0" + data + b"\0")
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0")
+        digest.update(path.read_bytes() + b"\0")
     return digest.hexdigest()
 
 
-def _drop_stale_caches(root: Path = _PACKAGE) -> bool:
-    """Delete numba's cached files (``*.nbi``, ``*.nbc``) under ``root`` when the compiled
-    sources changed since they were written; returns True when it did. Best effort: a
-    read-only install (nothing of ours cached there) is left alone."""
-    digest = _compiled_sources_digest(root)
-    stamp = root / "__pycache__" / _FINGERPRINT
+def make_package_locator(root: Path, digest: str, locator_classes):
+    """A numba cache locator class for functions defined in files under ``root``: it finds the
+    locator numba would use among ``locator_classes`` (tried in order) and stamps its entries
+    with ``(numba's own source stamp, digest)``. Functions from other files are left to
+    numba (``from_function`` returns None)."""
+    root = Path(root).resolve()
+
+    class _PackageStampLocator:
+        def __init__(self, inner):
+            self._inner = inner
+
+        @classmethod
+        def from_function(cls, py_func, py_file):
+            try:
+                inside = Path(py_file).resolve().is_relative_to(root)
+            except (OSError, ValueError):
+                inside = False
+            if not inside:
+                return None
+            for other in locator_classes:
+                if other is cls:
+                    continue
+                inner = other.from_function(py_func, py_file)
+                if inner is not None:
+                    return cls(inner)
+            return None
+
+        def ensure_cache_path(self):
+            self._inner.ensure_cache_path()
+
+        def get_cache_path(self):
+            return self._inner.get_cache_path()
+
+        def get_disambiguator(self):
+            return self._inner.get_disambiguator()
+
+        def get_source_stamp(self):
+            return (self._inner.get_source_stamp(), digest)
+
+    return _PackageStampLocator
+
+
+def _install_package_locator() -> bool:
+    """Put this package's stamping locator first in numba's list; False when numba's internal
+    API has changed (then nothing is cached)."""
     try:
-        if stamp.read_text() == digest:
+        from numba.core import caching
+
+        classes = caching.CacheImpl._locator_classes
+        if not isinstance(classes, list):
             return False
-    except OSError:
-        pass
-    try:
-        for cached in root.rglob("__pycache__/*.nb[ic]"):
-            cached.unlink(missing_ok=True)
-        stamp.parent.mkdir(exist_ok=True)
-        stamp.write_text(digest)
-    except OSError:
+        locator = make_package_locator(_PACKAGE, package_sources_digest(), classes)
+        classes.insert(0, locator)
+        return True
+    except (ImportError, AttributeError, OSError):
         return False
-    return True
 
 
 try:
@@ -67,14 +107,15 @@ try:
 except ImportError:
     _numba = None
     HAVE_NUMBA = False
+    _CACHE_IS_SAFE = False
 else:
-    _drop_stale_caches()
+    _CACHE_IS_SAFE = _install_package_locator()
 
 
 def njit(*args, **kwargs):
     """``numba.njit`` (no fastmath: IEEE results equal to the interpreted path), or a no-op."""
     if _numba is not None:
-        kwargs.setdefault("cache", True)
+        kwargs.setdefault("cache", _CACHE_IS_SAFE)
         return _numba.njit(*args, **kwargs)
     if args and callable(args[0]):
         return args[0]
