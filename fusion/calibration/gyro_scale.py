@@ -35,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.integrate import trapezoid
 
 __all__ = ["GyroScaleCalibration", "calibrate_gyro_scale", "combine_gyro_scales"]
 
@@ -167,7 +168,7 @@ def calibrate_gyro_scale(
     bias = b0 + (b1 - b0) * (t - tb0) / (tb1 - tb0)  # linear drift between the rests
     span = slice(int(np.flatnonzero(before)[-1]), int(np.flatnonzero(after)[0]) + 1)
     ts, rs = t[span], rate[span] - bias[span]
-    angle = float(np.sum(0.5 * (rs[1:] + rs[:-1]) * np.diff(ts)))
+    angle = float(trapezoid(rs, ts))
     declared = 2.0 * math.pi * turns
     measured_turns = angle / (2.0 * math.pi)
     scale = angle / declared - 1.0

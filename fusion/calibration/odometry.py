@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.integrate import cumulative_trapezoid
 
 from fusion.geometry.kinematics import DiffDriveParams
 
@@ -199,7 +200,7 @@ def calibrate_odometry(
     bias, _ = rest_bias(it, gz, wt, tk, T, latency=latency)
     rate = gz - bias
     # cumulative heading from the gyro (trapezoid), exact for a piecewise-linear rate
-    G = np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(it))))
+    G = cumulative_trapezoid(rate, it, initial=0.0)
 
     # windows of consecutive frames (a gap > 1.5 periods starts a new run)
     gap = np.diff(wt) > 1.5 * T

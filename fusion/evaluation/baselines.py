@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.integrate import cumulative_trapezoid
 
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.planar.odometry import WheelOdometry
@@ -154,7 +155,7 @@ def _track(imu_t, gyro_z, stops, rejected, frame_t, frame_dt, distance,
         bias[imu_t >= end] = b
         still[(imu_t >= start) & (imu_t <= end)] = True
     rate = np.where(still, 0.0, gyro_z - bias)
-    heading = np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(imu_t))))
+    heading = cumulative_trapezoid(rate, imu_t, initial=0.0)
     mid = np.interp(frame_t - 0.5 * frame_dt, imu_t, heading)
     poses = np.column_stack([np.cumsum(distance * np.cos(mid)),
                              np.cumsum(distance * np.sin(mid)),

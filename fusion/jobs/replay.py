@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.integrate import trapezoid
 
 from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
 from fusion.evaluation.trust import TrustWarning
@@ -503,7 +504,7 @@ def _distance(t: NDArray[np.float64], v: NDArray[np.float64]) -> float:
     """Distance travelled, m: the integral of the fused |v| (the polyline through 100 Hz
     position estimates would add their noise)."""
     v = np.abs(v)
-    return float(np.sum(0.5 * (v[1:] + v[:-1]) * np.diff(t)))
+    return float(trapezoid(v, t))
 
 
 def distance_travelled(table: NDArray[np.float64]) -> float:

@@ -13,12 +13,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.integrate import cumulative_trapezoid
 
 from fusion.evaluation.physics_sim.body import BodyParams, ControllerParams
 from fusion.evaluation.physics_sim.dynamics import BodyTrace, simulate_body
 from fusion.evaluation.physics_sim.mission import Mission, indoor_mission
 from fusion.evaluation.physics_sim.sensor_model import SensorModel, all_errors, plain_sensors
 from fusion.evaluation.physics_sim.sensors import sample_encoders, sample_imu
+from fusion.evaluation.trajectory import yaw_rmse
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.geometry.mount import mount_matrix
 from fusion.planar.robot import RobotConfig
@@ -86,9 +88,10 @@ class PhysicsRun:
         return np.column_stack([np.interp(t, self.truth_t, self.truth[:, j]) for j in range(3)])
 
     def reference_heading(self) -> NDArray[np.float64]:
-        """(N,) heading (rad, continuous) at the IMU stamps ``imu_t``, integrated from the gyro
-        with the TRUE bias removed (its temperature drift and the g-sensitivity's share of
-        gravity included) about the TRUE base vertical (the real mount), from the true start.
+        """(N,) heading (rad, continuous) at the IMU samples' TRUE times ``imu_t_true``,
+        integrated over those times from the gyro with the TRUE bias removed (its temperature
+        drift and the g-sensitivity's share of gravity included) about the TRUE base vertical
+        (the real mount), from the true heading at the first sample.
 
         What is left are the errors nothing on the robot reveals: the gyro's scale and
         cross-axis errors, the rest of its g-sensitivity, vibration and noise. Without an
@@ -99,11 +102,13 @@ class PhysicsRun:
         R = mount_matrix(s.mount_rpy)  # IMU frame -> base frame
         gravity = R.T @ np.array([0.0, 0.0, self.body.gravity])  # specific force at rest
         g_sens = np.asarray(s.gyro_g_sensitivity, dtype=float).reshape(3, 3)
-        bias = s.gyro_bias_at(self.imu_t_true) + g_sens @ gravity
-        rate = (self.gyro - bias) @ R[2]  # about the base vertical
-        t = self.imu_t
-        turned = np.concatenate(([0.0], np.cumsum(0.5 * (rate[1:] + rate[:-1]) * np.diff(t))))
-        return self.truth_at(t[:1])[0, 2] + turned
+        t = self.imu_t_true
+        rate = (self.gyro - (s.gyro_bias_at(t) + g_sens @ gravity)) @ R[2]  # base vertical
+        return self.truth_at(t[:1])[0, 2] + cumulative_trapezoid(rate, t, initial=0.0)
+
+    def reference_yaw_rmse(self) -> float:
+        """Yaw RMSE (rad) of :meth:`reference_heading` against the true heading."""
+        return yaw_rmse(self.reference_heading(), self.truth_at(self.imu_t_true)[:, 2])
 
     def dead_windows(self) -> tuple[tuple[float, float], ...]:
         """The dead-encoder windows, ``(start s, duration s)``."""
