@@ -385,6 +385,7 @@ def test_nav_msgs_odometry_covariance_layout():
     np.testing.assert_array_equal(pose, pose.T)
 
 
+@pytest.mark.slow  # 12 s interpreted: not repeated without numba (.ci/run)
 def test_covariance_stays_symmetric_positive_definite_over_a_million_steps():
     # A tight loop on the compiled step: a 100 s degraded mission (gyro 100 Hz, wheels 25 Hz,
     # slips, ZUPTs) repeated end to end until 1e6 events, plus an absolute yaw every 10 s.
@@ -454,6 +455,7 @@ def test_twist_input_matches_the_tick_path():
     np.testing.assert_array_equal(one.x, fast.x)
 
 
+@pytest.mark.slow  # 12 s interpreted: not repeated without numba (.ci/run)
 def test_live_arrival_order_through_a_reorder_buffer_equals_the_batch():
     # Live: inputs arrive in host-stamp order, but a wheel frame is fused at the middle of its
     # period, i.e. half a period in the past. A ReorderBuffer of half a period (plus the
