@@ -55,6 +55,8 @@ class FilterpyReference:
         self.wheel_t: float | None = None
         self.yaw_budget = noise.yaw_fix_burst
         self.yaw_owed = 0.0  # heading correction beyond the budget, rad
+        # position error (m) driven into the pose along the heading held while owed
+        self.held_xy = np.zeros(2)
         self.stats = dict.fromkeys(("slips", "wheel_rate_distrusted", "zupts",
                                     "late_dropped", "late_applied", "invalid",
                                     "gyro_saturated", "encoder_faults", "updates",
@@ -92,6 +94,14 @@ class FilterpyReference:
         return self.fx - self.offset
 
     # -- time ------------------------------------------------------------------------------------
+    def reported_P(self) -> np.ndarray:
+        """P with the pose block about the held pose: the held pose is off the estimate by
+        d = (held_xy, -yaw_owed), so its mean square error is P + d d^T."""
+        d = np.array([*self.held_xy, -self.yaw_owed])
+        P = self.kf.P.copy()
+        P[:3, :3] += np.outer(d, d)
+        return P
+
     def _predict(self, dt: float, still: bool, now: float) -> None:
         n, kf = self.noise, self.kf
         f = n.still_scale if still else 1.0
@@ -104,6 +114,7 @@ class FilterpyReference:
         if self.after_slip:  # after a slipping frame the speed changes with nothing to hold it
             q_v = max(q_v, n.slip_accel_psd)
         kf.F = model.transition_jacobian(kf.x, dt)
+        before = kf.x[:2].copy()
         kf.Q = model.process_noise(dt, q_v, n.angular_accel_psd * f, n.bias_psd,
                                    n.calib_k_psd, n.calib_c_psd, n.gyro_scale_psd,
                                    n.distance_scale_psd)
@@ -112,6 +123,11 @@ class FilterpyReference:
         kf.Q[:2, :2] += np.array([[q_xx, q_xy], [q_xy, q_yy]])
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
+        # this step went along the held heading; along the estimate's, yaw_owed further, it
+        # would have been the same step rotated by yaw_owed
+        step = kf.x[:2] - before
+        c, s = math.cos(self.yaw_owed), math.sin(self.yaw_owed)
+        self.held_xy += step - np.array([[c, -s], [s, c]]) @ step
         if accel is not None:  # the accelerometer drives the speed: v += a dt
             kf.x[3] += accel * dt
 

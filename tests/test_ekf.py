@@ -126,7 +126,7 @@ def _core_and_reference(noise, kinds, t, a, b):
     for k in range(kinds.size):
         ref_status[k] = ref.step(kinds[k], t[k], a[k], b[k])
         ref_x[k] = ref.kf.x
-        ref_var[k] = np.diag(ref.kf.P)
+        ref_var[k] = np.diag(ref.reported_P())
     np.testing.assert_array_equal(status, ref_status)
     # measured: states within 5e-15, variances within 1.4e-12 (relative)
     np.testing.assert_allclose(out[:, :model.NX], ref_x, rtol=0, atol=1e-11)

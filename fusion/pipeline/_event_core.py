@@ -54,6 +54,7 @@ from fusion.planar._ekf_core import (
     EV_WHEELS_SLIP,
     NX,
     ROW_WIDTH,
+    reported_pose_covariance,
     step_core,
     write_state_row,
 )
@@ -198,7 +199,10 @@ def write_pub_row(pub, n_pub, x, P, aux, sched, stamp, status):
         row[U_X + i] = x[i]
     for i in range(5):
         for j in range(5):
-            row[U_P + 5 * i + j] = P[i, j]
+            if i < 3 and j < 3:  # the held pose's (fusion.planar._ekf_core.held_pose_offset)
+                row[U_P + 5 * i + j] = reported_pose_covariance(P, aux, i, j)
+            else:
+                row[U_P + 5 * i + j] = P[i, j]
     row[U_LAST_GYRO] = sched[S_LAST_GYRO]
     row[U_LAST_WHEEL] = sched[S_LAST_WHEEL]
     row[U_STAMP] = stamp
@@ -244,7 +248,7 @@ def _apply(heap_f, heap_i, row, x, P, aux, par, sched, rate, trace_mask, pub, n_
     if (trace_mask >> kind) & 1:
         out = trace[n_trace]
         out[0] = t
-        write_state_row(out, 1, x, P)
+        write_state_row(out, 1, x, P, aux)
         out[T_LEFT] = sched[S_LAST_LEFT]
         out[T_RIGHT] = sched[S_LAST_RIGHT]
         out[T_FLAGS] = aux[A_FLAGS]

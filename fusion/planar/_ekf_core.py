@@ -43,8 +43,8 @@ from fusion.planar.model import (
 )
 
 __all__ = ["ACCEL_HOLD", "AUX_SIZE", "PAR_SIZE", "ROW_WIDTH", "UNKNOWN_RATE_VAR",
-           "UNKNOWN_SPEED_VAR", "batch_core",
-           "predict_core", "step_core", "update_core"]
+           "UNKNOWN_SPEED_VAR", "batch_core", "held_pose_offset", "predict_core",
+           "reported_pose_covariance", "step_core", "update_core"]
 
 # par indices
 P_SPEED_RATIO = 0
@@ -148,7 +148,12 @@ A_FIT_SX = 41
 A_FIT_SY = 42
 A_FIT_SXX = 43
 A_FIT_SXY = 44
-AUX_SIZE = 45
+# the position error (m) the held heading has driven into the pose: while a heading correction
+# is owed (A_YAW_PENDING), the pose is propagated along a heading off by that amount
+# (held_pose_offset)
+A_HELD_X = 45
+A_HELD_Y = 46
+AUX_SIZE = 47
 #: s: a forward specific force older than this drives v no more (the IMU feed stopped)
 ACCEL_HOLD = 0.1
 #: (rad/s)^2 added to w's variance before the first gyro sample (A_FIRST_GYRO): w is then
@@ -437,8 +442,10 @@ def _predict_step(x, P, aux, par, t, h, q_v, q_w, q_v_accel):
     if driven:
         q_v = q_v_accel
     q_xx, q_xy, q_yy = odometry_noise(x, h, par[P_ODO_ALONG], par[P_ODO_CROSS])
+    x0, y0 = x[0], x[1]
     predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G],
                  par[P_Q_S])
+    _hold_step(aux, x[0] - x0, x[1] - y0)
     if driven:
         x[3] += accel * h
     P[0, 0] += q_xx
@@ -1021,15 +1028,54 @@ def step_core(x, P, aux, par, kind, t, a, b):
 
 
 @njit
-def write_state_row(out, o, x, P):
+def _hold_step(aux, dx, dy):
+    """Account for a step ``(dx, dy)`` (m) driven along the held heading: along the estimate's
+    (``A_YAW_PENDING`` rad further) it would have been that step turned by the owed angle;
+    the difference goes into ``A_HELD_X``, ``A_HELD_Y``."""
+    owed = aux[A_YAW_PENDING]
+    if owed == 0.0:
+        return
+    c = math.cos(owed)
+    s = math.sin(owed)
+    aux[A_HELD_X] += dx - (c * dx - s * dy)
+    aux[A_HELD_Y] += dy - (s * dx + c * dy)
+
+
+@njit
+def held_pose_offset(aux):
+    """``(dx m, dy m, dyaw rad)``: how far the held pose is from the filter's estimate.
+
+    A heading correction beyond the yaw budget is owed (``A_YAW_PENDING``, :func:`_rate_update`)
+    while ``P`` is that of the full update: the held heading is off by ``-owed``, and every
+    step driven along it puts into the position the difference to that step along the
+    estimate's heading (:func:`_hold_step`; ``A_HELD_X``, ``A_HELD_Y``), which rate
+    measurements never take back."""
+    return aux[A_HELD_X], aux[A_HELD_Y], -aux[A_YAW_PENDING]
+
+
+@njit
+def reported_pose_covariance(P, aux, i, j):
+    """Element ``(i, j)`` (i, j < 3) of the pose's mean square error about the held pose:
+    ``P + d d^T`` with ``d`` the :func:`held_pose_offset` (the held pose is the estimate
+    shifted by the known ``d``, so its error is the estimate's plus ``d``)."""
+    dx, dy, dyaw = held_pose_offset(aux)
+    d = (dx, dy, dyaw)
+    return P[i, j] + d[i] * d[j]
+
+
+@njit
+def write_state_row(out, o, x, P, aux):
     """One state row (:data:`ROW_WIDTH` values) into ``out[o:]``: the state ``x`` (NX), the
-    diagonal of ``P`` (NX) and its pose cross terms P[x,y], P[x,yaw], P[y,yaw]."""
+    diagonal of ``P`` (NX) and its pose cross terms P[x,y], P[x,yaw], P[y,yaw]; the pose
+    block is :func:`reported_pose_covariance` (that of the held pose)."""
     for i in range(NX):
         out[o + i] = x[i]
         out[o + NX + i] = P[i, i]
-    out[o + 2 * NX] = P[0, 1]
-    out[o + 2 * NX + 1] = P[0, 2]
-    out[o + 2 * NX + 2] = P[1, 2]
+    for i in range(3):
+        out[o + NX + i] = reported_pose_covariance(P, aux, i, i)
+    out[o + 2 * NX] = reported_pose_covariance(P, aux, 0, 1)
+    out[o + 2 * NX + 1] = reported_pose_covariance(P, aux, 0, 2)
+    out[o + 2 * NX + 2] = reported_pose_covariance(P, aux, 1, 2)
 
 
 @njit
@@ -1038,4 +1084,4 @@ def batch_core(x, P, aux, par, kinds, ts, aa, bb, out, status):
     (:func:`write_state_row`)."""
     for k in range(kinds.shape[0]):
         status[k] = step_core(x, P, aux, par, kinds[k], ts[k], aa[k], bb[k])
-        write_state_row(out[k], 0, x, P)
+        write_state_row(out[k], 0, x, P, aux)

@@ -258,8 +258,11 @@ class EkfNoise:
             correct the position (it follows from the motion model), and the heading by at
             most ``yaw_fix_burst + yaw_fix_rate*T`` (rad; rad/s) over any ``T`` s: a heading
             error that a better bias or wheel scale reveals is corrected at that pace, never
-            in a jump; what exceeds the allowance is owed and paid as it refills (the
-            covariance is that of the full correction), never dropped.
+            in a jump; what exceeds the allowance is owed and paid as it refills, never
+            dropped. ``P`` is that of the full correction; the covariance reported (state
+            rows, records, :meth:`PlanarEKF.reported_covariance`) is that of the pose held,
+            ``P`` plus the outer product of its known offset (the owed heading and the
+            position driven along the held one).
         late_tolerance: inputs at most this much older than the filter time are fused at the
             filter time, s; older ones are dropped.
         max_dt: longest single prediction step, s.
@@ -877,8 +880,20 @@ class PlanarEKF(ExtendedKalmanFilter):
         self.x, self.P, self._aux = x, P, aux
 
     def covariances_ros(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """``(pose_covariance, twist_covariance)`` in nav_msgs/Odometry layout."""
-        return odometry_covariances(self.P)
+        """``(pose_covariance, twist_covariance)`` in nav_msgs/Odometry layout; the pose's is
+        :meth:`reported_covariance`'s."""
+        return odometry_covariances(self.reported_covariance())
+
+    def reported_covariance(self) -> NDArray[np.float64]:
+        """``P`` with the pose block (x, y, yaw) about the pose held in ``x``: while a heading
+        correction is owed (the yaw budget, ``yaw_fix_rate``) ``P`` is that of the full
+        correction, and the held pose is off by a known amount
+        (:func:`fusion.planar._ekf_core.held_pose_offset`) that this adds (``P + d d^T``);
+        what the state rows and the pipeline's records report."""
+        d = np.array(core.held_pose_offset(self._aux))
+        reported = np.array(self.P, dtype=float)
+        reported[:3, :3] += np.outer(d, d)
+        return reported
 
     # -- streaming inputs --------------------------------------------------------------------
     def _step(self, kind: int, t: float, a: float, b: float) -> int:
