@@ -61,9 +61,10 @@ and on how many seeds the uncalibrated EKF is within 0.5 deg of it. Measured 202
 (moving-start: 7 of 8).
 
 NEES, measured 2026-11-27 (% of rows inside, worst seed; uncalibrated / calibrated): all
-68.3 / 59.0, all+dead 63.6 / 62.4, moving-start 93.7 / 64.3 (17.8 / 7.2 while the rows
-reported P alone: the heading a first stop corrects is paid at yaw_fix_rate, and the held
-pose's covariance is P plus its known offset, fusion.planar._ekf_core.held_pose_offset),
+68.3 / 59.0, all+dead 63.6 / 62.4, moving-start 93.7 / 64.4 (17.8 / 7.2 while the rows
+reported P alone, propagated at the held heading: the heading a first stop corrects is paid
+at yaw_fix_rate, and the held pose's covariance is the estimate's P plus the held pose's
+known offset, fusion.planar._ekf_core.held_pose_offset),
 plain 8.1 (underconfident: the gyro-scale and distance-scale priors, 3 % and 1 %, are far
 wider than the plain sensors' errors).
 """

@@ -113,6 +113,9 @@ class FilterpyReference:
             q_v = n.accel_speed_psd
         if self.after_slip:  # after a slipping frame the speed changes with nothing to hold it
             q_v = max(q_v, n.slip_accel_psd)
+        # P and the odometry noise are the estimate's, whose heading is yaw_owed further
+        # than the one held in kf.x
+        kf.x[2] += self.yaw_owed
         kf.F = model.transition_jacobian(kf.x, dt)
         before = kf.x[:2].copy()
         kf.Q = model.process_noise(dt, q_v, n.angular_accel_psd * f, n.bias_psd,
@@ -123,11 +126,13 @@ class FilterpyReference:
         kf.Q[:2, :2] += np.array([[q_xx, q_xy], [q_xy, q_yy]])
         kf.predict_x = lambda u=0: setattr(kf, "x", model.transition(kf.x, dt))
         kf.predict()
-        # this step went along the held heading; along the estimate's, yaw_owed further, it
-        # would have been the same step rotated by yaw_owed
+        kf.x[2] -= self.yaw_owed
+        # the held pose steps along the held heading: the estimate's step turned back
         step = kf.x[:2] - before
         c, s = math.cos(self.yaw_owed), math.sin(self.yaw_owed)
-        self.held_xy += step - np.array([[c, -s], [s, c]]) @ step
+        held_step = np.array([[c, s], [-s, c]]) @ step
+        kf.x[:2] = before + held_step
+        self.held_xy += held_step - step
         if accel is not None:  # the accelerometer drives the speed: v += a dt
             kf.x[3] += accel * dt
 

@@ -25,10 +25,12 @@ Outputs (preallocated by the caller, at least as many rows as events can be appl
 call: the heap size plus the new events):
 
 - ``pub`` rows, one per record due (:data:`PUB_WIDTH` columns, indices ``U_*``): the filter
-  time, ``x`` (8), ``P[:5, :5]`` row major (25), the refs of the last applied IMU sample and
-  wheel frame (-1: none yet), the stamp of the wheel frame or twist that triggered the record
-  (NaN for a rate tick), the EKF status of the triggering event and the flags of the last wheel
-  frame or twist (:data:`fusion.planar._ekf_core.FLAG_ZUPT`, ``FLAG_SLIP``, ``FLAG_FAULT``);
+  time, ``x`` (8), ``P[:5, :5]`` row major (25; its pose block that of the held pose,
+  :func:`fusion.planar._ekf_core.reported_pose_covariance`), the refs of the last applied
+  IMU sample and wheel frame (-1: none yet), the stamp of the wheel frame or twist that
+  triggered the record (NaN for a rate tick), the EKF status of the triggering event and the
+  flags of the last wheel frame or twist (:data:`fusion.planar._ekf_core.FLAG_ZUPT`,
+  ``FLAG_SLIP``, ``FLAG_FAULT``);
 - ``trace`` rows for every applied event whose kind is in ``trace_mask`` (bit ``1 << kind``):
   the event's effective time, the state row of
   :meth:`fusion.planar.ekf.PlanarEKF.process_batch` (state, diag(P), pose cross terms;

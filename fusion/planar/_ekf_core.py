@@ -185,7 +185,8 @@ EV_TWIST = 3
 EV_WHEELS_SLIP = 4
 # the forward specific force of an IMU sample (base frame x, m/s^2), at the IMU stamp
 EV_ACCEL = 5
-# a state row (batch output, pipeline trace): x (NX), diag(P) (NX), P[x,y], P[x,yaw], P[y,yaw]
+# a state row (batch output, pipeline trace): x (NX), diag(P) (NX), P[x,y], P[x,yaw], P[y,yaw];
+# the pose entries are reported_pose_covariance's (the held pose's)
 ROW_WIDTH = 2 * NX + 3
 
 
@@ -441,11 +442,7 @@ def _predict_step(x, P, aux, par, t, h, q_v, q_w, q_v_accel):
     driven = not math.isnan(accel)
     if driven:
         q_v = q_v_accel
-    q_xx, q_xy, q_yy = odometry_noise(x, h, par[P_ODO_ALONG], par[P_ODO_CROSS])
-    x0, y0 = x[0], x[1]
-    predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G],
-                 par[P_Q_S])
-    _hold_step(aux, x[0] - x0, x[1] - y0)
+    q_xx, q_xy, q_yy = _predict_held(x, P, aux, par, h, q_v, q_w)
     if driven:
         x[3] += accel * h
     P[0, 0] += q_xx
@@ -1028,17 +1025,32 @@ def step_core(x, P, aux, par, kind, t, a, b):
 
 
 @njit
-def _hold_step(aux, dx, dy):
-    """Account for a step ``(dx, dy)`` (m) driven along the held heading: along the estimate's
-    (``A_YAW_PENDING`` rad further) it would have been that step turned by the owed angle;
-    the difference goes into ``A_HELD_X``, ``A_HELD_Y``."""
+def _predict_held(x, P, aux, par, h, q_v, q_w):
+    """:func:`predict_core` over ``h`` s while the heading held in ``x`` may lag the
+    estimate's by the owed ``A_YAW_PENDING``: ``P`` (its Jacobian) and the odometry noise are
+    those of the estimate, at the heading ``x[2] + owed``; the held pose steps along the held
+    heading (the estimate's step turned back by the owed angle), and the difference goes into
+    ``A_HELD_X``, ``A_HELD_Y``. Returns the odometry noise's pose block
+    ``(q_xx, q_xy, q_yy)`` (:func:`fusion.planar.model.odometry_noise`)."""
     owed = aux[A_YAW_PENDING]
-    if owed == 0.0:
-        return
-    c = math.cos(owed)
-    s = math.sin(owed)
-    aux[A_HELD_X] += dx - (c * dx - s * dy)
-    aux[A_HELD_Y] += dy - (s * dx + c * dy)
+    yaw = x[2]
+    x[2] = yaw + owed
+    q = odometry_noise(x, h, par[P_ODO_ALONG], par[P_ODO_CROSS])
+    x0, y0 = x[0], x[1]
+    predict_core(x, P, h, q_v, q_w, par[P_Q_B], par[P_Q_K], par[P_Q_C], par[P_Q_G],
+                 par[P_Q_S])
+    if owed != 0.0:
+        x[2] -= owed
+        dx, dy = x[0] - x0, x[1] - y0
+        c = math.cos(owed)
+        s = math.sin(owed)
+        held_dx = c * dx + s * dy
+        held_dy = -s * dx + c * dy
+        x[0] = x0 + held_dx
+        x[1] = y0 + held_dy
+        aux[A_HELD_X] += held_dx - dx
+        aux[A_HELD_Y] += held_dy - dy
+    return q
 
 
 @njit
@@ -1046,10 +1058,10 @@ def held_pose_offset(aux):
     """``(dx m, dy m, dyaw rad)``: how far the held pose is from the filter's estimate.
 
     A heading correction beyond the yaw budget is owed (``A_YAW_PENDING``, :func:`_rate_update`)
-    while ``P`` is that of the full update: the held heading is off by ``-owed``, and every
-    step driven along it puts into the position the difference to that step along the
-    estimate's heading (:func:`_hold_step`; ``A_HELD_X``, ``A_HELD_Y``), which rate
-    measurements never take back."""
+    while ``P`` is that of the full update (and is propagated at the estimate's heading,
+    :func:`_predict_held`): the held heading is off by ``-owed``, and every step driven along
+    it puts into the position the difference to that step along the estimate's heading
+    (``A_HELD_X``, ``A_HELD_Y``), which rate measurements never take back."""
     return aux[A_HELD_X], aux[A_HELD_Y], -aux[A_YAW_PENDING]
 
 

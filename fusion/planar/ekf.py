@@ -27,7 +27,10 @@ scale and the position integrates ``v/(1 + s)``; its prior makes the position co
 with the distance driven, along the track. The class is a
 :class:`filterpy.kalman.ExtendedKalmanFilter`: ``x``, ``P``, ``y``, ``S``, ``K`` keep filterpy's
 meaning and filterpy's own ``update(z, HJacobian, Hx, R, residual=...)`` can fuse any extra
-measurement (a beacon, a scan match) into the same state. The model below is written once, in
+measurement (a beacon, a scan match) into the same state (``P`` is the estimate's: while a
+heading correction is owed, ``yaw_fix_rate``, the pose held in ``x`` lags it by a known offset
+and :meth:`PlanarEKF.reported_covariance` is the held pose's; an extra position measurement
+fused then does not clear that offset). The model below is written once, in
 :mod:`fusion.planar.model` (f, F, Q and each sensor's h, H, R); the built-in sensors run
 through the core :mod:`fusion.planar._ekf_core`, which computes filterpy's update equations
 (Joseph form) with a Cholesky solve instead of ``inv(S)``. numba compiles the core when it is
@@ -525,7 +528,8 @@ def odometry_covariances(P: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.
 
 def pose_covariances(states: ArrayLike) -> NDArray[np.float64]:
     """(N, 3, 3) covariances of ``(x, y, yaw)`` from the rows of :meth:`PlanarEKF.process_batch`
-    (m^2, m*rad, rad^2)."""
+    (m^2, m*rad, rad^2): those of the pose held in the rows
+    (:meth:`PlanarEKF.reported_covariance`)."""
     s = np.asarray(states, dtype=float)
     if s.ndim != 2 or s.shape[1] < core.ROW_WIDTH:
         raise ValueError(f"states must be (N, {core.ROW_WIDTH}) rows of process_batch, got "
@@ -974,7 +978,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         Returns ``(states, status)``: ``states[k, :NX]`` is ``[x, y, yaw, v, w, b, k, c, g, s]``
         after event k (yaw continuous), ``states[k, NX:2*NX]`` the diagonal of P and
         ``states[k, 2*NX:2*NX+3]`` its pose cross terms ``P[x,y], P[x,yaw], P[y,yaw]`` (see
-        :func:`pose_covariances`);
+        :func:`pose_covariances`; the pose block is that of the held pose,
+        :meth:`reported_covariance`);
         ``status[k]`` the update status. Exactly equal to calling the streaming methods one
         event at a time.
         """
