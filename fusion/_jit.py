@@ -11,19 +11,24 @@ EKF core, which calls :mod:`fusion.planar.model`), or reads a module-level const
 its machine code, kept its cached code when only that other module changed, and ran the old
 code. So every function of this package is cached under a stamp that also holds a SHA-256 of
 all the package's Python sources, taken when this module is imported
-(:class:`_PackageStampLocator`, placed first in numba's list of cache locators; the files go
+(:func:`make_package_locator`, placed first in numba's list of cache locators; the files go
 where numba would put them, ``__pycache__`` or ``NUMBA_CACHE_DIR``). numba treats a cache entry
-with another stamp as missing and overwrites it, so a process that imported older sources can
-only write entries that a newer one ignores. Left: a file edited between this module's import
+with another stamp as missing and overwrites it, so an entry written from older sources is not
+loaded by a process that imported newer ones. Left: a file edited between this module's import
 and the import of the module compiled from it is stamped with the older digest (the same window
-numba's own per-file stamp has). When numba's internal caching API is not what this expects,
-caching is switched off rather than risk running stale code.
+numba's own per-file stamp has); and numba reuses data file names across stamps and reads the
+index and the data file separately, so two processes of different source versions compiling
+the same function at the same instant could still cross (microseconds; numba's own race).
+Caching is switched off, with a warning, rather than risk running stale code when numba's
+internal caching API is not what this expects, when ``NUMBA_CACHE_LOCATOR_CLASSES`` replaces
+the locator list, or when the sources cannot be read (e.g. a zipped install).
 """
 
 from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from pathlib import Path
 
 __all__ = ["HAVE_NUMBA", "compiled_entry_point", "njit"]
@@ -32,11 +37,22 @@ _PACKAGE = Path(__file__).resolve().parent
 
 
 def package_sources_digest(root: Path = _PACKAGE) -> str:
-    """SHA-256 over the relative path and bytes of every ``*.py`` file under ``root``."""
+    """SHA-256 over the relative path and bytes of every ``*.py`` regular file under ``root``
+    (editor lock files and other dangling links are skipped).
+
+    Raises:
+        OSError: no source file under ``root`` (a zipped install), or one cannot be read.
+    """
     digest = hashlib.sha256()
+    n_files = 0
     for path in sorted(root.rglob("*.py")):
+        if not path.is_file():
+            continue
         digest.update(path.relative_to(root).as_posix().encode() + b"\0")
         digest.update(path.read_bytes() + b"\0")
+        n_files += 1
+    if n_files == 0:
+        raise OSError(f"no Python source files under {root}")
     return digest.hexdigest()
 
 
@@ -50,6 +66,13 @@ def make_package_locator(root: Path, digest: str, locator_classes):
     class _PackageStampLocator:
         def __init__(self, inner):
             self._inner = inner
+
+        def __getattr__(self, name):
+            # numba reads some attributes of its own locators directly (``_py_file`` when a
+            # function cannot be cached): those of the wrapped one
+            if name == "_inner":
+                raise AttributeError(name)
+            return getattr(self._inner, name)
 
         @classmethod
         def from_function(cls, py_func, py_file):
@@ -83,18 +106,22 @@ def make_package_locator(root: Path, digest: str, locator_classes):
 
 
 def _install_package_locator() -> bool:
-    """Put this package's stamping locator first in numba's list; False when numba's internal
-    API has changed (then nothing is cached)."""
+    """Put this package's stamping locator first in numba's list; False, with a warning, when
+    it cannot protect the cache (then nothing is cached)."""
     try:
-        from numba.core import caching
+        from numba.core import caching, config
 
+        if getattr(config, "CACHE_LOCATOR_CLASSES", ""):
+            raise RuntimeError("NUMBA_CACHE_LOCATOR_CLASSES replaces numba's locator list")
         classes = caching.CacheImpl._locator_classes
         if not isinstance(classes, list):
-            return False
+            raise AttributeError("numba.core.caching.CacheImpl._locator_classes is no list")
         locator = make_package_locator(_PACKAGE, package_sources_digest(), classes)
         classes.insert(0, locator)
         return True
-    except (ImportError, AttributeError, OSError):
+    except (ImportError, AttributeError, OSError, RuntimeError) as exc:
+        warnings.warn(f"fusion: numba's on-disk cache is off for the filter cores ({exc}); "
+                      "they are compiled in every process", RuntimeWarning, stacklevel=2)
         return False
 
 

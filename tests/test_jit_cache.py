@@ -32,8 +32,8 @@ _RUNNER = textwrap.dedent("""
         classes = caching.CacheImpl._locator_classes
         classes.insert(0, make_package_locator(root, package_sources_digest(root), classes))
     sys.path.insert(0, str(root.parent))
-    from pkg.caller import f
-    print(f(1.0))
+    module = __import__("pkg." + sys.argv[3], fromlist=["f"])
+    print(module.f(1.0))
 """)
 
 
@@ -61,11 +61,12 @@ def _clean_env():
     return env
 
 
-def _run(tmp_path, root, mode, env):
+def _run(tmp_path, root, mode, env, module="caller"):
     runner = tmp_path / "runner.py"
     runner.write_text(_RUNNER)
-    out = subprocess.run([sys.executable, str(runner), str(root), mode], env=env,
-                         capture_output=True, text=True, timeout=120, check=True)
+    out = subprocess.run([sys.executable, str(runner), str(root), mode, module], env=env,
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
     return float(out.stdout.strip())
 
 
@@ -107,3 +108,49 @@ def test_digest_covers_every_python_file(tmp_path):
     assert package_sources_digest(root) == before
     (root / "sub" / "constants.py").write_text("GRAVITY = 9.80665\n")
     assert package_sources_digest(root) != before
+
+
+def test_a_function_numba_cannot_cache_still_compiles(tmp_path):
+    """A global array over 1 MB is a dynamic global: numba compiles without caching and warns;
+    it reads the locator's ``_py_file`` for that, which the stamping locator hands on."""
+    pytest.importorskip("numba")
+    root = _package(tmp_path)
+    (root / "big.py").write_text(
+        "import numpy as np\nfrom numba import njit\n\nBIG = np.arange(300_000.0)\n\n"
+        "@njit(cache=True)\ndef f(x):\n    return BIG[int(x) + 1]\n")
+    assert _run(tmp_path, root, "stamped", _clean_env(), module="big") == 2.0
+
+
+def test_the_package_cache_is_stamped_when_numba_is_there():
+    numba = pytest.importorskip("numba")
+    import fusion._jit as jit
+
+    if not jit.HAVE_NUMBA:
+        pytest.skip("FUSION_DISABLE_JIT is set")
+    assert jit._CACHE_IS_SAFE
+    first = numba.core.caching.CacheImpl._locator_classes[0]
+    assert first.__name__ == "_PackageStampLocator"
+
+
+def test_a_replaced_locator_list_switches_the_cache_off():
+    """``NUMBA_CACHE_LOCATOR_CLASSES`` makes numba ignore the list the stamp is in: caching
+    the cores would then run stale code, so it is off, and the user is told."""
+    pytest.importorskip("numba")
+    env = _clean_env()
+    env["NUMBA_CACHE_LOCATOR_CLASSES"] = "InTreeCacheLocator"
+    out = subprocess.run([sys.executable, "-c", "import fusion._jit as j; print(j._CACHE_IS_SAFE)"],
+                         env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "False"
+    assert "cache is off" in out.stderr and "NUMBA_CACHE_LOCATOR_CLASSES" in out.stderr
+
+
+def test_digest_skips_dangling_links_and_refuses_an_empty_tree(tmp_path):
+    root = tmp_path / "p"
+    root.mkdir()
+    with pytest.raises(OSError, match="no Python source files"):
+        package_sources_digest(root)  # e.g. a zipped install: nothing to stamp with
+    (root / "core.py").write_text("X = 1\n")
+    before = package_sources_digest(root)
+    (root / ".#core.py").symlink_to(root / "missing")  # an editor's lock file
+    assert package_sources_digest(root) == before
