@@ -22,6 +22,7 @@ from fusion.io.errors import LogFormatError
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.run_config import ConfigError, RunConfig, load_config
 from fusion.pipeline.core import FusionPipeline
+from fusion.planar import _ekf_core as core
 from fusion.planar.ekf import EkfNoise, PlanarEKF
 from fusion.planar.model import NX
 from fusion.planar.robot import RobotConfig
@@ -343,6 +344,13 @@ def _bad_state(key: str, value) -> dict:
     return state
 
 
+def _held_offset_nan() -> dict:
+    """A state whose held-pose offset is NaN: it would poison every reported covariance."""
+    state = _ekf_with_state().get_state()
+    state["aux"][core.A_HELD_X] = NAN
+    return state
+
+
 @pytest.mark.parametrize(
     ("call", "words"),
     [
@@ -354,6 +362,7 @@ def _bad_state(key: str, value) -> dict:
         (lambda e: e.set_state(_bad_state("x", np.full(NX, NAN))), ["state['x']", "nan"]),
         (lambda e: e.set_state(_bad_state("P", np.eye(NX) * NAN)), ["state['P']"]),
         (lambda e: e.set_state(_bad_state("aux", np.zeros(3))), ["state['aux']"]),
+        (lambda e: e.set_state(_held_offset_nan()), ["state['aux']", "A_HELD_X", "nan"]),
         (lambda e: e.update_yaw(0.1, 0.0, INF), ["yaw std", "inf"]),
         (lambda e: e.update_yaw(0.1, 0.0, 0.0), ["yaw std", "0.0"]),
         (lambda e: e.predict_to(NAN), ["predict_to", "nan"]),

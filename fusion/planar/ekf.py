@@ -880,7 +880,11 @@ class PlanarEKF(ExtendedKalmanFilter):
         aux = np.array(state["aux"], dtype=float).reshape(-1)
         if aux.shape != (core.AUX_SIZE,) or np.any(np.isinf(aux)):
             raise ValueError(f"state['aux'] must be {core.AUX_SIZE} values from get_state, got "
-                             f"{aux.tolist()}")
+                             f"{aux.size} ({aux.tolist()})")
+        held = aux[[core.A_YAW_PENDING, core.A_HELD_X, core.A_HELD_Y]]
+        if not np.all(np.isfinite(held)):
+            raise ValueError("state['aux'] must hold a finite owed heading and held-pose offset "
+                             f"(A_YAW_PENDING, A_HELD_X, A_HELD_Y), got {held.tolist()}")
         self.x, self.P, self._aux = x, P, aux
 
     def covariances_ros(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
