@@ -288,11 +288,19 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         # its effect is the exit status where the inputs disagree: the bag's first 8 s do
         # (68 % slip; tests/test_trust.py); where they agree it changes nothing by design
         "--strict": [exits("bag", 3, "--strict")],
-        **{opt: [*(refused(k, "--imu-topic/--odom-topic are for ROS bags", opt, value)
-                   for k in ("logdir", "capture", "folder")),
+        **{opt: [*(refused(k, "--imu-topic/--odom-topic/--gps-topic are for ROS bags", opt,
+                           value) for k in ("logdir", "capture", "folder")),
                  refused("bag", "no topic '/nope'; topics present: /imu/data", opt, "/nope")]
            for opt, value in (("--imu-topic", "/imu/data"),
                               ("--odom-topic", "/jackal_velocity_controller/odom"))},
+        # the bundled bag has no GPS: its effect on a bag with one is tests/test_gps_reference.py
+        "--gps-topic": [*(refused(k, "--imu-topic/--odom-topic/--gps-topic are for ROS bags",
+                                  "--gps-topic", "/gps/fix")
+                          for k in ("logdir", "capture", "folder")),
+                        refused("bag", "no topic '/nope'; topics present: /imu/data",
+                                "--gps-topic", "/nope"),
+                        refused("bag", "one topic cannot be read as two kinds", "--gps-topic",
+                                "/imu/data")],
         "--imu-mount-rpy": [
             *(changes(k, "--imu-mount-rpy", "0", "0.1", "0.2") for k in ("logdir", "bag")),
             refused("capture", "--imu-mount-rpy does not apply to a DATA-uart2 capture",

@@ -89,6 +89,10 @@ def register(subparsers) -> None:
     bag.add_argument("--imu-topic", help="sensor_msgs/Imu topic (bags only)")
     bag.add_argument("--odom-topic", help="nav_msgs/Odometry topic of the wheel odometry "
                                           "(bags only)")
+    bag.add_argument("--gps-topic", help="sensor_msgs/NavSatFix topic (bags only, optional): "
+                                         "print the fused track's and the bag odometry's "
+                                         "position RMSE against the GPS fixes after one SE(2) "
+                                         "alignment each, and draw the fixes with --plot")
     bag.add_argument("--imu-mount-rpy", type=float, nargs=3, metavar=("R", "P", "Y"),
                      default=None,
                      help="URDF roll pitch yaw (rad) taking IMU-frame vectors into the base "
@@ -327,8 +331,9 @@ def _run(args: argparse.Namespace) -> int:
     if not path.exists():
         raise CommandError(f"{path}: no such log directory or bag")
     bag = job.is_bag(path)
-    if not bag and (args.imu_topic or args.odom_topic):
-        raise CommandError(f"{path}: --imu-topic/--odom-topic are for ROS bags; this is not "
+    if not bag and (args.imu_topic or args.odom_topic or args.gps_topic):
+        raise CommandError(f"{path}: --imu-topic/--odom-topic/--gps-topic are for ROS bags; "
+                           "this is not "
                            "a .bag, .mcap or ROS 2 bag folder")
     folder = not bag and path.is_dir() and not (path / "robot.toml").is_file()
     if args.format is not None and not folder:
@@ -507,6 +512,15 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
     return _exit_status(args, warned)
 
 
+def _print_gps(topic: str, fixes, gps) -> None:
+    """The tracks' RMSE against the GPS fixes (:class:`fusion.evaluation.gps.GpsComparison`)."""
+    skipped = f", {fixes.no_fix} without a fix left out" if fixes.no_fix else ""
+    print(f"against GPS ({topic}: {len(fixes)} fixes{skipped}; {gps.gps_distance:.1f} m of GPS "
+          f"path), position RMSE after one SE(2) alignment each (GPS error included):")
+    for name, label in (("fused", "fused"), ("bag odometry", "the bag's odometry")):
+        print(f"  {label + ':':<20} {gps.rmse[name]:.2f} m over {gps.fixes[name]} fixes")
+
+
 def run_bag(args: argparse.Namespace) -> int:
     """``fusion replay BAG --imu-topic T --odom-topic T``: the bag's IMU messages and its
     odometry twists through the pipeline (:func:`fusion.jobs.replay.replay_bag`)."""
@@ -525,7 +539,7 @@ def run_bag(args: argparse.Namespace) -> int:
     robot = read_robot_toml(args.robot) if args.robot is not None else None
     with _BarContext(args.progress, path.name) as bar:
         r = job.replay_bag(path, args.output, imu_topic=args.imu_topic,
-                           odom_topic=args.odom_topic, robot=robot,
+                           odom_topic=args.odom_topic, fix_topic=args.gps_topic, robot=robot,
                            imu_mount_rpy=args.imu_mount_rpy, tilt=not args.level,
                            plot=args.plot, progress=bar.callback)
     imu, odom, table, stats, own = r.imu, r.odom, r.table, r.stats, r.own
@@ -547,5 +561,7 @@ def run_bag(args: argparse.Namespace) -> int:
           f"moved, not fused) {stats.encoder_faults}, invalid {ekf.stats['invalid']}")
     print(f"the bag's own odometry ({args.odom_topic}) final pose from its start: x "
           f"{own[-1, 0]:.3f} m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")
+    if r.gps is not None:
+        _print_gps(args.gps_topic, r.fixes, r.gps)
     _print_warnings(r.warnings)
     return _exit_status(args, r.warnings)

@@ -7,6 +7,9 @@ is an error of 2 deg.
 - :func:`final_position_error_percent`: end-point error as a percentage of the path length
   (the "error % of distance" of seed 002's 5 % requirement).
 - :func:`yaw_rmse`, :func:`position_rmse`: root mean square errors over a run.
+- :func:`se2_alignment`, :func:`aligned_position_rmse`: the position RMSE after the one rigid
+  planar motion that fits a track best to a reference in another frame (a GPS track in east,
+  north; the absolute trajectory error of Sturm et al., IROS 2012, in the plane).
 - :func:`nees`, :func:`nees_bounds`, :func:`nees_fraction_within`: normalised estimation error
   squared, the chi-square consistency test of a filter's covariance (Bar-Shalom, Li,
   Kirubarajan, *Estimation with Applications to Tracking and Navigation*, 2001, sec. 5.4).
@@ -21,6 +24,7 @@ from scipy import stats
 from fusion.geometry.angles import wrap_angle
 
 __all__ = [
+    "aligned_position_rmse",
     "final_position_error_percent",
     "nees",
     "nees_bounds",
@@ -28,6 +32,7 @@ __all__ = [
     "path_length",
     "pose_errors",
     "position_rmse",
+    "se2_alignment",
     "wrap_angle",
     "yaw_rmse",
 ]
@@ -89,6 +94,44 @@ def position_rmse(estimate_xy: ArrayLike, truth_xy: ArrayLike) -> float:
     if e.shape != t.shape:
         raise ValueError(f"shapes differ: {e.shape} vs {t.shape}")
     return float(np.sqrt(np.mean(np.sum((e - t) ** 2, axis=1))))
+
+
+def se2_alignment(estimate_xy: ArrayLike, reference_xy: ArrayLike
+                  ) -> tuple[float, NDArray[np.float64], NDArray[np.float64]]:
+    """The rotation ``theta`` (rad) and translation ``t`` (2,) m that minimise the sum of
+    squared distances ``|R(theta) e_i + t - r_i|^2`` between paired points of a track
+    ``estimate_xy`` and a reference ``reference_xy`` ((N, 2) or wider, m), in closed form; and
+    the track moved by them (N, 2). No scale: a distance error stays in the residual.
+
+    Raises:
+        ValueError: shapes differ, fewer than 2 points, non-finite values, or a track that
+            does not move (its rotation is then undefined).
+    """
+    e = _poses(estimate_xy, "estimate_xy")[:, :2]
+    r = _poses(reference_xy, "reference_xy")[:, :2]
+    if e.shape != r.shape:
+        raise ValueError(f"shapes differ: {e.shape} vs {r.shape}")
+    if e.shape[0] < 2 or not (np.all(np.isfinite(e)) and np.all(np.isfinite(r))):
+        raise ValueError(f"need at least 2 paired finite points, got {e.shape[0]}")
+    e_mean, r_mean = e.mean(axis=0), r.mean(axis=0)
+    ec, rc = e - e_mean, r - r_mean
+    dot = float(np.sum(ec * rc))
+    cross = float(np.sum(ec[:, 0] * rc[:, 1] - ec[:, 1] * rc[:, 0]))
+    if not np.any(ec) or not np.any(rc):
+        raise ValueError("a track that does not move has no defined rotation")
+    theta = float(np.arctan2(cross, dot))
+    c, s = np.cos(theta), np.sin(theta)
+    rot = np.array([[c, -s], [s, c]])
+    t = r_mean - rot @ e_mean
+    return theta, t, e @ rot.T + t
+
+
+def aligned_position_rmse(estimate_xy: ArrayLike, reference_xy: ArrayLike) -> float:
+    """Position RMSE, m, of ``estimate_xy`` against ``reference_xy`` (paired points) after
+    :func:`se2_alignment`."""
+    _, _, moved = se2_alignment(estimate_xy, reference_xy)
+    r = _poses(reference_xy, "reference_xy")[:, :2]
+    return float(np.sqrt(np.mean(np.sum((moved - r) ** 2, axis=1))))
 
 
 def nees(errors: ArrayLike, covariances: ArrayLike) -> NDArray[np.float64]:

@@ -1,12 +1,13 @@
 """ROS 1/2 bags and MCAP files.
 
 Bags (:func:`read_bag`, :func:`read_bag_imu`, :func:`read_bag_odometry`,
-:func:`read_bag_twist`, :func:`bag_topics`) through the pure-Python ``rosbags`` package
-(``pip install 'diffbot-fusion[ros]'``): a ROS 1 ``.bag`` file, a ROS 2 bag folder (with
-``metadata.yaml``; sqlite3 or MCAP storage) or a single ``.mcap`` file (read with the ``mcap``
-package, messages decoded by ``rosbags`` from the schemas inside). Message types:
-sensor_msgs/Imu, nav_msgs/Odometry, geometry_msgs/Twist and TwistStamped. Times are s; by
-default each message's ``header.stamp`` (``stamps="header"``), or the time the bag recorded it
+:func:`read_bag_twist`, :func:`read_bag_fixes`, :func:`bag_topics`) through the pure-Python
+``rosbags`` package (``pip install 'diffbot-fusion[ros]'``): a ROS 1 ``.bag`` file, a ROS 2
+bag folder (with ``metadata.yaml``; sqlite3 or MCAP storage) or a single ``.mcap`` file (read
+with the ``mcap`` package, messages decoded by ``rosbags`` from the schemas inside). Message
+types: sensor_msgs/Imu, nav_msgs/Odometry, geometry_msgs/Twist and TwistStamped,
+sensor_msgs/NavSatFix (GPS: a reference to compare the odometry with). Times are s; by default
+each message's ``header.stamp`` (``stamps="header"``), or the time the bag recorded it
 (``stamps="bag"``, the only choice for Twist). Errors name the file and topic; a missing
 topic lists the topics present.
 
@@ -32,10 +33,12 @@ from fusion.io.imu_csv import ImuLog
 __all__ = [
     "BagImuLog",
     "BagLog",
+    "FixLog",
     "OdometryLog",
     "TwistLog",
     "bag_topics",
     "read_bag",
+    "read_bag_fixes",
     "read_bag_imu",
     "read_bag_odometry",
     "read_bag_twist",
@@ -53,6 +56,9 @@ ODOMETRY_TYPES = ("nav_msgs/Odometry",)
 
 
 TWIST_TYPES = ("geometry_msgs/Twist", "geometry_msgs/TwistStamped")
+
+
+FIX_TYPES = ("sensor_msgs/NavSatFix",)
 
 
 @dataclass
@@ -142,6 +148,40 @@ class TwistLog:
 
 
 @dataclass
+class FixLog:
+    """sensor_msgs/NavSatFix messages of one topic that hold a fix (GPS).
+
+    Attributes:
+        t: (N,) s, sorted (see ``out_of_order``).
+        latitude, longitude: (N,) WGS84, deg.
+        altitude: (N,) m above the WGS84 ellipsoid (a message without one, NaN in the
+            message, gets the first known altitude, or 0).
+        status: (N,) ``status.status``: 0 fix, 1 satellite-based augmentation, 2 ground-based
+            augmentation (RTK).
+        position_covariance: (N, 9) m^2, east-north-up, row major, as in the message.
+        no_fix: messages left out: ``status.status`` < 0 (no fix) or a latitude or longitude
+            that is not finite.
+        frame_id, topic, source, bag_time, out_of_order: as in :class:`OdometryLog`.
+    """
+
+    t: NDArray[np.float64]
+    latitude: NDArray[np.float64]
+    longitude: NDArray[np.float64]
+    altitude: NDArray[np.float64]
+    status: NDArray[np.int64]
+    position_covariance: NDArray[np.float64]
+    no_fix: int = 0
+    frame_id: str = ""
+    topic: str = ""
+    source: str = ""
+    bag_time: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    out_of_order: int = 0
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+
+@dataclass
 class BagLog:
     """What :func:`read_bag` read: one log per requested topic (None if not requested),
     ``topics``, every topic of the file as ``{topic: (type, message count)}``, and ``note``:
@@ -154,6 +194,7 @@ class BagLog:
     topics: dict[str, tuple[str, int]]
     source: str
     note: str = ""
+    fixes: FixLog | None = None
 
 
 def _ros1_name(msgtype: str) -> str:
@@ -389,6 +430,9 @@ class _Collector:
             yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
             self.rows.append((p.x, p.y, yaw, lin.x, lin.y, ang.z,
                               *msg.pose.covariance, *msg.twist.covariance))
+        elif self.kind == "fix":
+            self.rows.append((msg.latitude, msg.longitude, msg.altitude, msg.status.status,
+                              *msg.position_covariance))
         else:
             tw = msg.twist if self.msgtype == "geometry_msgs/TwistStamped" else msg
             self.rows.append((tw.linear.x, tw.linear.y, tw.angular.z))
@@ -404,7 +448,8 @@ class _Collector:
             raise LogFormatError(f"{where}: every header.stamp is zero; read it with "
                                  "stamps='bag' (the bag's record times)")
         rows = np.asarray(self.rows, dtype=np.float64)
-        check = rows[:, :6] if self.kind != "twist" else rows
+        # a NavSatFix without a fix has NaN coordinates by definition: _fix_log leaves it out
+        check = {"twist": rows, "fix": rows[:, 3:4]}.get(self.kind, rows[:, :6])
         bad = np.flatnonzero(~np.all(np.isfinite(check), axis=1))
         if bad.size:
             i = int(bad[0])
@@ -420,7 +465,8 @@ class _Collector:
         return t, bag_t, rows, out_of_order
 
 
-_KINDS = {"imu": IMU_TYPES, "odometry": ODOMETRY_TYPES, "twist": TWIST_TYPES}
+_KINDS = {"imu": IMU_TYPES, "odometry": ODOMETRY_TYPES, "twist": TWIST_TYPES,
+          "fix": FIX_TYPES}
 
 
 def read_bag(
@@ -430,29 +476,32 @@ def read_bag(
     odom_topic: str | None = None,
     twist_topic: str | None = None,
     stamps: str = "header",
+    fix_topic: str | None = None,
 ) -> BagLog:
-    """Read IMU, odometry and twist topics of a bag or MCAP file in one pass.
+    """Read IMU, odometry, twist and GPS fix topics of a bag or MCAP file in one pass.
 
     Args:
         path: ROS 1 ``.bag``, ROS 2 bag folder, or ``.mcap`` file.
         imu_topic: a sensor_msgs/Imu topic (e.g. ``/imu/data``), or None.
         odom_topic: a nav_msgs/Odometry topic (e.g. ``/odom``), or None.
         twist_topic: a geometry_msgs/Twist or TwistStamped topic (e.g. ``/cmd_vel``), or None.
+        fix_topic: a sensor_msgs/NavSatFix topic (e.g. ``/gps/fix``), or None.
         stamps: ``"header"`` (each message's header.stamp) or ``"bag"`` (record times).
 
     Raises:
         FileNotFoundError: no such path.
         LogFormatError: not a bag; a topic missing (the message lists the topics present),
-            of another type, empty, with changing frame ids, zero stamps or non-finite values.
+            of another type, empty, with changing frame ids, zero stamps or non-finite values
+            (a fix topic: no message with a fix).
         ImportError: rosbags (or mcap for .mcap files) is not installed.
     """
     path = Path(path)
     if stamps not in ("header", "bag"):
         raise ValueError(f"stamps must be 'header' or 'bag', got {stamps!r}")
     wanted = {k: t for k, t in (("imu", imu_topic), ("odometry", odom_topic),
-                                ("twist", twist_topic)) if t is not None}
+                                ("twist", twist_topic), ("fix", fix_topic)) if t is not None}
     if not wanted:
-        raise ValueError("give at least one of imu_topic, odom_topic, twist_topic")
+        raise ValueError("give at least one of imu_topic, odom_topic, twist_topic, fix_topic")
     if len(set(wanted.values())) != len(wanted):
         raise ValueError(f"one topic cannot be read as two kinds: {wanted}")
     with _BagFile(path) as bag:
@@ -480,6 +529,7 @@ def read_bag(
         odometry=_odometry_log(collectors.get(odom_topic)) if odom_topic else None,
         twist=_twist_log(collectors.get(twist_topic)) if twist_topic else None,
         topics=topics, source=str(path), note=note,
+        fixes=_fix_log(collectors.get(fix_topic)) if fix_topic else None,
     )
 
 
@@ -515,6 +565,33 @@ def _twist_log(c: _Collector) -> TwistLog:
         w=np.ascontiguousarray(rows[:, 2]), frame_id=c.frames.get("frame_id", ""),
         topic=c.topic, source=str(c.path), bag_time=bag_t, out_of_order=ooo,
     )
+
+
+def _fix_log(c: _Collector) -> FixLog:
+    t, bag_t, rows, ooo = c.arrays()
+    has = (rows[:, 3] >= 0) & np.isfinite(rows[:, 0]) & np.isfinite(rows[:, 1])
+    if not np.any(has):
+        raise LogFormatError(f"{c.path}: topic {c.topic}: none of its {len(t)} messages holds "
+                             f"a fix (status.status < 0 or no latitude/longitude)")
+    alt = rows[has, 2]
+    known = np.isfinite(alt)
+    alt = np.where(known, alt, alt[known][0] if np.any(known) else 0.0)
+    return FixLog(
+        t=t[has], latitude=np.ascontiguousarray(rows[has, 0]),
+        longitude=np.ascontiguousarray(rows[has, 1]), altitude=alt,
+        status=rows[has, 3].astype(np.int64),
+        position_covariance=np.ascontiguousarray(rows[has, 4:13]),
+        no_fix=int(np.count_nonzero(~has)), frame_id=c.frames.get("frame_id", ""),
+        topic=c.topic, source=str(c.path), bag_time=bag_t[has], out_of_order=ooo,
+    )
+
+
+def read_bag_fixes(path: str | Path, topic: str = "/gps/fix", *,
+                   stamps: str = "header") -> FixLog:
+    """sensor_msgs/NavSatFix of one topic, the messages with a fix (see :func:`read_bag`)."""
+    log = read_bag(path, fix_topic=topic, stamps=stamps).fixes
+    assert log is not None
+    return log
 
 
 def read_bag_imu(path: str | Path, topic: str = "/imu/data", *,

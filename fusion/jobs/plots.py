@@ -25,13 +25,14 @@ def plot_replay(path: Path, title: str, t: NDArray[np.float64], pose: NDArray[np
                 ref_t: NDArray[np.float64], ref: NDArray[np.float64],
                 truth_t: NDArray[np.float64] | None, truth: NDArray[np.float64] | None,
                 ref_label: str = WHEEL_LABEL,
-                more_yaw: Sequence[tuple[str, NDArray[np.float64], NDArray[np.float64]]] = ()
-                ) -> None:
+                more_yaw: Sequence[tuple[str, NDArray[np.float64], NDArray[np.float64]]] = (),
+                more_xy: Sequence[tuple[str, NDArray[np.float64]]] = ()) -> None:
     """Draw the fused track ``pose`` ((N, 3) x m, y m, yaw rad at ``t`` s) beside a
     reference track ``ref`` at ``ref_t`` (named ``ref_label``) and, when given, the truth;
     right: the yaw error against the truth, or without it the yaws (unwrapped, deg, each from
     its start), with ``more_yaw`` traces ``(label, t s, yaw rad)`` (e.g. a bag's own IMU
-    orientation)."""
+    orientation); ``more_xy``: points ``(label, (K, 2) x m, y m)`` on the trajectory (e.g. GPS
+    fixes moved into the fused track's frame)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -43,6 +44,8 @@ def plot_replay(path: Path, title: str, t: NDArray[np.float64], pose: NDArray[np
             ax1.plot(truth[:, 0], truth[:, 1], "k-", lw=2, label="truth")
         ax1.plot(ref[:, 0], ref[:, 1], "-", color="tab:orange", lw=1, label=ref_label)
         ax1.plot(pose[:, 0], pose[:, 1], "-", color="tab:blue", lw=1, label=FUSED_LABEL)
+        for label, xy in more_xy:
+            ax1.plot(xy[:, 0], xy[:, 1], ".", color="tab:green", ms=3, label=label)
         ax1.set_aspect("equal", adjustable="datalim")
         ax1.set_xlabel("x (m)")
         ax1.set_ylabel("y (m)")

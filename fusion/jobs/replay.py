@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.integrate import trapezoid
 
+from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
 from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
 from fusion.evaluation.trust import TrustWarning
 from fusion.geometry.angles import wrap_angle
@@ -400,8 +401,10 @@ def check_plot_output(path: Path | None = None) -> None:
 class BagReplay:
     """What :func:`replay_bag` did: the fused table (fused CSV columns), the pipeline, its
     counters, the bag's own odometry pose moved to start at the origin ((K, 3) x m, y m, yaw
-    rad at ``odom_t``), the bag's IMU and odometry (:func:`fusion.io.bags.read_bag`) and the
-    trust warnings (:mod:`fusion.evaluation.trust`)."""
+    rad at ``odom_t``), the bag's IMU and odometry (:func:`fusion.io.bags.read_bag`), the
+    trust warnings (:mod:`fusion.evaluation.trust`) and, given a GPS topic, its fixes and the
+    fused track and the bag's odometry against them (:mod:`fusion.evaluation.gps`; tracks
+    ``"fused"`` and ``"bag odometry"``)."""
 
     table: NDArray[np.float64]
     pipeline: FusionPipeline
@@ -411,10 +414,12 @@ class BagReplay:
     imu: Any
     odom: Any
     warnings: list[TrustWarning] = field(default_factory=list)
+    fixes: Any = None
+    gps: GpsComparison | None = None
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
-               robot: RobotConfig | None = None,
+               fix_topic: str | None = None, robot: RobotConfig | None = None,
                imu_mount_rpy: tuple[float, float, float] | None = None, tilt: bool = True,
                plot: str | Path | None = None,
                progress: Progress | None = None) -> BagReplay:
@@ -422,7 +427,9 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
 
     ``robot``: wheel_distance and [ekf] tuning (default: neutral values; the wheel distance
     only enters the small radius-mismatch term of the speed); ``imu_mount_rpy`` (rad)
-    replaces the robot's IMU mount.
+    replaces the robot's IMU mount. ``fix_topic``: a sensor_msgs/NavSatFix topic to score
+    the fused track and the bag's odometry against (position RMSE after one SE(2) alignment
+    each) and to draw on the plot.
     """
     from fusion.geometry.kinematics import DiffDriveParams
     from fusion.io.bags import read_bag
@@ -436,7 +443,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                                             encode_sampling_time=0.02))
     if imu_mount_rpy is not None:
         robot = dataclasses.replace(robot, imu_mount_rpy=tuple(imu_mount_rpy))
-    bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic)
+    bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic, fix_topic=fix_topic)
     imu, odom = bag.imu, bag.odometry
     streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=odom.t, twist_v=odom.v,
                       twist_w=odom.w)
@@ -446,6 +453,16 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     c, sn = math.cos(th0), math.sin(th0)
     dx, dy = odom.x - x0, odom.y - y0
     own = np.column_stack([c * dx + sn * dy, -sn * dx + c * dy, wrap_angle(odom.yaw - th0)])
+    gps = None
+    if bag.fixes is not None:
+        fx = bag.fixes
+        try:
+            gps = compare_with_fixes(fx.t, fixes_to_enu(fx.latitude, fx.longitude, fx.altitude),
+                                     {"fused": (table[:, 0], table[:, 1:3]),
+                                      "bag odometry": (odom.t, own[:, :2])})
+        except ValueError as exc:  # the output is written: say why there is no GPS figure
+            raise ValueError(f"{path}: GPS topic {fix_topic}: {exc} (the fused output "
+                             f"{output} is written)") from exc
     if plot is not None:
         from fusion.jobs.plots import plot_replay
 
@@ -458,9 +475,14 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
             has = np.isfinite(q).all(axis=1)
             yaw[has] = to_euler(q[has])[:, 2]
             more.append((f"the bag's own IMU orientation ({imu_topic})", imu.t, yaw))
+        points = []
+        if gps is not None:
+            points.append((f"GPS ({fix_topic}), aligned to the fused track",
+                           gps.gps_in_track_frame["fused"]))
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
-                    None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more)
-    return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings)
+                    None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
+                    more_xy=points)
+    return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps)
 
 
 @dataclass(frozen=True)
