@@ -299,8 +299,8 @@ TABLE: dict[str, dict[str, list[Row]]] = {
                           for k in ("logdir", "capture", "folder")),
                         refused("bag", "no topic '/nope'; topics present: /imu/data",
                                 "--gps-topic", "/nope"),
-                        refused("bag", "one topic cannot be read as two kinds", "--gps-topic",
-                                "/imu/data")],
+                        refused("bag", "--gps-topic /imu/data is also the --imu-topic",
+                                "--gps-topic", "/imu/data")],
         "--imu-mount-rpy": [
             *(changes(k, "--imu-mount-rpy", "0", "0.1", "0.2") for k in ("logdir", "bag")),
             refused("capture", "--imu-mount-rpy does not apply to a DATA-uart2 capture",

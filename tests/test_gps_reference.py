@@ -59,53 +59,93 @@ def test_enu_refuses_a_bad_origin():
         geodetic_to_enu([1.0], [2.0], [0.0], (math.nan, 0.0, 0.0))
 
 
+def _scipy_alignment(track: np.ndarray, ref: np.ndarray):
+    """scipy's least squares over (rotation rad, translation m) from two starting angles: the
+    best fit and its position RMSE, m."""
+    def residual(p):
+        c, s = math.cos(p[0]), math.sin(p[0])
+        return (track @ np.array([[c, -s], [s, c]]).T + p[1:] - ref).ravel()
+
+    best = min((least_squares(residual, [a, 0.0, 0.0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
+                for a in (0.0, math.pi)), key=lambda fit: fit.cost)
+    return best, math.sqrt(2.0 * best.cost / track.shape[0])
+
+
+def _at(t_fix, t, x, y):
+    """(x, y) of a track at the fix times inside its span, and which fixes those are."""
+    keep = (t_fix >= t[0]) & (t_fix <= t[-1])
+    return np.column_stack([np.interp(t_fix[keep], t, x), np.interp(t_fix[keep], t, y)]), keep
+
+
 def test_se2_alignment_is_the_least_squares_optimum():
     rng = np.random.default_rng(3)
     track = np.cumsum(rng.normal(0.0, 0.5, (300, 2)), axis=0)
     c, s = math.cos(2.5), math.sin(2.5)
     ref = track @ np.array([[c, -s], [s, c]]).T + [40.0, -3.0] + rng.normal(0.0, 0.8, (300, 2))
-
-    def residual(p):
-        ct, st = math.cos(p[0]), math.sin(p[0])
-        return (track @ np.array([[ct, -st], [st, ct]]).T + p[1:] - ref).ravel()
-
-    best = least_squares(residual, [0.0, 0.0, 0.0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    best_bis = least_squares(residual, [math.pi, 0.0, 0.0], xtol=1e-14, ftol=1e-14, gtol=1e-14)
-    if best_bis.cost < best.cost:
-        best = best_bis
+    best, rmse = _scipy_alignment(track, ref)
     theta, shift, moved = se2_alignment(track, ref)
     assert math.remainder(theta - best.x[0], 2 * math.pi) == pytest.approx(0.0, abs=1e-7)
     np.testing.assert_allclose(shift, best.x[1:], atol=1e-6)
-    rmse = math.sqrt(2.0 * best.cost / track.shape[0])
     assert aligned_position_rmse(track, ref) == pytest.approx(rmse, rel=1e-9)
     assert np.sqrt(np.mean(np.sum((moved - ref) ** 2, axis=1))) == pytest.approx(rmse, rel=1e-9)
 
 
-def test_alignment_refuses_what_has_no_rotation():
-    with pytest.raises(ValueError, match="does not move"):
-        se2_alignment(np.ones((5, 2)), np.arange(10.0).reshape(5, 2))
+def test_a_track_that_does_not_move_still_gets_its_least_squares_residual():
+    rng = np.random.default_rng(5)
+    scatter = rng.normal(0.0, 2.0, (50, 2)) + np.array([100.0, 200.0])  # GPS while the robot stands
+    parked = np.full((50, 2), 0.1)  # mean 0.1 - 0.1 is not exactly 0 in floating point
+    want = math.sqrt(np.mean(np.sum((scatter - scatter.mean(axis=0)) ** 2, axis=1)))
+    assert aligned_position_rmse(parked, scatter) == pytest.approx(want, rel=1e-9)
+    assert aligned_position_rmse(scatter, np.full((50, 2), 3.0)) == pytest.approx(want, rel=1e-9)
+
+
+def test_alignment_names_what_it_cannot_use():
     with pytest.raises(ValueError, match="at least 2"):
         se2_alignment(np.zeros((1, 2)), np.zeros((1, 2)))
+    track = np.arange(10.0).reshape(5, 2)
+    bad = track.copy()
+    bad[3, 1] = math.nan
+    with pytest.raises(ValueError, match=r"reference_xy: point 3 is not finite"):
+        se2_alignment(track, bad)
 
 
-def test_fixes_outside_a_tracks_span_are_named():
+def test_every_track_is_scored_over_the_same_fixes():
+    t = np.linspace(0.0, 100.0, 101)
+    en = np.column_stack([t, np.sin(t / 10.0)])
+    short = (t[10:60], en[10:60] + np.array([0.0, 1.0]))  # a track over part of the run only
+    out = compare_with_fixes(t, en, {"whole": (t, en), "short": short})
+    assert out.compared == 50 and out.span == (10.0, 59.0)
+    assert out.rmse["whole"] == pytest.approx(0.0, abs=1e-9)
+    assert out.rmse["short"] == pytest.approx(0.0, abs=1e-9)  # a shift is aligned away
+    np.testing.assert_allclose(out.gps_in_track_frame["short"], short[1][:50], atol=1e-9)
+
+
+def test_fixes_outside_the_tracks_span_are_named():
     t = np.linspace(0.0, 10.0, 11)
     xy = np.column_stack([t, 0.0 * t])
-    with pytest.raises(ValueError, match="wheel: 0 GPS fixes inside its span"):
+    with pytest.raises(ValueError, match=r"0 of the 11 GPS fixes \(stamped 100.000-110.000 s\) "
+                                         r"lie inside the odometry's span 0.000-10.000 s"):
         compare_with_fixes(t + 100.0, xy, {"wheel": (t, xy)})
 
 
-def _write_bag_with_fixes(source: Path, dest: Path, *, has_fix) -> None:
+#: how _write_bag_with_fixes writes fix i (default "fix"): a fix; status NO_FIX with NaN
+#: coordinates (as receivers publish it) or with stale finite ones; no altitude (NaN); the
+#: latitude and longitude as NMEA ddmm.mmmm numbers, not converted to degrees
+FIX_KINDS = ("fix", "no-fix", "no-fix-stale", "no-altitude", "ddmm")
+
+
+def _write_bag_with_fixes(source: Path, dest: Path, *, kind=lambda i: "fix",
+                          stamp_shift: float = 0.0) -> None:
     """The Jackal bag plus a NavSatFix topic at every 5th odometry message (10 Hz): its pose
-    turned by TURN, moved by SHIFT and put on the globe at ORIGIN by PROJ; a fix ``i`` for
-    which ``has_fix(i)`` is False has status NO_FIX and NaN coordinates, as receivers publish
-    them."""
+    turned by TURN, moved by SHIFT and put on the globe at ORIGIN by PROJ; fix i written as
+    ``kind(i)`` (:data:`FIX_KINDS`), stamped ``stamp_shift`` s after its odometry message."""
     from rosbags.rosbag1 import Reader, Writer
     from rosbags.typesys import Stores, get_typestore
 
     store = get_typestore(Stores.ROS1_NOETIC)
     fix_t = store.types["sensor_msgs/msg/NavSatFix"]
     status_t = store.types["sensor_msgs/msg/NavSatStatus"]
+    stamp_t = store.types["builtin_interfaces/msg/Time"]
     with Reader(source) as reader, Writer(dest) as writer:
         conns = {c.topic: writer.add_connection(c.topic, c.msgtype, typestore=store)
                  for c in reader.connections}
@@ -122,93 +162,130 @@ def _write_bag_with_fixes(source: Path, dest: Path, *, has_fix) -> None:
                 p = msg.pose.pose.position
                 east, north = c * p.x - s * p.y + SHIFT[0], s * p.x + c * p.y + SHIFT[1]
                 lon, lat, h = to_globe.transform(east, north, 0.0, direction="INVERSE")
-                good = has_fix(k // 5)
-                fix = fix_t(
-                    header=dataclasses.replace(msg.header, frame_id="gps"),
-                    status=status_t(status=0 if good else -1, service=1),
-                    latitude=lat if good else math.nan, longitude=lon if good else math.nan,
-                    altitude=h if good else math.nan, position_covariance=np.zeros(9),
-                    position_covariance_type=0)
+                what = kind(k // 5)
+                assert what in FIX_KINDS
+                if what == "no-fix":
+                    lat = lon = h = math.nan
+                elif what == "no-altitude":
+                    h = math.nan
+                elif what == "ddmm":
+                    lat, lon = 4808.2292, 1134.5674
+                ns_fix = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec + round(
+                    stamp_shift * 1e9)
+                header = dataclasses.replace(
+                    msg.header, frame_id="gps",
+                    stamp=stamp_t(sec=ns_fix // 10**9, nanosec=ns_fix % 10**9))
+                fix = fix_t(header=header,
+                            status=status_t(status=-1 if what.startswith("no-fix") else 0,
+                                            service=1),
+                            latitude=lat, longitude=lon, altitude=h,
+                            position_covariance=np.zeros(9), position_covariance_type=0)
                 writer.write(fconn, ns, store.serialize_ros1(fix, "sensor_msgs/msg/NavSatFix"))
             k += 1
+
+
+#: fixes the gps_bag fixture leaves without a fix or without an altitude
+NO_FIX, NO_ALT = (40, 41), 3
 
 
 @pytest.fixture(scope="module")
 def gps_bag(datasets_dir, tmp_path_factory):
     path = tmp_path_factory.mktemp("gps") / "jackal_with_gps.bag"
     _write_bag_with_fixes(datasets_dir / "rosbag" / "jackal_sim_test2.bag", path,
-                          has_fix=lambda i: i != 40)
+                          kind=lambda i: {40: "no-fix", 41: "no-fix-stale",
+                                          NO_ALT: "no-altitude"}.get(i, "fix"))
     return path
 
 
-def test_fixes_are_read_with_the_no_fix_message_left_out(gps_bag):
+def test_fixes_are_read_with_the_no_fix_messages_left_out(gps_bag):
     from fusion.io.bags import read_bag_fixes, read_bag_odometry
 
     fixes = read_bag_fixes(gps_bag, FIX)
     odom = read_bag_odometry(gps_bag, ODOM)
-    assert fixes.no_fix == 1 and len(fixes) == len(odom.t[::5]) - 1
+    # both no-fix messages are left out: the NaN one and the one with stale coordinates
+    assert fixes.no_fix == 2 and len(fixes) == len(odom.t[::5]) - 2
     assert fixes.frame_id == "gps" and np.all(fixes.status == 0)
-    np.testing.assert_array_equal(fixes.t, np.delete(odom.t[::5], 40))
+    assert np.all(fixes.covariance_type == 0)
+    np.testing.assert_array_equal(fixes.t, np.delete(odom.t[::5], NO_FIX))
     # the coordinates written: the odometry positions turned, moved and put on the globe
-    xy = np.delete(np.column_stack([odom.x, odom.y])[::5], 40, axis=0)
+    xy = np.delete(np.column_stack([odom.x, odom.y])[::5], NO_FIX, axis=0)
     c, s = math.cos(TURN), math.sin(TURN)
     east_north = xy @ np.array([[c, -s], [s, c]]).T + SHIFT
     lon, lat, h = _topocentric(ORIGIN).transform(east_north[:, 0], east_north[:, 1],
                                                  np.zeros(len(xy)), direction="INVERSE")
     np.testing.assert_array_equal(fixes.latitude, lat)
     np.testing.assert_array_equal(fixes.longitude, lon)
+    # the fix without an altitude gets the first known one
+    h[NO_ALT] = h[0]
     np.testing.assert_array_equal(fixes.altitude, h)
 
 
-def test_replay_scores_the_fused_track_and_the_bags_odometry_against_gps(gps_bag, tmp_path,
-                                                                         capsys):
-    from fusion.io.bags import read_bag_odometry
+def test_replay_scores_the_tracks_against_gps(gps_bag, tmp_path, capsys):
+    from fusion.evaluation.baselines import gyro_at_stops_twist
+    from fusion.io.bags import read_bag_imu, read_bag_odometry
 
-    out, png = tmp_path / "fused.csv", tmp_path / "fused.png"
     pytest.importorskip("matplotlib")
+    out, png = tmp_path / "fused.csv", tmp_path / "fused.png"
     code = main(["replay", str(gps_bag), "--imu-topic", IMU, "--odom-topic", ODOM,
                  "--gps-topic", FIX, "-o", str(out), "--plot", str(png)])
     printed = capsys.readouterr().out
     assert code == 0 and png.stat().st_size > 10_000
-    assert "1 without a fix left out" in printed
+    assert "2 without a fix left out" in printed
     lines = {ln.split(":")[0].strip(): ln for ln in printed.splitlines()}
-    own = float(lines["the bag's odometry"].split()[3])
-    fused_printed = float(lines["fused"].split()[1])
-    assert own <= 0.005  # the fixes are that odometry: only rounding is left
-    # the fused track against the fixes, independently: scipy's least squares between the CSV
-    # interpolated at the fix times and the odometry positions the fixes were made from
+    score = {name: float(lines[name].split()[-2])
+             for name in ("fused", "the bag's odometry", "gyro at stops")}
+    assert score["the bag's odometry"] <= 0.005  # the fixes are that odometry: rounding only
+    # independently: scipy's least squares between each track at the fix times inside every
+    # span and the odometry positions the fixes were made from
     table = np.genfromtxt(out, delimiter=",", names=True)
     odom = read_bag_odometry(gps_bag, ODOM)
-    ft = np.delete(odom.t[::5], 40)
-    ref = np.delete(np.column_stack([odom.x, odom.y])[::5], 40, axis=0)
-    keep = (ft >= table["t"][0]) & (ft <= table["t"][-1])
-    at = np.column_stack([np.interp(ft[keep], table["t"], table["x"]),
-                          np.interp(ft[keep], table["t"], table["y"])])
-
-    def residual(p):
-        c, s = math.cos(p[0]), math.sin(p[0])
-        return (at @ np.array([[c, -s], [s, c]]).T + p[1:] - ref[keep]).ravel()
-
-    fit = least_squares(residual, [0.0, 0.0, 0.0], xtol=1e-12, ftol=1e-12)
-    rmse = math.sqrt(2.0 * fit.cost / at.shape[0])
-    assert fused_printed == pytest.approx(rmse, abs=0.006)
+    imu = read_bag_imu(gps_bag, IMU)
+    base = gyro_at_stops_twist(imu.t, imu.gyro, imu.accel, odom.t, odom.v, odom.w)
+    ft = np.delete(odom.t[::5], NO_FIX)
+    ref = np.delete(np.column_stack([odom.x, odom.y])[::5], NO_FIX, axis=0)
+    keep = (ft >= max(table["t"][0], odom.t[0])) & (ft <= min(table["t"][-1], odom.t[-1]))
+    assert f"{np.count_nonzero(keep)} compared" in printed
+    for name, (t, x, y) in (("fused", (table["t"], table["x"], table["y"])),
+                            ("gyro at stops", (base.t, base.poses[:, 0], base.poses[:, 1]))):
+        at = np.column_stack([np.interp(ft[keep], t, x), np.interp(ft[keep], t, y)])
+        assert score[name] == pytest.approx(_scipy_alignment(at, ref[keep])[1], abs=0.006), name
     # the fused heading follows the gyro, the bag's odometry its skid-steer wheels: they part
     # (measured 9.9 m), so the comparison above is not of two equal tracks
-    assert rmse > 1.0
+    assert score["fused"] > 1.0
+
+
+def test_gps_stamped_on_another_clock_is_refused_before_anything_is_written(
+        datasets_dir, tmp_path, capsys):
+    shifted = tmp_path / "gps_later.bag"
+    _write_bag_with_fixes(datasets_dir / "rosbag" / "jackal_sim_test2.bag", shifted,
+                          stamp_shift=1000.0)
+    out = tmp_path / "f.csv"
+    assert main(["replay", str(shifted), "--imu-topic", IMU, "--odom-topic", ODOM,
+                 "--gps-topic", FIX, "-o", str(out)]) != 0
+    err = capsys.readouterr().err
+    assert f"topic {FIX}: 0 of its 612 fixes (stamped 1047.584-1108.684 s) lie inside" in err
+    assert "another clock" in err and not out.exists()
 
 
 def test_a_gps_topic_of_another_type_or_without_fixes_is_named(datasets_dir, gps_bag, tmp_path,
                                                                capsys):
     from fusion.io.bags import read_bag_fixes
 
+    jackal = datasets_dir / "rosbag" / "jackal_sim_test2.bag"
     with pytest.raises(LogFormatError, match=f"topic {ODOM} is nav_msgs/Odometry"):
         read_bag_fixes(gps_bag, ODOM)
     never = tmp_path / "never_a_fix.bag"
-    _write_bag_with_fixes(datasets_dir / "rosbag" / "jackal_sim_test2.bag", never,
-                          has_fix=lambda i: False)
+    _write_bag_with_fixes(jackal, never, kind=lambda i: "no-fix")
     with pytest.raises(LogFormatError, match=f"{FIX}: none of its 612 messages holds a fix"):
         read_bag_fixes(never, FIX)
-    # the command says so too, and a log directory is told --gps-topic is for bags
     assert main(["replay", str(never), "--imu-topic", IMU, "--odom-topic", ODOM,
                  "--gps-topic", FIX, "-o", str(tmp_path / "f.csv")]) != 0
     assert "none of its 612 messages holds a fix" in capsys.readouterr().err
+    ddmm = tmp_path / "ddmm.bag"
+    _write_bag_with_fixes(jackal, ddmm, kind=lambda i: "ddmm" if i == 7 else "fix")
+    from fusion.io.bags import read_bag_odometry
+
+    t8 = read_bag_odometry(jackal, ODOM).t[::5][7]
+    with pytest.raises(LogFormatError, match=rf"fix 8 \(t = {t8:.9f} s\) has latitude "
+                                             r"4808.2292, longitude 1134.5674: not degrees"):
+        read_bag_fixes(ddmm, FIX)

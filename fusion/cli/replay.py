@@ -90,9 +90,10 @@ def register(subparsers) -> None:
     bag.add_argument("--odom-topic", help="nav_msgs/Odometry topic of the wheel odometry "
                                           "(bags only)")
     bag.add_argument("--gps-topic", help="sensor_msgs/NavSatFix topic (bags only, optional): "
-                                         "print the fused track's and the bag odometry's "
-                                         "position RMSE against the GPS fixes after one SE(2) "
-                                         "alignment each, and draw the fixes with --plot")
+                                         "print the position RMSE of the fused track, the "
+                                         "bag's odometry and the gyro-at-stops baseline "
+                                         "against the GPS fixes after one SE(2) alignment "
+                                         "each, and draw the fixes with --plot")
     bag.add_argument("--imu-mount-rpy", type=float, nargs=3, metavar=("R", "P", "Y"),
                      default=None,
                      help="URDF roll pitch yaw (rad) taking IMU-frame vectors into the base "
@@ -515,10 +516,17 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
 def _print_gps(topic: str, fixes, gps) -> None:
     """The tracks' RMSE against the GPS fixes (:class:`fusion.evaluation.gps.GpsComparison`)."""
     skipped = f", {fixes.no_fix} without a fix left out" if fixes.no_fix else ""
-    print(f"against GPS ({topic}: {len(fixes)} fixes{skipped}; {gps.gps_distance:.1f} m of GPS "
-          f"path), position RMSE after one SE(2) alignment each (GPS error included):")
-    for name, label in (("fused", "fused"), ("bag odometry", "the bag's odometry")):
-        print(f"  {label + ':':<20} {gps.rmse[name]:.2f} m over {gps.fixes[name]} fixes")
+    if fixes.out_of_order:
+        print(f"warning: GPS fixes out of order in the bag (sorted): {fixes.out_of_order}")
+    first, last = gps.span
+    print(f"against GPS ({topic}: {len(fixes)} fixes{skipped}; {gps.compared} compared, "
+          f"{first:.3f}-{last:.3f} s), position RMSE after one SE(2) alignment each (the GPS's "
+          f"own error included):")
+    for name, label in (("fused", "fused"), ("bag odometry", "the bag's odometry"),
+                        ("gyro at stops", "gyro at stops")):
+        print(f"  {label + ':':<20} {gps.rmse[name]:.2f} m")
+    print("  (gyro at stops: the gyro's vertical axis, its bias re-learnt at each stop, with "
+          "the odometry's speed)")
 
 
 def run_bag(args: argparse.Namespace) -> int:
@@ -536,6 +544,10 @@ def run_bag(args: argparse.Namespace) -> int:
         raise CommandError(f"{path}: a bag needs --imu-topic (sensor_msgs/Imu) and "
                            "--odom-topic (nav_msgs/Odometry); its topics: "
                            f"{present or 'none'}")
+    if args.gps_topic in (args.imu_topic, args.odom_topic):
+        other = "--imu-topic" if args.gps_topic == args.imu_topic else "--odom-topic"
+        raise CommandError(f"--gps-topic {args.gps_topic} is also the {other}; give the "
+                           "sensor_msgs/NavSatFix topic")
     robot = read_robot_toml(args.robot) if args.robot is not None else None
     with _BarContext(args.progress, path.name) as bar:
         r = job.replay_bag(path, args.output, imu_topic=args.imu_topic,
@@ -563,5 +575,7 @@ def run_bag(args: argparse.Namespace) -> int:
           f"{own[-1, 0]:.3f} m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")
     if r.gps is not None:
         _print_gps(args.gps_topic, r.fixes, r.gps)
+    if r.gps_note:
+        print(f"warning: {r.gps_note}")
     _print_warnings(r.warnings)
     return _exit_status(args, r.warnings)

@@ -103,22 +103,27 @@ def se2_alignment(estimate_xy: ArrayLike, reference_xy: ArrayLike
     ``estimate_xy`` and a reference ``reference_xy`` ((N, 2) or wider, m), in closed form; and
     the track moved by them (N, 2). No scale: a distance error stays in the residual.
 
+    When either side does not move (all its points equal), every rotation fits equally well:
+    ``theta`` is then 0 (or whatever rounding makes of it) and the residual is still the
+    least-squares one.
+
     Raises:
-        ValueError: shapes differ, fewer than 2 points, non-finite values, or a track that
-            does not move (its rotation is then undefined).
+        ValueError: shapes differ, fewer than 2 points, or a value that is not finite.
     """
     e = _poses(estimate_xy, "estimate_xy")[:, :2]
     r = _poses(reference_xy, "reference_xy")[:, :2]
     if e.shape != r.shape:
         raise ValueError(f"shapes differ: {e.shape} vs {r.shape}")
-    if e.shape[0] < 2 or not (np.all(np.isfinite(e)) and np.all(np.isfinite(r))):
-        raise ValueError(f"need at least 2 paired finite points, got {e.shape[0]}")
+    if e.shape[0] < 2:
+        raise ValueError(f"need at least 2 paired points, got {e.shape[0]}")
+    for name, a in (("estimate_xy", e), ("reference_xy", r)):
+        bad = np.flatnonzero(~np.all(np.isfinite(a), axis=1))
+        if bad.size:
+            raise ValueError(f"{name}: point {int(bad[0])} is not finite: {a[bad[0]].tolist()}")
     e_mean, r_mean = e.mean(axis=0), r.mean(axis=0)
     ec, rc = e - e_mean, r - r_mean
     dot = float(np.sum(ec * rc))
     cross = float(np.sum(ec[:, 0] * rc[:, 1] - ec[:, 1] * rc[:, 0]))
-    if not np.any(ec) or not np.any(rc):
-        raise ValueError("a track that does not move has no defined rotation")
     theta = float(np.arctan2(cross, dot))
     c, s = np.cos(theta), np.sin(theta)
     rot = np.array([[c, -s], [s, c]])
@@ -130,8 +135,7 @@ def aligned_position_rmse(estimate_xy: ArrayLike, reference_xy: ArrayLike) -> fl
     """Position RMSE, m, of ``estimate_xy`` against ``reference_xy`` (paired points) after
     :func:`se2_alignment`."""
     _, _, moved = se2_alignment(estimate_xy, reference_xy)
-    r = _poses(reference_xy, "reference_xy")[:, :2]
-    return float(np.sqrt(np.mean(np.sum((moved - r) ** 2, axis=1))))
+    return position_rmse(moved, reference_xy)
 
 
 def nees(errors: ArrayLike, covariances: ArrayLike) -> NDArray[np.float64]:

@@ -157,8 +157,11 @@ class FixLog:
         altitude: (N,) m above the WGS84 ellipsoid (a message without one, NaN in the
             message, gets the first known altitude, or 0).
         status: (N,) ``status.status``: 0 fix, 1 satellite-based augmentation, 2 ground-based
-            augmentation (RTK).
-        position_covariance: (N, 9) m^2, east-north-up, row major, as in the message.
+            augmentation (DGPS, RTK).
+        position_covariance: (N, 9) m^2, east-north-up, row major, as in the message;
+            meaningful only where ``covariance_type`` > 0.
+        covariance_type: (N,) ``position_covariance_type``: 0 unknown, 1 approximated,
+            2 diagonal known, 3 known.
         no_fix: messages left out: ``status.status`` < 0 (no fix) or a latitude or longitude
             that is not finite.
         frame_id, topic, source, bag_time, out_of_order: as in :class:`OdometryLog`.
@@ -170,6 +173,7 @@ class FixLog:
     altitude: NDArray[np.float64]
     status: NDArray[np.int64]
     position_covariance: NDArray[np.float64]
+    covariance_type: NDArray[np.int64]
     no_fix: int = 0
     frame_id: str = ""
     topic: str = ""
@@ -432,7 +436,7 @@ class _Collector:
                               *msg.pose.covariance, *msg.twist.covariance))
         elif self.kind == "fix":
             self.rows.append((msg.latitude, msg.longitude, msg.altitude, msg.status.status,
-                              *msg.position_covariance))
+                              *msg.position_covariance, msg.position_covariance_type))
         else:
             tw = msg.twist if self.msgtype == "geometry_msgs/TwistStamped" else msg
             self.rows.append((tw.linear.x, tw.linear.y, tw.angular.z))
@@ -570,6 +574,13 @@ def _twist_log(c: _Collector) -> TwistLog:
 def _fix_log(c: _Collector) -> FixLog:
     t, bag_t, rows, ooo = c.arrays()
     has = (rows[:, 3] >= 0) & np.isfinite(rows[:, 0]) & np.isfinite(rows[:, 1])
+    wild = np.flatnonzero(has & ((np.abs(rows[:, 0]) > 90.0) | (np.abs(rows[:, 1]) > 180.0)))
+    if wild.size:
+        i = int(wild[0])
+        raise LogFormatError(
+            f"{c.path}: topic {c.topic}: fix {i + 1} (t = {t[i]:.9f} s) has latitude "
+            f"{float(rows[i, 0])!r}, longitude {float(rows[i, 1])!r}: not degrees in [-90, 90] and "
+            f"[-180, 180] (NMEA ddmm.mmmm values not converted?)")
     if not np.any(has):
         raise LogFormatError(f"{c.path}: topic {c.topic}: none of its {len(t)} messages holds "
                              f"a fix (status.status < 0 or no latitude/longitude)")
@@ -581,6 +592,7 @@ def _fix_log(c: _Collector) -> FixLog:
         longitude=np.ascontiguousarray(rows[has, 1]), altitude=alt,
         status=rows[has, 3].astype(np.int64),
         position_covariance=np.ascontiguousarray(rows[has, 4:13]),
+        covariance_type=rows[has, 13].astype(np.int64),
         no_fix=int(np.count_nonzero(~has)), frame_id=c.frames.get("frame_id", ""),
         topic=c.topic, source=str(c.path), bag_time=bag_t[has], out_of_order=ooo,
     )

@@ -30,6 +30,7 @@ from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_en
 from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
 from fusion.evaluation.trust import TrustWarning
 from fusion.geometry.angles import wrap_angle
+from fusion.io.errors import LogFormatError
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
 from fusion.io.imu_csv import imu_csv_lines
 from fusion.io.logdir import read_logdir
@@ -403,8 +404,9 @@ class BagReplay:
     counters, the bag's own odometry pose moved to start at the origin ((K, 3) x m, y m, yaw
     rad at ``odom_t``), the bag's IMU and odometry (:func:`fusion.io.bags.read_bag`), the
     trust warnings (:mod:`fusion.evaluation.trust`) and, given a GPS topic, its fixes and the
-    fused track and the bag's odometry against them (:mod:`fusion.evaluation.gps`; tracks
-    ``"fused"`` and ``"bag odometry"``)."""
+    fused track, the bag's odometry and the gyro-at-stops baseline against them
+    (:mod:`fusion.evaluation.gps`; tracks ``"fused"``, ``"bag odometry"``, ``"gyro at
+    stops"``), or in ``gps_note`` why they could not be compared."""
 
     table: NDArray[np.float64]
     pipeline: FusionPipeline
@@ -416,6 +418,7 @@ class BagReplay:
     warnings: list[TrustWarning] = field(default_factory=list)
     fixes: Any = None
     gps: GpsComparison | None = None
+    gps_note: str = ""
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
@@ -445,6 +448,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         robot = dataclasses.replace(robot, imu_mount_rpy=tuple(imu_mount_rpy))
     bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic, fix_topic=fix_topic)
     imu, odom = bag.imu, bag.odometry
+    if bag.fixes is not None:
+        _check_fixes_overlap(path, bag.fixes, imu.t, odom.t)
     streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=odom.t, twist_v=odom.v,
                       twist_w=odom.w)
     table, pipe, stats, warnings = fuse_streams(robot, streams, output, tilt=tilt,
@@ -453,16 +458,16 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     c, sn = math.cos(th0), math.sin(th0)
     dx, dy = odom.x - x0, odom.y - y0
     own = np.column_stack([c * dx + sn * dy, -sn * dx + c * dy, wrap_angle(odom.yaw - th0)])
-    gps = None
+    gps, gps_note = None, ""
     if bag.fixes is not None:
         fx = bag.fixes
         try:
             gps = compare_with_fixes(fx.t, fixes_to_enu(fx.latitude, fx.longitude, fx.altitude),
                                      {"fused": (table[:, 0], table[:, 1:3]),
-                                      "bag odometry": (odom.t, own[:, :2])})
-        except ValueError as exc:  # the output is written: say why there is no GPS figure
-            raise ValueError(f"{path}: GPS topic {fix_topic}: {exc} (the fused output "
-                             f"{output} is written)") from exc
+                                      "bag odometry": (odom.t, own[:, :2]),
+                                      "gyro at stops": _gyro_at_stops_track(robot, imu, odom)})
+        except ValueError as exc:  # the output is written: no GPS figure, and why
+            gps_note = f"GPS topic {fix_topic}: not compared: {exc}"
     if plot is not None:
         from fusion.jobs.plots import plot_replay
 
@@ -482,7 +487,36 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
-    return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps)
+    return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps,
+                     gps_note)
+
+
+def _check_fixes_overlap(path: Path, fixes: Any, imu_t: NDArray[np.float64],
+                         odom_t: NDArray[np.float64]) -> None:
+    """Refuse, before anything is written, GPS fixes that cannot be compared: fewer than 2
+    inside the span the IMU and the odometry share (LogFormatError naming both spans)."""
+    start, end = max(imu_t[0], odom_t[0]), min(imu_t[-1], odom_t[-1])
+    n = int(np.count_nonzero((fixes.t >= start) & (fixes.t <= end)))
+    if n < 2:
+        raise LogFormatError(
+            f"{path}: topic {fixes.topic}: {n} of its {len(fixes)} fixes (stamped "
+            f"{fixes.t[0]:.3f}-{fixes.t[-1]:.3f} s) lie inside the span the IMU and the "
+            f"odometry share, {start:.3f}-{end:.3f} s; need at least 2 to compare (are the "
+            f"GPS stamps on another clock?)")
+
+
+def _gyro_at_stops_track(robot: RobotConfig, imu, odom) -> tuple[NDArray[np.float64],
+                                                                  NDArray[np.float64]]:
+    """(t s, (K, 2) x, y m) of the naive baseline issue 11 scored a real bag with: the mounted
+    gyro's vertical axis, its bias re-learnt at every stop, with the odometry's speed
+    (:func:`fusion.evaluation.baselines.gyro_at_stops_twist`)."""
+    from fusion.evaluation.baselines import gyro_at_stops_twist
+    from fusion.geometry.mount import imu_to_base, mount_matrix
+
+    R = mount_matrix(robot.imu_mount_rpy)
+    b = gyro_at_stops_twist(imu.t, imu_to_base(R, imu.gyro), imu_to_base(R, imu.accel), odom.t,
+                            odom.v, odom.w)
+    return b.t, b.poses[:, :2]
 
 
 @dataclass(frozen=True)
