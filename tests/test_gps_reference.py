@@ -24,15 +24,15 @@ from fusion.evaluation.trajectory import aligned_position_rmse, se2_alignment
 from fusion.geometry.geodesy import geodetic_to_enu
 from fusion.io.errors import LogFormatError
 
-pyproj = pytest.importorskip("pyproj")
-pytest.importorskip("rosbags")
-
 IMU, ODOM, FIX = "/imu/data", "/jackal_velocity_controller/odom", "/gps/fix"
 ORIGIN = (48.137154, 11.576124, 519.0)  # deg, deg, m above the ellipsoid
 TURN, SHIFT = math.radians(35.0), np.array([12.0, -7.0])  # odom frame -> east, north
 
 
 def _topocentric(origin: tuple[float, float, float]):
+    """PROJ's transformer from (longitude, latitude, height) to its topocentric (ENU) frame at
+    ``origin`` (latitude deg, longitude deg, height m)."""
+    pyproj = pytest.importorskip("pyproj")  # the test extra; the alignment tests need scipy only
     lat0, lon0, h0 = origin
     return pyproj.Transformer.from_pipeline(
         f"+proj=pipeline +step +proj=cart +ellps=WGS84 +step +proj=topocentric +ellps=WGS84 "
@@ -139,6 +139,7 @@ def _write_bag_with_fixes(source: Path, dest: Path, *, kind=lambda i: "fix",
     """The Jackal bag plus a NavSatFix topic at every 5th odometry message (10 Hz): its pose
     turned by TURN, moved by SHIFT and put on the globe at ORIGIN by PROJ; fix i written as
     ``kind(i)`` (:data:`FIX_KINDS`), stamped ``stamp_shift`` s after its odometry message."""
+    pytest.importorskip("rosbags")
     from rosbags.rosbag1 import Reader, Writer
     from rosbags.typesys import Stores, get_typestore
 
