@@ -364,7 +364,11 @@ class LiveRunner:
         """Push events into the pipeline until ``until()`` is true or :meth:`stop` is
         called. ``until`` is called after each batch of at most ``batch`` events and at least
         every ``poll`` wall seconds (a place to send commands); ``on_event(ev)`` sees each
-        event before the pipeline does. Ctrl-C (KeyboardInterrupt) propagates.
+        event before the pipeline does. Ctrl-C (KeyboardInterrupt) propagates; the events of
+        the batch in hand that the pipeline had not yet counted go back to the front of the
+        queue (:meth:`stop` pushes them), so the ledger loses none. An event interrupted
+        inside the pipeline's own push may still show as unaccounted: to stop without that,
+        let ``until`` return True (``fusion run`` turns Ctrl-C and SIGTERM into that).
 
         Raises:
             SourceFailedError: a source failed ``max_restarts + 1`` times in a row (the
@@ -372,13 +376,25 @@ class LiveRunner:
                 the rest and close the pipeline).
         """
         push = self.pipeline.push
+        stats = self.pipeline.stats
         while not self._stop.is_set() and not (until is not None and until()):
             self._check_sources()
-            for _name, ev in self._take(batch, poll):
-                if on_event is not None:
-                    on_event(ev)
-                push(ev)
-                self.events_pushed += 1
+            taken = self._take(batch, poll)
+            done = 0  # events of ``taken`` the pipeline has counted
+            try:
+                for _name, ev in taken:
+                    if on_event is not None:
+                        on_event(ev)
+                    before = stats.events_in
+                    try:
+                        push(ev)
+                    finally:
+                        done += stats.events_in != before
+                    self.events_pushed += 1
+            except BaseException:
+                with self._cond:  # not lost: the front of the queue again
+                    self._q.extendleft(reversed(taken[done:]))
+                raise
         self._check_sources()
 
     def stop(self) -> None:
