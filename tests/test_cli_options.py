@@ -65,6 +65,8 @@ MONITOR = ("chassis", "monitor", "--wheel-distance", "1.0", "--speed-ratio", "1e
 RUN_FILE = ("run", "--imu", "sim", "--chassis", "sim", "--duration", "1", "--status", "0",
             "--publish", "jsonl:f.jsonl")
 
+#: what `fusion replay` says when a bag's option is given for another input
+BAGS_ONLY = "--imu-topic/--odom-topic/--gps-topic/--stamps are for ROS bags"
 BAG_TOPICS = ("--imu-topic", "/imu/data", "--odom-topic", "/jackal_velocity_controller/odom")
 
 
@@ -288,19 +290,22 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         # its effect is the exit status where the inputs disagree: the bag's first 8 s do
         # (68 % slip; tests/test_trust.py); where they agree it changes nothing by design
         "--strict": [exits("bag", 3, "--strict")],
-        **{opt: [*(refused(k, "--imu-topic/--odom-topic/--gps-topic are for ROS bags", opt,
-                           value) for k in ("logdir", "capture", "folder")),
+        **{opt: [*(refused(k, BAGS_ONLY, opt, value) for k in ("logdir", "capture", "folder")),
                  refused("bag", "no topic '/nope'; topics present: /imu/data", opt, "/nope")]
            for opt, value in (("--imu-topic", "/imu/data"),
                               ("--odom-topic", "/jackal_velocity_controller/odom"))},
         # the bundled bag has no GPS: its effect on a bag with one is tests/test_gps_reference.py
-        "--gps-topic": [*(refused(k, "--imu-topic/--odom-topic/--gps-topic are for ROS bags",
-                                  "--gps-topic", "/gps/fix")
+        "--gps-topic": [*(refused(k, BAGS_ONLY, "--gps-topic", "/gps/fix")
                           for k in ("logdir", "capture", "folder")),
                         refused("bag", "no topic '/nope'; topics present: /imu/data",
                                 "--gps-topic", "/nope"),
                         refused("bag", "--gps-topic /imu/data is also the --imu-topic",
                                 "--gps-topic", "/imu/data")],
+        # the bag's record times are not its header stamps (tests/test_logs_bags.py: a bag
+        # whose driver left every header stamp at zero)
+        "--stamps": [changes("bag", "--stamps", "bag"),
+                     *(refused(k, BAGS_ONLY, "--stamps", "bag")
+                       for k in ("logdir", "capture", "folder"))],
         "--imu-mount-rpy": [
             *(changes(k, "--imu-mount-rpy", "0", "0.1", "0.2") for k in ("logdir", "bag")),
             refused("capture", "--imu-mount-rpy does not apply to a DATA-uart2 capture",

@@ -198,3 +198,38 @@ def test_the_mount_comes_from_robot_toml_unless_given(bag, tmp_path):
     a = json.loads(outs["toml"].splitlines()[-2])  # the last records ([-1]: the status)
     b = json.loads(outs["none"].splitlines()[-2])
     assert a["linear_acceleration"] != b["linear_acceleration"]
+
+
+def test_a_driver_that_leaves_header_stamps_at_zero_replays_with_stamps_bag(bag, tmp_path,
+                                                                           capsys):
+    # Some IMU drivers publish header.stamp = 0. The default refuses and says what to do;
+    # --stamps bag replays on the record times, as the same bag with its stamps intact does.
+    import dataclasses
+
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    zero = tmp_path / "zero_stamps.bag"
+    with Reader(bag) as reader, Writer(zero) as writer:
+        conns = {c.topic: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                 for c in reader.connections}
+        for conn, ns, raw in reader.messages():
+            if conn.topic == IMU_TOPIC:
+                msg = store.deserialize_ros1(raw, conn.msgtype)
+                stamp = dataclasses.replace(msg.header.stamp, sec=0, nanosec=0)
+                msg = dataclasses.replace(msg, header=dataclasses.replace(msg.header,
+                                                                          stamp=stamp))
+                raw = store.serialize_ros1(msg, conn.msgtype)
+            writer.write(conns[conn.topic], ns, raw)
+    out = tmp_path / "zero.csv"
+    assert _replay(zero, out) == 2
+    err = capsys.readouterr().err
+    assert f"topic {IMU_TOPIC}: every header.stamp is zero" in err and "--stamps bag" in err
+    assert not out.exists()
+    assert _replay(zero, out, "--stamps", "bag") == 0
+    intact = tmp_path / "intact.csv"
+    assert _replay(bag, intact, "--stamps", "bag") == 0
+    assert out.read_bytes() == intact.read_bytes()
+    assert _replay(bag, tmp_path / "header.csv") == 0
+    assert (tmp_path / "header.csv").read_bytes() != intact.read_bytes()

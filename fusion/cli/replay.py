@@ -94,6 +94,10 @@ def register(subparsers) -> None:
                                          "bag's odometry and the gyro-at-stops baseline "
                                          "against the GPS fixes after one SE(2) alignment "
                                          "each, and draw the fixes with --plot")
+    bag.add_argument("--stamps", choices=("header", "bag"), default=None,
+                     help="message times of a bag: each message's header.stamp (default) or "
+                          "the time the bag recorded it (for drivers that leave header "
+                          "stamps at zero or on another clock)")
     bag.add_argument("--imu-mount-rpy", type=float, nargs=3, metavar=("R", "P", "Y"),
                      default=None,
                      help="URDF roll pitch yaw (rad) taking IMU-frame vectors into the base "
@@ -332,9 +336,9 @@ def _run(args: argparse.Namespace) -> int:
     if not path.exists():
         raise CommandError(f"{path}: no such log directory or bag")
     bag = job.is_bag(path)
-    if not bag and (args.imu_topic or args.odom_topic or args.gps_topic):
-        raise CommandError(f"{path}: --imu-topic/--odom-topic/--gps-topic are for ROS bags; "
-                           "this is not "
+    if not bag and (args.imu_topic or args.odom_topic or args.gps_topic or args.stamps):
+        raise CommandError(f"{path}: --imu-topic/--odom-topic/--gps-topic/--stamps are for ROS "
+                           "bags; this is not "
                            "a .bag, .mcap or ROS 2 bag folder")
     folder = not bag and path.is_dir() and not (path / "robot.toml").is_file()
     if args.format is not None and not folder:
@@ -551,7 +555,8 @@ def run_bag(args: argparse.Namespace) -> int:
     robot = read_robot_toml(args.robot) if args.robot is not None else None
     with _BarContext(args.progress, path.name) as bar:
         r = job.replay_bag(path, args.output, imu_topic=args.imu_topic,
-                           odom_topic=args.odom_topic, fix_topic=args.gps_topic, robot=robot,
+                           odom_topic=args.odom_topic, fix_topic=args.gps_topic,
+                           stamps=args.stamps or "header", robot=robot,
                            imu_mount_rpy=args.imu_mount_rpy, tilt=not args.level,
                            plot=args.plot, progress=bar.callback)
     imu, odom, table, stats, own = r.imu, r.odom, r.table, r.stats, r.own

@@ -450,7 +450,8 @@ class _Collector:
         t = np.asarray(self.t, dtype=np.float64)
         if self.use_header and not np.any(t > 0):
             raise LogFormatError(f"{where}: every header.stamp is zero; read it with "
-                                 "stamps='bag' (the bag's record times)")
+                                 "stamps='bag' (the bag's record times; `fusion replay "
+                                 "--stamps bag`)")
         rows = np.asarray(self.rows, dtype=np.float64)
         # a NavSatFix without a fix has NaN coordinates by definition: _fix_log leaves it out
         check = {"twist": rows, "fix": rows[:, 3:4]}.get(self.kind, rows[:, :6])

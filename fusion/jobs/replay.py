@@ -422,7 +422,8 @@ class BagReplay:
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
-               fix_topic: str | None = None, robot: RobotConfig | None = None,
+               fix_topic: str | None = None, stamps: str = "header",
+               robot: RobotConfig | None = None,
                imu_mount_rpy: tuple[float, float, float] | None = None, tilt: bool = True,
                plot: str | Path | None = None,
                progress: Progress | None = None) -> BagReplay:
@@ -430,7 +431,10 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
 
     ``robot``: wheel_distance and [ekf] tuning (default: neutral values; the wheel distance
     only enters the small radius-mismatch term of the speed); ``imu_mount_rpy`` (rad)
-    replaces the robot's IMU mount. ``fix_topic``: a sensor_msgs/NavSatFix topic to score
+    replaces the robot's IMU mount. ``stamps``: ``"header"`` (each message's header.stamp) or
+    ``"bag"`` (when the bag recorded it; for drivers that leave header stamps at zero or on
+    another clock; :func:`fusion.io.bags.read_bag`). ``fix_topic``: a sensor_msgs/NavSatFix
+    topic to score
     the fused track and the bag's odometry against (position RMSE after one SE(2) alignment
     each) and to draw on the plot.
     """
@@ -446,7 +450,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                                             encode_sampling_time=0.02))
     if imu_mount_rpy is not None:
         robot = dataclasses.replace(robot, imu_mount_rpy=tuple(imu_mount_rpy))
-    bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic, fix_topic=fix_topic)
+    bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic, fix_topic=fix_topic,
+                   stamps=stamps)
     imu, odom = bag.imu, bag.odometry
     if bag.fixes is not None:
         _check_fixes_overlap(path, bag.fixes, imu.t, odom.t)
