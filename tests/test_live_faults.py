@@ -280,29 +280,33 @@ def _restamp(ev, t: float):
 
 
 # -- the faults ----------------------------------------------------------------------------
+class Burst:
+    """An IMU source that delivers ``n`` samples (1 kHz, rest) at once when the rig's time
+    passes ``at`` s (a reader that hung, then caught up), stamped up to 0.5 s before then."""
+
+    name = "imu"
+
+    def __init__(self, rig, n: int, at: float) -> None:
+        self.rig, self.n, self.at, self.sent = rig, n, at, False
+
+    def read(self):
+        self.rig.clock.sleep(0.01)
+        if self.sent or self.rig.now() < self.at:
+            return []
+        self.sent = True
+        t = self.rig.clock() - 0.5 - (self.n - np.arange(self.n)) / 1000.0
+        g, a = np.zeros(3), np.array([0.0, 0.0, STANDARD_GRAVITY])
+        return [ImuSample(float(s), g, a) for s in t]
+
+    def restart(self) -> None:
+        pass
+
+
 def test_a_burst_of_10000_events_keeps_its_order_and_loses_none(tmp_path):
     seen = []
-
-    class Backlog:  # a reader that hung for 10 s delivers its 10,000 samples (1 kHz) at once
-        name = "imu"
-
-        def __init__(self, rig) -> None:
-            self.rig, self.sent = rig, False
-
-        def read(self):
-            self.rig.clock.sleep(0.01)
-            if self.sent or self.rig.now() < 10.5:
-                return []
-            self.sent = True
-            t = self.rig.clock() - 0.5 - (10_000 - np.arange(10_000)) / 1000.0
-            g, a = np.zeros(3), np.array([0.0, 0.0, STANDARD_GRAVITY])
-            return [ImuSample(float(s), g, a) for s in t]
-
-        def restart(self) -> None:
-            pass
-
-    rig = Rig(tmp_path, make_sources=lambda rig: [Backlog(rig)], pipeline_sources=("imu",),
-              publish_rate_hz=10.0, speed=10.0)
+    # a reader that hung for 10 s delivers its 10,000 samples at once
+    rig = Rig(tmp_path, make_sources=lambda rig: [Burst(rig, 10_000, 10.5)],
+              pipeline_sources=("imu",), publish_rate_hz=10.0, speed=10.0)
     rig.drive_until(11.0, on_event=lambda ev: seen.append(ev.t))
     rig.runner.run(until=lambda: rig.runner.events_pushed >= 10_000 or rig.now() > 300,
                    on_event=lambda ev: seen.append(ev.t))
@@ -320,24 +324,6 @@ def test_ctrl_c_inside_a_batch_puts_the_rest_of_it_back(tmp_path):
     # that the pipeline never saw go back to the front of the queue, and stop() pushes them:
     # the old runner lost them (701 unaccounted in the final ledger; `fusion run`'s Ctrl-C
     # test caught 2 of them once).
-    class Burst:
-        name = "imu"
-
-        def __init__(self, rig) -> None:
-            self.rig, self.sent = rig, False
-
-        def read(self):
-            self.rig.clock.sleep(0.01)
-            if self.sent or self.rig.now() < 3.0:  # stamps >= 1.5 s: ROS time is >= 0
-                return []
-            self.sent = True
-            t = self.rig.clock() - 0.5 - (1000 - np.arange(1000)) / 1000.0
-            g, a = np.zeros(3), np.array([0.0, 0.0, STANDARD_GRAVITY])
-            return [ImuSample(float(s), g, a) for s in t]
-
-        def restart(self) -> None:
-            pass
-
     seen = []
 
     def interrupt_at_300(ev) -> None:
@@ -345,8 +331,9 @@ def test_ctrl_c_inside_a_batch_puts_the_rest_of_it_back(tmp_path):
         if len(seen) == 300:
             raise KeyboardInterrupt
 
-    rig = Rig(tmp_path, make_sources=lambda rig: [Burst(rig)], pipeline_sources=("imu",),
-              publish_rate_hz=10.0, speed=10.0)
+    # at 3 s: stamps from 1.5 s on (ROS time cannot be negative)
+    rig = Rig(tmp_path, make_sources=lambda rig: [Burst(rig, 1000, 3.0)],
+              pipeline_sources=("imu",), publish_rate_hz=10.0, speed=10.0)
     with pytest.raises(KeyboardInterrupt):
         rig.runner.run(until=lambda: rig.now() > 300, poll=0.01, on_event=interrupt_at_300)
     assert rig.runner.events_pushed == 299 and rig.runner.ledger()["queued"] == 701
