@@ -287,6 +287,6 @@ def test_a_gps_topic_of_another_type_or_without_fixes_is_named(datasets_dir, gps
     from fusion.io.bags import read_bag_odometry
 
     t8 = read_bag_odometry(jackal, ODOM).t[::5][7]
-    with pytest.raises(LogFormatError, match=rf"fix 8 \(t = {t8:.9f} s\) has latitude "
+    with pytest.raises(LogFormatError, match=rf"message 8 \(t = {t8:.9f} s\) has latitude "
                                              r"4808.2292, longitude 1134.5674: not degrees"):
         read_bag_fixes(ddmm, FIX)

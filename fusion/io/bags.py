@@ -579,7 +579,7 @@ def _fix_log(c: _Collector) -> FixLog:
     if wild.size:
         i = int(wild[0])
         raise LogFormatError(
-            f"{c.path}: topic {c.topic}: fix {i + 1} (t = {t[i]:.9f} s) has latitude "
+            f"{c.path}: topic {c.topic}: message {i + 1} (t = {t[i]:.9f} s) has latitude "
             f"{float(rows[i, 0])!r}, longitude {float(rows[i, 1])!r}: not degrees in [-90, 90] and "
             f"[-180, 180] (NMEA ddmm.mmmm values not converted?)")
     if not np.any(has):

@@ -434,9 +434,10 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     replaces the robot's IMU mount. ``stamps``: ``"header"`` (each message's header.stamp) or
     ``"bag"`` (when the bag recorded it; for drivers that leave header stamps at zero or on
     another clock; :func:`fusion.io.bags.read_bag`). ``fix_topic``: a sensor_msgs/NavSatFix
-    topic to score
-    the fused track and the bag's odometry against (position RMSE after one SE(2) alignment
-    each) and to draw on the plot.
+    topic to score the fused track, the bag's odometry and the gyro-at-stops baseline against
+    (position RMSE after one SE(2) alignment each; refused before anything is written when
+    fewer than 2 fixes fall inside the span the IMU and the odometry share) and to draw on the
+    plot.
     """
     from fusion.geometry.kinematics import DiffDriveParams
     from fusion.io.bags import read_bag
