@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
+from tilt_rate_reference import tilt_rate_by_hand  # tests/tilt_rate_reference.py
 
 from drivers.chassis import encode_wheel_frame
 from fusion.evaluation.synthetic import (
@@ -24,7 +25,7 @@ from fusion.pipeline.records import _fast_record, _record_fields
 from fusion.pipeline.sources import capture_events, logdir_events, merge_by_time, replay
 from fusion.planar import _ekf_core as core
 from fusion.planar.accel_slip import accel_slip_flags
-from fusion.planar.ekf import EkfNoise, fuse, vertical_rate
+from fusion.planar.ekf import EkfNoise, fuse
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.model import NX
 from fusion.planar.robot import RobotConfig
@@ -55,15 +56,16 @@ def events(run):
                          ids=["default", "accel-speed"])
 def test_streaming_pipeline_equals_the_filters_composed_by_hand(run, noise):
     """Oracle: Keel told the wheels' knowledge (tests/keel_feed_reference.py) ->
-    ekf.vertical_rate, imu_motion_codes, the accelerometer slip flags of the base-frame
-    specific force -> ekf.fuse (batch, merge_events' own ordering; with accel_speed_psd also
-    the base-frame forward specific force), composed here from the library's pieces. The
+    imu_motion_codes, the tilt-compensated rate (tests/tilt_rate_reference.py), the
+    accelerometer slip flags of the base-frame specific force -> ekf.fuse (batch,
+    merge_events' own ordering; with accel_speed_psd also the base-frame forward specific
+    force), composed here from the library's pieces. The
     pipeline, fed one event at a time in host order, must publish exactly the fused state
     after every wheel frame."""
     robot = RobotConfig(chassis=run.robot, ekf=noise)
     q = keel_by_hand(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
-    gz = vertical_rate(run.gyro, q)
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    gz = tilt_rate_by_hand(robot, run.imu_t, run.gyro, q, motion, run.wheel_t, run.ticks)
     slip = accel_slip_flags(run.robot.speed_ratio, run.robot.encode_sampling_time, run.imu_t,
                             run.accel[:, :2], gz, motion, run.wheel_t, run.ticks)
     accel_x = run.accel[:, 0] if noise.accel_speed_psd > 0 else None
@@ -330,16 +332,19 @@ def _push_any(pipe, ev):
 
 def test_twists_stream_into_the_ekfs_own_twist_update(run):
     """Oracle: Keel told the twists' v*w and stillness (tests/keel_feed_reference.py) ->
-    vertical_rate, imu_motion_codes -> ekf.fuse(twist_t=...) composed by hand (merge_events'
-    ordering). IMU samples and twists pushed one at a time in host order must publish exactly
-    the fused state after every twist."""
+    imu_motion_codes, the tilt-compensated rate (tests/tilt_rate_reference.py) ->
+    ekf.fuse(twist_t=...) composed by hand (merge_events' ordering). IMU samples and twists
+    pushed one at a time in host order must publish exactly the fused state after every
+    twist."""
     robot = RobotConfig(chassis=run.robot)
     tt, tv, tw = _twists(run)
     q = keel_by_hand(robot, run.imu_t, run.gyro, run.accel, twist_t=tt, twist_v=tv,
                      twist_w=tw)
-    gz = vertical_rate(run.gyro, q)
+    motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    gz = tilt_rate_by_hand(robot, run.imu_t, run.gyro, q, motion, twist_t=tt, twist_v=tv,
+                           twist_w=tw)
     track, ekf = fuse(run.robot, run.imu_t, gz, noise=EkfNoise(), twist_t=tt, twist_v=tv,
-                      twist_w=tw, imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
+                      twist_w=tw, imu_motion=motion)
     is_t = track.kind == core.EV_TWIST
     rows, t_rows = track.states[is_t], track.t_filter[is_t]
 

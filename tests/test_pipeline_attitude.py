@@ -2,7 +2,8 @@
 ``[attitude]`` table (bad keys refused naming file:line), and what the wheels tell Keel.
 
 Oracles: the filters run directly on the same samples and composed with the EKF by hand
-(vertical_rate -> fuse); tests/keel_feed_reference.py (the feed as stated, plain Python);
+(tests/tilt_rate_reference.py -> fuse); tests/keel_feed_reference.py (the feed as stated,
+plain Python);
 the simulator's truth (its robot drives on a level floor: the true tilt is 0).
 """
 
@@ -14,6 +15,7 @@ import math
 import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
+from tilt_rate_reference import tilt_rate_by_hand  # tests/tilt_rate_reference.py
 
 from fusion.attitude.keel import Keel
 from fusion.attitude.mahony import Mahony
@@ -32,7 +34,7 @@ from fusion.io.run_config import ConfigError, load_config
 from fusion.pipeline.core import FusionPipeline
 from fusion.planar import _ekf_core as core
 from fusion.planar.accel_slip import accel_slip_flags
-from fusion.planar.ekf import EkfNoise, fuse, vertical_rate
+from fusion.planar.ekf import EkfNoise, fuse
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import AttitudeConfig, RobotConfig
 from fusion.sinks.text import JsonLinesSink
@@ -60,10 +62,12 @@ def _records(robot: RobotConfig, run, **kw) -> list:
 
 
 def _by_hand(run, q) -> np.ndarray:
-    """The EKF's state after each wheel frame with the yaw rate of attitudes ``q`` (and the
-    accelerometer's slip flags of the specific force as measured)."""
-    rate = vertical_rate(run.gyro, q)
+    """The EKF's state after each wheel frame with the yaw rate of attitudes ``q``
+    (tests/tilt_rate_reference.py) and the accelerometer's slip flags of the specific force
+    as measured."""
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    rate = tilt_rate_by_hand(RobotConfig(chassis=run.robot), run.imu_t, run.gyro, q, motion,
+                             run.wheel_t, run.ticks)
     slip = accel_slip_flags(run.robot.speed_ratio, run.robot.encode_sampling_time, run.imu_t,
                             run.accel[:, :2], rate, motion, run.wheel_t, run.ticks)
     track, _ = fuse(run.robot, run.imu_t, rate, run.wheel_t, run.ticks, EkfNoise(),

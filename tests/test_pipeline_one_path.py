@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
+from tilt_rate_reference import tilt_rate_by_hand  # tests/tilt_rate_reference.py
 
 from fusion.evaluation.synthetic import (
     EXAMPLE_ROBOT,
@@ -20,7 +21,6 @@ from fusion.evaluation.synthetic import (
     random_mission,
     simulate,
 )
-from fusion.geometry.mount import vertical_rate
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.sources import merge_by_time
 from fusion.planar.accel_slip import accel_slip_flags
@@ -100,9 +100,10 @@ def _reference(run, window: float, sources: tuple[str, ...]):
     shift = 0.5 * robot.encode_sampling_time
     q = keel_by_hand(RobotConfig(chassis=robot), run.imu_t, run.gyro, run.accel, run.wheel_t,
                      run.ticks)
-    rate = vertical_rate(run.gyro, q)
-    rate_at = dict(zip(run.imu_t.tolist(), rate.tolist()))
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    rate = tilt_rate_by_hand(RobotConfig(chassis=robot), run.imu_t, run.gyro, q, motion,
+                             run.wheel_t, run.ticks)
+    rate_at = dict(zip(run.imu_t.tolist(), rate.tolist()))
     motion_at = dict(zip(run.imu_t.tolist(), motion.tolist()))
     # the accelerometer's slip flags of the wheel frames (fusion.planar.accel_slip)
     slip = accel_slip_flags(robot.speed_ratio, robot.encode_sampling_time, run.imu_t,
