@@ -20,13 +20,14 @@ import stat
 import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
+from tilt_rate_reference import tilt_rate_by_hand  # tests/tilt_rate_reference.py
 
 from fusion.cli import main
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.fused_csv import write_fused_csv
 from fusion.jobs.replay import fused_table
 from fusion.pipeline.core import FusionPipeline
-from fusion.planar.ekf import fuse, vertical_rate
+from fusion.planar.ekf import fuse
 from fusion.planar.imu_motion import imu_motion_codes
 from fusion.planar.robot import RobotConfig
 from fusion.sinks.text import JsonLinesSink
@@ -116,20 +117,21 @@ def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
     """The CSV (state after every IMU message) is the fuse()-based output, byte for byte,
     with the attitude of Keel told the odometry twists' v*w and stillness
     (tests/keel_feed_reference.py), its first step the nominal IMU period (0.02 s) as in the
-    pipeline."""
+    pipeline, and the tilt-compensated rate of tests/tilt_rate_reference.py."""
     imu, odom = msgs.imu, msgs.odometry
     out = tmp_path / "fused.csv"
     for level in (False, True):
         assert _replay(bag, out, *(["--level"] if level else [])) == 0
+        codes = imu_motion_codes(imu.t, imu.gyro, imu.accel)
         if level:
             gz = imu.gyro[:, 2]
         else:
             q = keel_by_hand(NEUTRAL, imu.t, imu.gyro, imu.accel, twist_t=odom.t,
                              twist_v=odom.v, twist_w=odom.w, sample_period=0.02)
-            gz = vertical_rate(imu.gyro, q)
+            gz = tilt_rate_by_hand(NEUTRAL, imu.t, imu.gyro, q, codes, twist_t=odom.t,
+                                   twist_v=odom.v, twist_w=odom.w)
         track, _ = fuse(NEUTRAL.chassis, imu.t, gz, noise=NEUTRAL.ekf, twist_t=odom.t,
-                        twist_v=odom.v, twist_w=odom.w,
-                        imu_motion=imu_motion_codes(imu.t, imu.gyro, imu.accel))
+                        twist_v=odom.v, twist_w=odom.w, imu_motion=codes)
         rows = track.output_rows()
         assert rows.sum() == N_IMU
         no_wheels = np.full((int(rows.sum()), 2), np.nan)

@@ -97,6 +97,19 @@ def test_streaming_pipeline_equals_the_filters_composed_by_hand(run, noise):
     assert last.wheel_left_speed == run.ticks[-1, 0] * (run.robot.speed_ratio / T)
 
 
+def test_the_horizontal_gyro_bias_is_learnt_at_the_stops(run):
+    # the simulator's gyro biases about x and y are 0.001 and -0.001 rad/s (plus a random
+    # walk of 2e-5 rad/s/sqrt(s)); the pipeline's estimate is their mean over the samples at
+    # which the wheels and the IMU stood still
+    pipe = FusionPipeline(RobotConfig(chassis=run.robot))
+    assert pipe.horizontal_gyro_bias == (0.0, 0.0, 0)
+    with pipe:
+        pipe.push_arrays(run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
+    bx, by, samples = pipe.horizontal_gyro_bias
+    assert samples > 300  # the mission stops for several seconds
+    assert bx == pytest.approx(0.001, abs=3e-4) and by == pytest.approx(-0.001, abs=3e-4)
+
+
 @pytest.mark.parametrize("rate", [None, 10.0])
 def test_batch_entry_point_gives_the_same_bytes_as_streaming(run, rate):
     """push_arrays (Keel and EKF batch cores) == push() one event at a time, byte for byte

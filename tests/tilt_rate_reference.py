@@ -7,7 +7,8 @@ the projection, ``bx*(r20 - r20_rest) + by*(r21 - r21_rest)``. ``bx, by`` and
 base x, y components over the samples so far (this one included) at which the robot stood
 still: the IMU's motion code still, and the newest wheel frame or twist that arrived before the
 sample (at equal stamps the IMU sample arrives first) at most 2.5 wheel periods old with
-v = w = 0. Nothing is taken off before the first such sample.
+``|v| <= EkfNoise.twist_zero_v`` and ``|w| <= twist_zero_w``. Nothing is taken off before the
+first such sample.
 """
 
 from __future__ import annotations
@@ -49,7 +50,8 @@ def tilt_rate_by_hand(robot: RobotConfig, imu_t, gyro, q, codes, wheel_t=(), tic
         r20 = 2.0 * (qx * qz - qw * qy) / n2
         r21 = 2.0 * (qy * qz + qw * qx) / n2
         if (codes[i] == MOTION_STILL and newest is not None and t - newest[0] <= 2.5 * period
-                and newest[1] == 0.0 and newest[2] == 0.0):
+                and abs(newest[1]) <= robot.ekf.twist_zero_v
+                and abs(newest[2]) <= robot.ekf.twist_zero_w):
             for k, value in enumerate((float(gyro[i][0]), float(gyro[i][1]), r20, r21)):
                 sums[k] += value
             count += 1
