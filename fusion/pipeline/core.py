@@ -260,8 +260,9 @@ class FusionPipeline(Lifecycle):
             that will deliver, e.g. ``("wheels",)`` without an IMU or ``("imu", "twist")``
             for a ROS bag's odometry, else only the window releases).
         imu_rate_hz: nominal IMU rate, Hz (the attitude filter's first step), 4 .. 10,000.
-        tilt: tilt-compensate the gyro with the filter's attitude (False: the gyro's z axis is
-            the yaw rate, a level robot).
+        tilt: tilt-compensate the gyro with the filter's attitude, the horizontal gyro bias's
+            leak through it held at its value at rest (:meth:`_bias_leak`); False: the gyro's
+            z axis is the yaw rate, a level robot.
         attitude: a configured :class:`fusion.attitude.keel.Keel` or
             :class:`fusion.attitude.mahony.Mahony` (default: the one ``robot.attitude``
             describes, Keel with its defaults unless ``[attitude]`` says otherwise; giving both
@@ -682,7 +683,7 @@ class FusionPipeline(Lifecycle):
                     # after each gyro sample as fusion.planar.ekf.merge_events orders it
                     parts.append((imu_t, core.EV_ACCEL, imu_t, accel[:, 0].copy(),
                                   np.zeros(imu_t.size), np.arange(ref0, ref0 + imu_t.size)))
-        if motion is not None and motion[0].size:
+        if motion[0].size:
             self._known_motion = tuple(float(m[-1]) for m in motion)
         wheel_slip = self._slip_flags(slip_imu, wheel_t, ticks)
         if wheel_t is not None and wheel_t.size:
@@ -803,7 +804,10 @@ class FusionPipeline(Lifecycle):
         which the robot stood still: the IMU still (:data:`MOTION_STILL`) and the newest wheel
         frame or twist at most ``gap_periods`` periods old with ``|v|`` and ``|w|`` at most
         ``EkfNoise.twist_zero_v`` and ``twist_zero_w`` (the EKF's own test of a twist at
-        rest; a wheel frame's one tick is above them). 0 until the first stop.
+        rest; a frame of a tick or two on a fine encoder may pass it too, which does no harm:
+        creeping at a millimetre per second with the IMU quiet leaves the x, y rates and the
+        tilt as at rest). 0 until the first stop. The means never forget: the x, y biases'
+        drift (warm-up) enters through the tilt's change only, a second-order error.
 
         Why: the projection ``R[2, :] @ gyro`` mixes the x and y rates into the vertical one
         by the estimated tilt, biases included (an MPU6050's are up to +-20 deg/s before
@@ -811,8 +815,11 @@ class FusionPipeline(Lifecycle):
         (vibration, lever arm, skid, an accelerometer bias: a degree or so), so the leak the
         EKF learns at the stops as part of its bias is not the leak while driving: a bias of
         1 deg/s and a 0.6 deg change leave 0.01 deg/s, about 2 deg of heading over 200 s of
-        driving. Only the change from rest is removed, so the rate at rest, and with it the
-        bias the EKF learns there, stays as it was: the first stop brings no step."""
+        driving. Only the change from the mean tilt at rest is removed, so at a stop with
+        that tilt the rate, and with it the bias the EKF learns there, stays as it was: the
+        first stop brings no step (a later stop on another slope shifts the rate at rest by
+        ``bx*(r20 - r20_rest) + by*(r21 - r21_rest)``, the same shift as while driving
+        there, so the bias the EKF learns holds alike)."""
         if t.size == 1 and not motion[0].size:
             return np.array([self._bias_leak_one(float(t[0]), gyro[0], q[0], int(imu_codes[0]))])
         idx = np.searchsorted(motion[0], t, side="left") - 1
@@ -827,7 +834,7 @@ class FusionPipeline(Lifecycle):
         up = np.column_stack([2.0 * (qx * qz - qw * qy) / n2, 2.0 * (qy * qz + qw * qx) / n2])
         # running sums in sample order: bx, by, r20, r21 (cumsum adds one row at a time, so
         # one call with many samples and many calls with one give the same bits)
-        rows = np.hstack([gyro[:, :2], up]) * still[:, None]
+        rows = np.where(still[:, None], np.hstack([gyro[:, :2], up]), 0.0)
         sums = np.cumsum(np.vstack([self._rest_sum, rows]), axis=0)[1:]
         count = self._rest_count + np.cumsum(still)
         self._rest_sum = sums[-1].copy()
@@ -862,7 +869,8 @@ class FusionPipeline(Lifecycle):
     def horizontal_gyro_bias(self) -> tuple[float, float, int]:
         """``(bx, by, samples)``: the base-frame x and y gyro bias whose leak through the tilt
         projection is kept at its value at rest, rad/s (see :meth:`_bias_leak`; 0 before the
-        first stop), and the number of still IMU samples it is the mean of."""
+        first stop, and always with ``tilt=False`` or without a wheel or twist source), and
+        the number of still IMU samples it is the mean of."""
         if self._rest_count == 0:
             return 0.0, 0.0, 0
         bx, by = (self._rest_sum[:2] / self._rest_count).tolist()
