@@ -20,7 +20,10 @@ import stat
 import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
-from tilt_rate_reference import tilt_rate_by_hand  # tests/tilt_rate_reference.py
+from tilt_rate_reference import (  # tests/tilt_rate_reference.py
+    rest_gyro_bias_by_hand,
+    tilt_rate_by_hand,
+)
 
 from fusion.cli import main
 from fusion.geometry.kinematics import DiffDriveParams
@@ -126,7 +129,10 @@ def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
         if level:
             gz = imu.gyro[:, 2]
         else:
-            q = keel_by_hand(NEUTRAL, imu.t, imu.gyro, imu.accel, twist_t=odom.t,
+            fed = imu.gyro - rest_gyro_bias_by_hand(NEUTRAL, imu.t, imu.gyro, codes,
+                                                    twist_t=odom.t, twist_v=odom.v,
+                                                    twist_w=odom.w)
+            q = keel_by_hand(NEUTRAL, imu.t, fed, imu.accel, twist_t=odom.t,
                              twist_v=odom.v, twist_w=odom.w, sample_period=0.02)
             gz = tilt_rate_by_hand(NEUTRAL, imu.t, imu.gyro, q, codes, twist_t=odom.t,
                                    twist_v=odom.v, twist_w=odom.w)

@@ -9,7 +9,10 @@ import math
 import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
-from tilt_rate_reference import tilt_rate_by_hand  # tests/tilt_rate_reference.py
+from tilt_rate_reference import (  # tests/tilt_rate_reference.py
+    rest_gyro_bias_by_hand,
+    tilt_rate_by_hand,
+)
 
 from drivers.chassis import encode_wheel_frame
 from fusion.evaluation.synthetic import (
@@ -63,8 +66,10 @@ def test_streaming_pipeline_equals_the_filters_composed_by_hand(run, noise):
     pipeline, fed one event at a time in host order, must publish exactly the fused state
     after every wheel frame."""
     robot = RobotConfig(chassis=run.robot, ekf=noise)
-    q = keel_by_hand(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    fed = run.gyro - rest_gyro_bias_by_hand(robot, run.imu_t, run.gyro, motion, run.wheel_t,
+                                            run.ticks)
+    q = keel_by_hand(robot, run.imu_t, fed, run.accel, run.wheel_t, run.ticks)
     gz = tilt_rate_by_hand(robot, run.imu_t, run.gyro, q, motion, run.wheel_t, run.ticks)
     slip = accel_slip_flags(run.robot.speed_ratio, run.robot.encode_sampling_time, run.imu_t,
                             run.accel[:, :2], gz, motion, run.wheel_t, run.ticks)
@@ -351,9 +356,10 @@ def test_twists_stream_into_the_ekfs_own_twist_update(run):
     twist."""
     robot = RobotConfig(chassis=run.robot)
     tt, tv, tw = _twists(run)
-    q = keel_by_hand(robot, run.imu_t, run.gyro, run.accel, twist_t=tt, twist_v=tv,
-                     twist_w=tw)
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    fed = run.gyro - rest_gyro_bias_by_hand(robot, run.imu_t, run.gyro, motion, twist_t=tt,
+                                            twist_v=tv, twist_w=tw)
+    q = keel_by_hand(robot, run.imu_t, fed, run.accel, twist_t=tt, twist_v=tv, twist_w=tw)
     gz = tilt_rate_by_hand(robot, run.imu_t, run.gyro, q, motion, twist_t=tt, twist_v=tv,
                            twist_w=tw)
     track, ekf = fuse(run.robot, run.imu_t, gz, noise=EkfNoise(), twist_t=tt, twist_v=tv,

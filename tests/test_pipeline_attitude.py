@@ -15,7 +15,10 @@ import math
 import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
-from tilt_rate_reference import tilt_rate_by_hand  # tests/tilt_rate_reference.py
+from tilt_rate_reference import (  # tests/tilt_rate_reference.py
+    rest_gyro_bias_by_hand,
+    tilt_rate_by_hand,
+)
 
 from fusion.attitude.keel import Keel
 from fusion.attitude.mahony import Mahony
@@ -61,6 +64,14 @@ def _records(robot: RobotConfig, run, **kw) -> list:
     return recs
 
 
+def _fed(run) -> np.ndarray:
+    """The gyro the pipeline's attitude filter sees: less the horizontal bias learnt at rest
+    (tests/tilt_rate_reference.py)."""
+    motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    return run.gyro - rest_gyro_bias_by_hand(RobotConfig(chassis=run.robot), run.imu_t,
+                                             run.gyro, motion, run.wheel_t, run.ticks)
+
+
 def _by_hand(run, q) -> np.ndarray:
     """The EKF's state after each wheel frame with the yaw rate of attitudes ``q``
     (tests/tilt_rate_reference.py) and the accelerometer's slip flags of the specific force
@@ -90,7 +101,7 @@ def test_robot_toml_selects_mahony_and_the_output_is_a_direct_mahony_run(run, tm
     assert robot.attitude == AttitudeConfig("mahony", (("kp", 0.5), ("ki", 0.001)))
     robot = RobotConfig(chassis=run.robot, attitude=robot.attitude)
     got = _xyvw(_records(robot, run))
-    q = Mahony(0.5, 0.001, axes=6, sample_period=0.01).update_batch(run.gyro, run.accel,
+    q = Mahony(0.5, 0.001, axes=6, sample_period=0.01).update_batch(_fed(run), run.accel,
                                                                     timestamps=run.imu_t)
     np.testing.assert_array_equal(got, _by_hand(run, q)[:, [0, 1, 3, 4]])
     # and it is not the default (Keel) output
@@ -105,11 +116,11 @@ def test_robot_toml_selects_keel_parameters_and_the_feed(run, tmp_path):
     assert att == AttitudeConfig("keel", (("accel_time_constant", 2.0),), False)
     got = _xyvw(_records(RobotConfig(chassis=run.robot, attitude=att), run))
     q = Keel(sample_period=0.01, accel_time_constant=2.0).update_batch(
-        run.gyro, run.accel, timestamps=run.imu_t)
+        _fed(run), run.accel, timestamps=run.imu_t)
     np.testing.assert_array_equal(got, _by_hand(run, q)[:, [0, 1, 3, 4]])
     # the default: Keel with its defaults, told the wheels' knowledge
     robot = RobotConfig(chassis=run.robot)
-    want = keel_by_hand(robot, run.imu_t, run.gyro, run.accel, run.wheel_t, run.ticks)
+    want = keel_by_hand(robot, run.imu_t, _fed(run), run.accel, run.wheel_t, run.ticks)
     np.testing.assert_array_equal(_xyvw(_records(robot, run)),
                                   _by_hand(run, want)[:, [0, 1, 3, 4]])
     assert not np.array_equal(got, _xyvw(_records(robot, run)))
@@ -223,7 +234,7 @@ def test_streaming_equals_batch_with_wheels_twists_and_a_stalled_wheel_stream(ru
     assert batch.count("\n") == Run.wheel_t.size + twist_t.size
     assert _jsonl(robot, Run, [(k, i) for _, k, i in order]) == batch
     # without the twists, against the reference (the stall included)
-    want = keel_by_hand(robot, Run.imu_t, Run.gyro, Run.accel, Run.wheel_t, Run.ticks)
+    want = keel_by_hand(robot, Run.imu_t, _fed(Run), Run.accel, Run.wheel_t, Run.ticks)
     np.testing.assert_array_equal(_xyvw(_records(robot, Run)),
                                   _by_hand(Run, want)[:, [0, 1, 3, 4]])
 

@@ -12,7 +12,10 @@ import math
 import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
-from tilt_rate_reference import tilt_rate_by_hand  # tests/tilt_rate_reference.py
+from tilt_rate_reference import (  # tests/tilt_rate_reference.py
+    rest_gyro_bias_by_hand,
+    tilt_rate_by_hand,
+)
 
 from fusion.evaluation.synthetic import (
     EXAMPLE_ROBOT,
@@ -98,9 +101,11 @@ def _reference(run, window: float, sources: tuple[str, ...]):
     robot = run.robot
     ekf = PlanarEKF(robot)
     shift = 0.5 * robot.encode_sampling_time
-    q = keel_by_hand(RobotConfig(chassis=robot), run.imu_t, run.gyro, run.accel, run.wheel_t,
-                     run.ticks)
     motion = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    fed = run.gyro - rest_gyro_bias_by_hand(RobotConfig(chassis=robot), run.imu_t, run.gyro,
+                                            motion, run.wheel_t, run.ticks)
+    q = keel_by_hand(RobotConfig(chassis=robot), run.imu_t, fed, run.accel, run.wheel_t,
+                     run.ticks)
     rate = tilt_rate_by_hand(RobotConfig(chassis=robot), run.imu_t, run.gyro, q, motion,
                              run.wheel_t, run.ticks)
     rate_at = dict(zip(run.imu_t.tolist(), rate.tolist()))

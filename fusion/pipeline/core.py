@@ -32,8 +32,9 @@ Event-time model, stated once:
   world vertical (:func:`fusion.planar.ekf.vertical_rate`, tilt compensation). What the
   filter is told about the wheels depends only on the events that arrived before the sample,
   so replaying the same events in one call or one at a time gives the same attitude. The
-  horizontal gyro bias leaks into that rate through the estimated tilt; the leak is held at its
-  value at rest, the bias and tilt taken over the samples at which the robot stood still
+  horizontal gyro bias learnt over the samples at which the robot stood still is taken off
+  the gyro the attitude filter sees (:meth:`FusionPipeline._rest_gyro_bias`), and its leak
+  into the vertical rate through the estimated tilt is held at its value at rest
   (:meth:`FusionPipeline._bias_leak`), so the bias the EKF learns at a stop holds while
   driving.
 - The EKF's own policy orders the inputs: each event is keyed by its *effective* time (a wheel
@@ -78,7 +79,7 @@ import traceback
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
@@ -659,12 +660,12 @@ class FusionPipeline(Lifecycle):
                 R = self._mount
                 if R is not None:
                     gyro, accel = imu_to_base(R, gyro), imu_to_base(R, accel)
-                q = self._attitude(imu_t, gyro, accel,
-                                   motion if self._knows_wheels else None)
                 imu_codes = self._imu_motion.update_batch(imu_t, gyro, accel)
+                rest = self._rest_gyro_bias(imu_t, gyro, imu_codes, motion)
+                q = self._attitude(imu_t, gyro - rest.bias, accel,
+                                   motion if self._knows_wheels else None)
                 if self.tilt:
-                    rate = vertical_rate(gyro, q) - self._bias_leak(imu_t, gyro, q, imu_codes,
-                                                                    motion)
+                    rate = vertical_rate(gyro, q) - self._bias_leak(rest, q)
                 else:
                     rate = gyro[:, 2].copy()
                 if self._slip is not None:
@@ -795,33 +796,34 @@ class FusionPipeline(Lifecycle):
         a[~(dt <= self._gap_periods * self.period)] = 0.0
         return a
 
-    def _bias_leak(self, t, gyro, q, imu_codes, motion) -> NDArray[np.float64]:
-        """(N,) rad/s to take off the tilt-projected rate: the part of the gyro's horizontal
-        bias that the projection lets in beyond what it let in at rest,
-        ``bx*(r20 - r20_rest) + by*(r21 - r21_rest)``, with ``(r20, r21)`` the base x, y
-        components of the world vertical (the attitude ``q``'s third row) and ``bx, by``,
-        ``r20_rest, r21_rest`` their means over every IMU sample so far (this one included) at
-        which the robot stood still: the IMU still (:data:`MOTION_STILL`) and the newest wheel
-        frame or twist at most ``gap_periods`` periods old with ``|v|`` and ``|w|`` at most
-        ``EkfNoise.twist_zero_v`` and ``twist_zero_w`` (the EKF's own test of a twist at
-        rest; a frame of a tick or two on a fine encoder may pass it too, which does no harm:
-        creeping at a millimetre per second with the IMU quiet leaves the x, y rates and the
-        tilt as at rest). 0 until the first stop. The means never forget: the x, y biases'
-        drift (warm-up) enters through the tilt's change only, a second-order error.
+    def _rest_gyro_bias(self, t, gyro, imu_codes, motion) -> _RestBias:
+        """The horizontal gyro bias learnt at rest, per IMU sample (stamps ``t`` s, base-frame
+        ``gyro`` rad/s): the mean of the base x and y rates over every sample so far (this one
+        included) at which the robot stood still: the IMU still (:data:`MOTION_STILL`) and the
+        newest wheel frame or twist at most ``gap_periods`` periods old with ``|v|`` and
+        ``|w|`` at most ``EkfNoise.twist_zero_v`` and ``twist_zero_w`` (the EKF's own test of
+        a twist at rest; a frame of a tick or two on a fine encoder may pass it too, which
+        does no harm: creeping at a millimetre per second with the IMU quiet leaves the x, y
+        rates and the tilt as at rest). 0 until the first stop; the mean never forgets (the
+        x, y biases' warm-up drift is left to the attitude filter).
 
-        Why: the projection ``R[2, :] @ gyro`` mixes the x and y rates into the vertical one
-        by the estimated tilt, biases included (an MPU6050's are up to +-20 deg/s before
-        calibration). The tilt estimate is not the same at rest and while driving
-        (vibration, lever arm, skid, an accelerometer bias: a degree or so), so the leak the
-        EKF learns at the stops as part of its bias is not the leak while driving: a bias of
-        1 deg/s and a 0.6 deg change leave 0.01 deg/s, about 2 deg of heading over 200 s of
-        driving. Only the change from the mean tilt at rest is removed, so at a stop with
-        that tilt the rate, and with it the bias the EKF learns there, stays as it was: the
-        first stop brings no step (a later stop on another slope shifts the rate at rest by
-        ``bx*(r20 - r20_rest) + by*(r21 - r21_rest)``, the same shift as while driving
-        there, so the bias the EKF learns holds alike)."""
+        It is taken off the gyro the attitude filter sees: an MPU6050's x and y biases are up
+        to +-20 deg/s before calibration, far beyond what Keel's own bias estimate may reach
+        (``bias_clip``, 2 deg/s), and the rest would tilt its attitude by degrees (with 15 and
+        -10 deg/s the fused yaw RMSE on benchmarks/blackbox's "all" seed 101 was 107 deg).
+        Stillness here needs the wheels, not the attitude, so the estimate comes first."""
         if t.size == 1 and not motion[0].size:
-            return np.array([self._bias_leak_one(float(t[0]), gyro[0], q[0], int(imu_codes[0]))])
+            still = self._still_one(float(t[0]), int(imu_codes[0]))
+            if still:
+                gx, gy = gyro[0, :2].tolist()
+                sums = self._rest_sum
+                self._rest_sum = np.array([sums[0] + gx, sums[1] + gy, sums[2], sums[3]])
+                self._rest_count += 1
+            count = np.array([self._rest_count])
+            means = np.zeros((1, 3))
+            if self._rest_count:
+                means[0, :2] = (self._rest_sum[:2] / self._rest_count).tolist()
+            return _RestBias(np.array([still]), count, means)
         idx = np.searchsorted(motion[0], t, side="left") - 1
         inside = idx >= 0
         src_t, v, w = (np.where(inside, m[idx], last) if m.size else np.full(t.size, last)
@@ -829,48 +831,74 @@ class FusionPipeline(Lifecycle):
         n = self.ekf.noise
         still = ((imu_codes == MOTION_STILL) & (t - src_t <= self._gap_periods * self.period)
                  & (np.abs(v) <= n.twist_zero_v) & (np.abs(w) <= n.twist_zero_w))
-        qw, qx, qy, qz = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-        n2 = qw * qw + qx * qx + qy * qy + qz * qz
-        up = np.column_stack([2.0 * (qx * qz - qw * qy) / n2, 2.0 * (qy * qz + qw * qx) / n2])
-        # running sums in sample order: bx, by, r20, r21 (cumsum adds one row at a time, so
-        # one call with many samples and many calls with one give the same bits)
-        rows = np.where(still[:, None], np.hstack([gyro[:, :2], up]), 0.0)
-        sums = np.cumsum(np.vstack([self._rest_sum, rows]), axis=0)[1:]
+        # running sums in sample order (cumsum adds one row at a time, so one call with many
+        # samples and many calls with one give the same bits); a non-still row adds nothing
+        sums = np.cumsum(np.vstack([self._rest_sum[:2],
+                                    np.where(still[:, None], gyro[:, :2], 0.0)]), axis=0)[1:]
         count = self._rest_count + np.cumsum(still)
-        self._rest_sum = sums[-1].copy()
+        self._rest_sum = np.concatenate([sums[-1], self._rest_sum[2:]])
         self._rest_count = int(count[-1])
-        mean = sums / np.maximum(count, 1)[:, None]
-        return np.where(count > 0, mean[:, 0] * (up[:, 0] - mean[:, 2])
-                        + mean[:, 1] * (up[:, 1] - mean[:, 3]), 0.0)
+        means = np.zeros((t.size, 3))
+        means[:, :2] = np.where(count[:, None] > 0, sums / np.maximum(count, 1)[:, None], 0.0)
+        return _RestBias(still, count, means)
 
-    def _bias_leak_one(self, t: float, gyro, q, code: int) -> float:
-        """:meth:`_bias_leak` of one IMU sample with no wheel frame or twist in the same call
-        (the streaming case), in scalars: the same operations in the same order, so the same
-        bits, at a fraction of the cost of numpy's per-call overhead."""
+    def _still_one(self, t: float, code: int) -> bool:
+        """:meth:`_rest_gyro_bias`'s stillness of one IMU sample with no wheel frame or twist
+        in the same call, in scalars."""
         src_t, v, w, _ = self._known_motion
         n = self.ekf.noise
-        qw, qx, qy, qz = q.tolist()
+        return bool(code == MOTION_STILL and t - src_t <= self._gap_periods * self.period
+                    and abs(v) <= n.twist_zero_v and abs(w) <= n.twist_zero_w)
+
+    def _bias_leak(self, rest: _RestBias, q) -> NDArray[np.float64]:
+        """(N,) rad/s to take off the tilt-projected rate: the part of the gyro's horizontal
+        bias that the projection lets in beyond what it let in at rest,
+        ``bx*(r20 - r20_rest) + by*(r21 - r21_rest)``, with ``(r20, r21)`` the base x, y
+        components of the world vertical (the attitude ``q``'s third row), ``bx, by`` the
+        bias learnt at rest (:meth:`_rest_gyro_bias`) and ``r20_rest, r21_rest`` the means of
+        ``(r20, r21)`` over the same still samples. 0 until the first stop.
+
+        Why: the projection ``R[2, :] @ gyro`` mixes the x and y rates into the vertical one
+        by the estimated tilt, biases included. The tilt estimate is not the same at rest and
+        while driving (vibration, lever arm, skid, an accelerometer bias: a degree or so), so
+        the leak the EKF learns at the stops as part of its bias is not the leak while
+        driving: a bias of 1 deg/s and a 0.6 deg change leave 0.01 deg/s, about 2 deg of
+        heading over 200 s of driving. Only the change from the mean tilt at rest is removed,
+        so at a stop with that tilt the rate, and with it the bias the EKF learns there, stays
+        as it was: the first stop brings no step (a later stop on another slope shifts the
+        rate at rest by the same amount as driving there does, so the bias the EKF learns
+        holds alike)."""
+        qw, qx, qy, qz = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
         n2 = qw * qw + qx * qx + qy * qy + qz * qz
         up0 = 2.0 * (qx * qz - qw * qy) / n2
         up1 = 2.0 * (qy * qz + qw * qx) / n2
-        if (code == MOTION_STILL and t - src_t <= self._gap_periods * self.period
-                and abs(v) <= n.twist_zero_v and abs(w) <= n.twist_zero_w):
-            gx, gy = gyro[:2].tolist()
-            sums = self._rest_sum
-            self._rest_sum = np.array([sums[0] + gx, sums[1] + gy, sums[2] + up0,
-                                       sums[3] + up1])
-            self._rest_count += 1
-        if not self._rest_count:
-            return 0.0
-        bx, by, m20, m21 = (self._rest_sum / self._rest_count).tolist()
-        return bx * (up0 - m20) + by * (up1 - m21)
+        if q.shape[0] == 1 and rest.still.size == 1:
+            # one sample: the same operations on Python floats (same bits, less overhead)
+            u0, u1 = float(up0[0]), float(up1[0])
+            if rest.still[0]:
+                sums = self._rest_sum
+                self._rest_sum = np.array([sums[0], sums[1], sums[2] + u0, sums[3] + u1])
+            c = int(rest.count[0])
+            if not c:
+                return np.zeros(1)
+            bx, by = rest.bias[0, :2].tolist()
+            m20, m21 = (self._rest_sum[2:] / c).tolist()
+            return np.array([bx * (u0 - m20) + by * (u1 - m21)])
+        ups = np.column_stack([up0, up1])
+        sums = np.cumsum(np.vstack([self._rest_sum[2:],
+                                    np.where(rest.still[:, None], ups, 0.0)]), axis=0)[1:]
+        self._rest_sum = np.concatenate([self._rest_sum[:2], sums[-1]])
+        mean = sums / np.maximum(rest.count, 1)[:, None]
+        leak = rest.bias[:, 0] * (up0 - mean[:, 0]) + rest.bias[:, 1] * (up1 - mean[:, 1])
+        return np.where(rest.count > 0, leak, 0.0)
 
     @property
     def horizontal_gyro_bias(self) -> tuple[float, float, int]:
-        """``(bx, by, samples)``: the base-frame x and y gyro bias whose leak through the tilt
-        projection is kept at its value at rest, rad/s (see :meth:`_bias_leak`; 0 before the
-        first stop, and always with ``tilt=False`` or without a wheel or twist source), and
-        the number of still IMU samples it is the mean of."""
+        """``(bx, by, samples)``: the base-frame x and y gyro bias learnt at rest, rad/s
+        (:meth:`_rest_gyro_bias`: taken off the gyro the attitude filter sees, its leak
+        through the tilt projection held at its value at rest, :meth:`_bias_leak`; 0 before
+        the first stop, and always without a wheel or twist source), and the number of
+        still IMU samples it is the mean of."""
         if self._rest_count == 0:
             return 0.0, 0.0, 0
         bx, by = (self._rest_sum[:2] / self._rest_count).tolist()
@@ -1162,6 +1190,15 @@ class FusionPipeline(Lifecycle):
 
 
 _NO_MOTION = (np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
+
+
+class _RestBias(NamedTuple):
+    """Per IMU sample of one call: stood still (bool), still samples so far (int), and the
+    horizontal gyro bias learnt at rest (N, 3), rad/s, base frame (z 0)."""
+
+    still: NDArray[np.bool_]
+    count: NDArray[np.int64]
+    bias: NDArray[np.float64]
 _NO_EVENTS = (np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0),
               np.zeros(0, dtype=np.int64))
 
