@@ -390,9 +390,10 @@ class FusionPipeline(Lifecycle):
         self._last_speed = {"wheels": (-math.inf, 0.0), "twist": (-math.inf, 0.0)}
         # still / moving per IMU sample, for the EKF's ZUPT and encoder-fault decisions
         self._imu_motion = ImuMotionDetector()
-        # sums over the still IMU samples of the base x, y gyro rates and of the world
-        # vertical's base x, y components (_bias_leak)
-        self._rest_sum = np.zeros(4)
+        # sums over the still IMU samples of the base x, y gyro rates (_rest_gyro_bias) and
+        # of the world vertical's base x, y components (_bias_leak), and their number
+        self._rest_gyro_sum = np.zeros(2)
+        self._rest_up_sum = np.zeros(2)
         self._rest_count = 0
         self._slip = self._slip_detector(accel_slip)
         self._mount = _matrix_or_none(robot.imu_to_base())
@@ -815,14 +816,12 @@ class FusionPipeline(Lifecycle):
         if t.size == 1 and not motion[0].size:
             still = self._still_one(float(t[0]), int(imu_codes[0]))
             if still:
-                gx, gy = gyro[0, :2].tolist()
-                sums = self._rest_sum
-                self._rest_sum = np.array([sums[0] + gx, sums[1] + gy, sums[2], sums[3]])
+                self._rest_gyro_sum = self._rest_gyro_sum + gyro[0, :2]
                 self._rest_count += 1
             count = np.array([self._rest_count])
             means = np.zeros((1, 3))
             if self._rest_count:
-                means[0, :2] = (self._rest_sum[:2] / self._rest_count).tolist()
+                means[0, :2] = self._rest_gyro_sum / self._rest_count
             return _RestBias(np.array([still]), count, means)
         idx = np.searchsorted(motion[0], t, side="left") - 1
         inside = idx >= 0
@@ -833,10 +832,10 @@ class FusionPipeline(Lifecycle):
                  & (np.abs(v) <= n.twist_zero_v) & (np.abs(w) <= n.twist_zero_w))
         # running sums in sample order (cumsum adds one row at a time, so one call with many
         # samples and many calls with one give the same bits); a non-still row adds nothing
-        sums = np.cumsum(np.vstack([self._rest_sum[:2],
+        sums = np.cumsum(np.vstack([self._rest_gyro_sum,
                                     np.where(still[:, None], gyro[:, :2], 0.0)]), axis=0)[1:]
         count = self._rest_count + np.cumsum(still)
-        self._rest_sum = np.concatenate([sums[-1], self._rest_sum[2:]])
+        self._rest_gyro_sum = sums[-1].copy()
         self._rest_count = int(count[-1])
         means = np.zeros((t.size, 3))
         means[:, :2] = np.where(count[:, None] > 0, sums / np.maximum(count, 1)[:, None], 0.0)
@@ -872,22 +871,21 @@ class FusionPipeline(Lifecycle):
         n2 = qw * qw + qx * qx + qy * qy + qz * qz
         up0 = 2.0 * (qx * qz - qw * qy) / n2
         up1 = 2.0 * (qy * qz + qw * qx) / n2
-        if q.shape[0] == 1 and rest.still.size == 1:
+        if q.shape[0] == 1:
             # one sample: the same operations on Python floats (same bits, less overhead)
             u0, u1 = float(up0[0]), float(up1[0])
             if rest.still[0]:
-                sums = self._rest_sum
-                self._rest_sum = np.array([sums[0], sums[1], sums[2] + u0, sums[3] + u1])
+                self._rest_up_sum = self._rest_up_sum + np.array([u0, u1])
             c = int(rest.count[0])
             if not c:
                 return np.zeros(1)
             bx, by = rest.bias[0, :2].tolist()
-            m20, m21 = (self._rest_sum[2:] / c).tolist()
+            m20, m21 = (self._rest_up_sum / c).tolist()
             return np.array([bx * (u0 - m20) + by * (u1 - m21)])
         ups = np.column_stack([up0, up1])
-        sums = np.cumsum(np.vstack([self._rest_sum[2:],
+        sums = np.cumsum(np.vstack([self._rest_up_sum,
                                     np.where(rest.still[:, None], ups, 0.0)]), axis=0)[1:]
-        self._rest_sum = np.concatenate([self._rest_sum[:2], sums[-1]])
+        self._rest_up_sum = sums[-1].copy()
         mean = sums / np.maximum(rest.count, 1)[:, None]
         leak = rest.bias[:, 0] * (up0 - mean[:, 0]) + rest.bias[:, 1] * (up1 - mean[:, 1])
         return np.where(rest.count > 0, leak, 0.0)
@@ -901,7 +899,7 @@ class FusionPipeline(Lifecycle):
         still IMU samples it is the mean of."""
         if self._rest_count == 0:
             return 0.0, 0.0, 0
-        bx, by = (self._rest_sum[:2] / self._rest_count).tolist()
+        bx, by = (self._rest_gyro_sum / self._rest_count).tolist()
         return bx, by, self._rest_count
 
     def _wheel_knowledge(self, t, gyro, accel, motion):
