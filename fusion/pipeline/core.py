@@ -392,8 +392,8 @@ class FusionPipeline(Lifecycle):
         self._imu_motion = ImuMotionDetector()
         # sums over the still IMU samples of the base x, y gyro rates (_rest_gyro_bias) and
         # of the world vertical's base x, y components (_bias_leak), and their number
-        self._rest_gyro_sum = np.zeros(2)
-        self._rest_up_sum = np.zeros(2)
+        self._rest_gyro_sum = (0.0, 0.0)
+        self._rest_up_sum = (0.0, 0.0)
         self._rest_count = 0
         self._slip = self._slip_detector(accel_slip)
         self._mount = _matrix_or_none(robot.imu_to_base())
@@ -815,14 +815,15 @@ class FusionPipeline(Lifecycle):
         Stillness here needs the wheels, not the attitude, so the estimate comes first."""
         if t.size == 1 and not motion[0].size:
             still = self._still_one(float(t[0]), int(imu_codes[0]))
+            sx, sy = self._rest_gyro_sum
             if still:
-                self._rest_gyro_sum = self._rest_gyro_sum + gyro[0, :2]
+                gx, gy = gyro[0, :2].tolist()
+                sx, sy = sx + gx, sy + gy
+                self._rest_gyro_sum = (sx, sy)
                 self._rest_count += 1
-            count = np.array([self._rest_count])
-            means = np.zeros((1, 3))
-            if self._rest_count:
-                means[0, :2] = self._rest_gyro_sum / self._rest_count
-            return _RestBias(np.array([still]), count, means)
+            c = self._rest_count
+            bias = [[sx / c, sy / c, 0.0]] if c else [[0.0, 0.0, 0.0]]
+            return _RestBias(np.array([still]), np.array([c]), np.array(bias))
         idx = np.searchsorted(motion[0], t, side="left") - 1
         inside = idx >= 0
         src_t, v, w = (np.where(inside, m[idx], last) if m.size else np.full(t.size, last)
@@ -835,7 +836,7 @@ class FusionPipeline(Lifecycle):
         sums = np.cumsum(np.vstack([self._rest_gyro_sum,
                                     np.where(still[:, None], gyro[:, :2], 0.0)]), axis=0)[1:]
         count = self._rest_count + np.cumsum(still)
-        self._rest_gyro_sum = sums[-1].copy()
+        self._rest_gyro_sum = tuple(sums[-1].tolist())
         self._rest_count = int(count[-1])
         means = np.zeros((t.size, 3))
         means[:, :2] = np.where(count[:, None] > 0, sums / np.maximum(count, 1)[:, None], 0.0)
@@ -867,25 +868,29 @@ class FusionPipeline(Lifecycle):
         as it was: the first stop brings no step (a later stop on another slope shifts the
         rate at rest by the same amount as driving there does, so the bias the EKF learns
         holds alike)."""
-        qw, qx, qy, qz = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-        n2 = qw * qw + qx * qx + qy * qy + qz * qz
-        up0 = 2.0 * (qx * qz - qw * qy) / n2
-        up1 = 2.0 * (qy * qz + qw * qx) / n2
         if q.shape[0] == 1:
             # one sample: the same operations on Python floats (same bits, less overhead)
-            u0, u1 = float(up0[0]), float(up1[0])
+            qw, qx, qy, qz = q[0].tolist()
+            n2 = qw * qw + qx * qx + qy * qy + qz * qz
+            u0 = 2.0 * (qx * qz - qw * qy) / n2
+            u1 = 2.0 * (qy * qz + qw * qx) / n2
+            s20, s21 = self._rest_up_sum
             if rest.still[0]:
-                self._rest_up_sum = self._rest_up_sum + np.array([u0, u1])
+                s20, s21 = s20 + u0, s21 + u1
+                self._rest_up_sum = (s20, s21)
             c = int(rest.count[0])
             if not c:
                 return np.zeros(1)
             bx, by = rest.bias[0, :2].tolist()
-            m20, m21 = (self._rest_up_sum / c).tolist()
-            return np.array([bx * (u0 - m20) + by * (u1 - m21)])
+            return np.array([bx * (u0 - s20 / c) + by * (u1 - s21 / c)])
+        qw, qx, qy, qz = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
+        n2 = qw * qw + qx * qx + qy * qy + qz * qz
+        up0 = 2.0 * (qx * qz - qw * qy) / n2
+        up1 = 2.0 * (qy * qz + qw * qx) / n2
         ups = np.column_stack([up0, up1])
         sums = np.cumsum(np.vstack([self._rest_up_sum,
                                     np.where(rest.still[:, None], ups, 0.0)]), axis=0)[1:]
-        self._rest_up_sum = sums[-1].copy()
+        self._rest_up_sum = tuple(sums[-1].tolist())
         mean = sums / np.maximum(rest.count, 1)[:, None]
         leak = rest.bias[:, 0] * (up0 - mean[:, 0]) + rest.bias[:, 1] * (up1 - mean[:, 1])
         return np.where(rest.count > 0, leak, 0.0)
@@ -899,7 +904,7 @@ class FusionPipeline(Lifecycle):
         still IMU samples it is the mean of."""
         if self._rest_count == 0:
             return 0.0, 0.0, 0
-        bx, by = (self._rest_gyro_sum / self._rest_count).tolist()
+        bx, by = (s / self._rest_count for s in self._rest_gyro_sum)
         return bx, by, self._rest_count
 
     def _wheel_knowledge(self, t, gyro, accel, motion):
