@@ -78,6 +78,11 @@ class FilterpyReference:
         # after the previous wheel twist (not an encoder fault): (time, wheel_h of the
         # posterior), for the stamp noise
         self.last_twist: tuple[float, np.ndarray] | None = None
+        # the persistent-disagreement test: (time, yaw-rate innovation, its variance without
+        # the stamp's share, the stamp's signed standard deviation) of every wheel twist
+        # since the test last started afresh, and when the current disagreement began
+        self.window: list[tuple[float, float, float, float]] = []
+        self.disagreeing_since: float | None = None
         self.ramp = 0.0  # m/s^2: the speed's rate of change between the last two twists
         # the default prior: w is unknown until the first gyro sample, which sets it alone,
         # and v until the first fused wheel frame or twist
@@ -232,10 +237,41 @@ class FilterpyReference:
             gain = min(1.0, interval / self.noise.accel_offset_time)
             self.offset -= gain * (self.kf.x[3] - v_prior) / interval
 
+    def _persistent(self, y_w: float, s_w: float, stamp_w: float) -> bool:
+        """The persistent-disagreement test, written as explicit sums over the frames kept
+        in ``self.window``: weights ``exp(-(t_now - t_j)/slip_window)`` on the innovations,
+        their squares on the variances (without the stamp's share), and the stamp's shares
+        summed with the weights before squaring (one latency for all)."""
+        tau = self.noise.slip_window
+        if tau <= 0:
+            return False
+        t_now = self.t
+        # frames older than 50 time constants weigh less than 2e-22: dropped
+        self.window = [f for f in self.window if t_now - f[0] < 50.0 * tau]
+        # a frame counts for at most the gate's worth of disagreement
+        limit = math.sqrt(self.noise.slip_gate * s_w)
+        self.window.append((t_now, float(np.clip(y_w, -limit, limit)),
+                            max(s_w - stamp_w ** 2, 0.0), stamp_w))
+        t_j, y_j, s_j, d_j = (np.array(c) for c in zip(*self.window))
+        weight = np.exp(-(t_now - t_j) / tau)
+        total = float(np.sum(weight * y_j))
+        variance = float(np.sum(weight ** 2 * s_j)) + float(np.sum(weight * d_j)) ** 2
+        if not total ** 2 > self.noise.slip_gate * variance:
+            self.disagreeing_since = None
+            return False
+        if self.disagreeing_since is None:
+            self.disagreeing_since = t_now
+        elif t_now - self.disagreeing_since > 3.0:  # _ekf_core.PERSISTENT_SLIP_MAX
+            # so long a disagreement is the wheel model's: the test starts afresh
+            self.window.clear()
+            self.disagreeing_since = None
+            return False
+        return True
+
     def _remember_twist(self, t: float) -> None:
         """After a wheel twist's update at ``t``: the twist the wheels should now read, and
         the rate of change of its speed since the last one."""
-        h = model.wheel_h(self.kf.x, self.robot.wheel_distance)
+        h = model.wheel_h(self.kf.x, self.robot.wheel_distance, self.kf.x[3])
         if self.last_twist is not None and t > self.last_twist[0]:
             # over at least one wheel period (frames a millisecond apart: one serial read)
             span = max(t - self.last_twist[0], self.robot.encode_sampling_time)
@@ -357,22 +393,26 @@ class FilterpyReference:
                 if inflate > 1:
                     R[1, 1] *= inflate
                     R[0, 1] = R[1, 0] = R[0, 1] * math.sqrt(inflate)
+                stamp_w = 0.0
                 if self.last_twist is not None and t > self.last_twist[0]:
                     # the stamp's error, with the filter's own rates of change of the twist
                     # the wheels should read, from the last twist's posterior to this prior
                     t0, h0 = self.last_twist
                     span = max(t - t0, r.encode_sampling_time)
-                    rate = (model.wheel_h(kf.x, L) - h0) / span
+                    rate = (model.wheel_h(kf.x, L, kf.x[3]) - h0) / span
                     model.stamp_noise(R, rate[0], rate[1], n.stamp_std)
+                    if n.stamp_std > 0:
+                        stamp_w = rate[1] * n.stamp_std
                 first = self.first_speed
                 if first:
                     self.first_speed = False
                     kf.P[3, 3] += 100.0 ** 2  # v forgotten: 100 m/s, beyond any robot's speed
                     driven = False  # v's jump teaches the accelerometer's offset nothing
-                H = model.wheel_jacobian(kf.x, L)
+                H = model.wheel_jacobian(kf.x, L, z[0])
                 S = H @ kf.P @ H.T + R
-                y = z - model.wheel_h(kf.x, L)
-                slip = y[1] ** 2 / S[1, 1] > n.slip_gate  # the yaw rate disagrees
+                y = z - model.wheel_h(kf.x, L, z[0])
+                gated = y[1] ** 2 / S[1, 1] > n.slip_gate  # the yaw rate disagrees
+                slip = gated
                 # with the gyro saturated the wheels are all there is
                 fuse_rate, disproven = True, False
                 turning = abs(z[1]) > 0.1 or abs(kf.x[4]) > 0.1  # a turn tests the wheels
@@ -398,6 +438,9 @@ class FilterpyReference:
                     disproven = self.distrust
                     fuse_rate = not disproven and (kind == WHEELS
                                                    or self.agreed >= n.wheel_rate_proof_time)
+                    # the persistent test sees only yaw rates that would be fused
+                    if fuse_rate and self._persistent(y[1], S[1, 1], stamp_w):
+                        slip = True
                 if slip or not fuse_rate or accel_slip:
                     # disproven wheels, or an external odometry not yet proven in turns: a
                     # disagreement is no sign of slip
@@ -412,7 +455,8 @@ class FilterpyReference:
                     if slip:
                         self.stats["slips"] += 1
                         self.after_slip = True
-                    inflation = n.slip_inflation if slip else 1.0
+                    # a frame only the persistent test flags keeps its speed's own noise
+                    inflation = n.slip_inflation if slip and (gated or accel_slip) else 1.0
                     if inflation <= 0:
                         if first:  # nothing fused: v stays unknown for the next frame
                             kf.P[3, 3] -= 100.0 ** 2

@@ -186,7 +186,7 @@ def test_every_jacobian_matches_central_differences():
         cases = [
             (lambda s, dt=dt: model.transition(s, dt), model.transition_jacobian(x, dt)),
             (model.gyro_h, model.gyro_jacobian(x)),
-            (lambda s: model.wheel_h(s, L), model.wheel_jacobian(x, L)),
+            (lambda s: model.wheel_h(s, L, 0.4), model.wheel_jacobian(x, L, 0.4)),
             (model.zupt_h, model.zupt_jacobian(x)),
             (model.yaw_h, model.yaw_jacobian(x)),
         ]
@@ -297,17 +297,23 @@ def test_motion_onset_does_not_leak_into_the_bias():
     assert math.remainder(ekf.x[2] - math.pi, 2 * math.pi) == pytest.approx(0, abs=0.01)
 
 
-def test_slip_frames_are_flagged_and_only_those():
+@pytest.mark.parametrize("slip_window", [0.0, EkfNoise().slip_window])
+def test_slip_frames_are_flagged_and_only_those(slip_window):
     patch = SlipPatch(6.0, 7.0, wheel="right", ratio=0.3)
     run = simulate(stop(3) + straight(6.0, 0.5) + stop(2), ROBOT,
                    encoders=EncoderModel(slip_patches=(patch,)), seed=2)
-    track, ekf = fuse(ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks)
+    track, ekf = fuse(ROBOT, run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
+                      EkfNoise(slip_window=slip_window))
     wheel = track.kind == core.EV_WHEELS
     flagged = track.t[wheel & (track.status == 1)]
     # frames whose period lies inside the patch: ends at 6.04 .. 7.00 -> 25 frames
     inside = (flagged > 6.0) & (flagged <= 7.04)
     assert inside.sum() >= 24
-    assert (~inside).sum() == 0
+    # the per-frame gate flags those alone; the persistent-disagreement test also the frames
+    # within slip_window after the slip (its sum of the slip's innovations decays over that:
+    # measured 7.08 .. 7.24, five frames), as documented for EkfNoise.slip_window
+    after = flagged[~inside]
+    assert np.all(after > 7.04) and np.all(after <= 7.04 + slip_window + 1e-9), after
     # the slipping wheel did not turn the estimated heading (straight line)
     assert abs(math.degrees(ekf.x[2])) < 0.2
     # ... and the 6 m run keeps a small distance error despite 0.15 m of extra right ticks

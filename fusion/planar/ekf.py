@@ -75,13 +75,19 @@ Model:
 - Wheel update: one DATA-uart2 frame's ticks give the period's mean speed ``v = (dl+dr)/(2T)``
   and yaw rate ``w = (dr-dl)/(L T)`` (seed 000's names: ``speed_ratio`` m/tick,
   ``wheel_distance`` L, ``encode_sampling_time`` T), modelled as ``v + c*w*L^2/4`` and
-  ``(1 + k)*w + c*v``. The noise comes from tick quantisation and a per-frame wheel scale
+  ``(1 + k)*w + c*v_m``, ``v_m`` the frame's own measured speed (the radius mismatch scales
+  the wheels' own travel; with the speed state there, its quantisation ripple walked b and c
+  on long straight drives without a stop: :mod:`fusion.planar.model`). The noise comes from
+  tick quantisation and a per-frame wheel scale
   noise, plus white noise on w, plus the stamp's uncertainty times the filter's own rate of
   change of the twist (``stamp_std``). The yaw-rate innovation is
   chi-square gated (1 dof): above the gate the frame is a slip and its noise is inflated
   (down-weighted) so the gyro carries the heading; until the next frame the speed's random
   walk is ``slip_accel_psd`` (a robot whose wheels slip accelerates harder than the floor
-  allows, and no frame holds its speed). The gyro cannot see wheels that spin or skid alike
+  allows, and no frame holds its speed). A slip too small for one frame's noise (a wheel
+  spinning a few per cent faster than the floor on a coarse encoder) is caught by the sum of
+  the innovations over about ``slip_window`` s: those frames are slips as well, their speed
+  fused with its own noise. The gyro cannot see wheels that spin or skid alike
   or a body sliding sideways; a frame the accelerometer flags
   (:mod:`fusion.planar.accel_slip`: forward specific force against the wheels' dv/dt,
   lateral against v*w; event kind 4, ``wheel_slip=`` of :func:`fuse`,
@@ -248,6 +254,21 @@ class EkfNoise:
         slip_inflation: factor on the speed noise of a gated (slipping) frame, whose yaw
             rate is never fused (0: drop the frame). Chosen with ``slip_accel_psd`` by
             benchmarks/tune_ekf.py.
+        slip_window: time constant (s) of the persistent-disagreement test: the wheels'
+            yaw-rate innovations, exponentially weighted over about this long, are tested
+            against their own variance with ``slip_gate``; while the sum fails it, frames are
+            slips too (flagged, yaw rate not fused; their speed keeps its own noise), for at
+            most ``_ekf_core.PERSISTENT_SLIP_MAX`` s at a stretch. It catches a wheel that
+            spins a few per cent faster than the floor, which one frame's quantisation noise
+            hides from the per-frame gate and which, frame by frame, pulled the bias by
+            degrees per second before the first stop
+            (:func:`fusion.planar._ekf_core._persistent_disagreement`). After a slip the
+            sum stays significant for up to about ``slip_window`` s, and those frames are
+            flagged too (tests/test_ekf.py). 0: off. Default 0.2 s, set from that trade
+            (detection within a few frames, a short tail): on benchmarks/blackbox's tuning
+            runs (seeds 301-308, four scenarios) 0.1, 0.2 and 0.3 s give the same means
+            within 0.01 deg, so no run chose it; tests/test_ekf_slip.py's coarse encoder
+            needs 0.2 s or more to hold a 3 % slip (0.1 s: the bias pulled by 0.2 deg/s).
         stop_decel: hardest braking the robot can do, m/s^2: zero wheel speed that would
             need more (with three standard deviations of v on top), while the IMU is not
             still, is an encoder fault, not a stop.
@@ -410,6 +431,7 @@ class EkfNoise:
     still_scale: float = 1e-4
     slip_gate: float = 10.83
     slip_inflation: float = 1e5
+    slip_window: float = 0.2
     stop_decel: float = 3.0
     turn_w_std: float = 0.0
     wheel_w_corr_time: float = 0.0
@@ -817,6 +839,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_OFFSET_TIME] = n.accel_offset_time
         par[core.P_STAMP_STD] = n.stamp_std
         par[core.P_SPEED_RAMP_TIME] = n.speed_ramp_time
+        par[core.P_SLIP_WINDOW] = n.slip_window
         self._aux = np.zeros(core.AUX_SIZE)
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan
@@ -832,6 +855,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         # nor v: the first fused wheel frame or twist sets it (_ekf_core._wheel_event)
         self._aux[core.A_FIRST_SPEED] = 1.0 if P0 is None else 0.0
         self._aux[core.A_TWIST_T] = math.nan  # no wheel twist yet (stamp noise)
+        self._aux[core.A_WIN_SINCE] = math.nan  # no persistent disagreement under way
 
     # -- state -------------------------------------------------------------------------------
     @property

@@ -186,26 +186,34 @@ def gyro_noise(variance):
     return np.full((1, 1), variance)
 
 
-# -- wheel frame or external twist: v_m = v + c*w*L^2/4, w_m = (1 + k)*w + c*v --------------------
+# -- wheel frame or external twist: v_m = v + c*w*L^2/4, w_m = (1 + k)*w + c*u -------------------
+# u is the speed the radius mismatch c acts on: the frame's own measured speed v_m. The mismatch
+# turns the wheels' own travel into a spurious yaw rate, so u = v_m is the model, and it keeps
+# the state's speed out of the yaw-rate Jacobian: there, the speed state's quantisation ripple,
+# in step with the yaw rate's (one wheel's extra tick comes a frame before the other's), gave
+# the +1-tick frames of a straight drive another H than the -1-tick ones, and the sum over a
+# long straight drive without a stop walked b and c along their unobservable direction (the
+# bias by 3.6 deg/s over 130 s on a 780-tick encoder; tests/test_ekf_slip.py).
 @njit
-def wheel_h(x, wheel_distance):
-    """Predicted wheel twist ``[v_m, w_m]`` (m/s, rad/s) for wheel distance ``L`` (m)."""
+def wheel_h(x, wheel_distance, speed):
+    """Predicted wheel twist ``[v_m, w_m]`` (m/s, rad/s) for wheel distance ``L`` (m);
+    ``speed`` (m/s) is the speed the radius mismatch ``c`` acts on (the frame's measured
+    speed; the state's ``x[3]`` for the filter's own expectation of the next frame)."""
     L2 = 0.25 * wheel_distance * wheel_distance
-    return np.array([x[3] + x[7] * x[4] * L2, (1.0 + x[6]) * x[4] + x[7] * x[3]])
+    return np.array([x[3] + x[7] * x[4] * L2, (1.0 + x[6]) * x[4] + x[7] * speed])
 
 
 @njit
-def wheel_jacobian(x, wheel_distance):
-    """d(wheel_h)/dx (2, NX)."""
+def wheel_jacobian(x, wheel_distance, speed):
+    """d(wheel_h)/dx (2, NX), ``speed`` held as given (a measured value, not a state)."""
     L2 = 0.25 * wheel_distance * wheel_distance
     H = np.zeros((2, NX))
     H[0, 3] = 1.0
     H[0, 4] = x[7] * L2
     H[0, 7] = x[4] * L2
-    H[1, 3] = x[7]
     H[1, 4] = 1.0 + x[6]
     H[1, 6] = x[4]
-    H[1, 7] = x[3]
+    H[1, 7] = speed
     return H
 
 
