@@ -248,10 +248,10 @@ class FilterpyReference:
         t_now = self.t
         # frames older than 50 time constants weigh less than 2e-22: dropped
         self.window = [f for f in self.window if t_now - f[0] < 50.0 * tau]
-        # a frame counts for at most the gate's worth of disagreement
-        limit = math.sqrt(self.noise.slip_gate * s_w)
-        self.window.append((t_now, float(np.clip(y_w, -limit, limit)),
-                            max(s_w - stamp_w ** 2, 0.0), stamp_w))
+        # a frame above the per-frame gate counts as one standard deviation its way
+        if y_w ** 2 > self.noise.slip_gate * s_w:
+            y_w = math.copysign(math.sqrt(s_w), y_w)
+        self.window.append((t_now, y_w, max(s_w - stamp_w ** 2, 0.0), stamp_w))
         t_j, y_j, s_j, d_j = (np.array(c) for c in zip(*self.window))
         weight = np.exp(-(t_now - t_j) / tau)
         total = float(np.sum(weight * y_j))

@@ -81,21 +81,37 @@ def _nees_inside_and_above(run) -> tuple[float, float]:
     return nees_fraction_within(values, 3), float(np.mean(values > nees_bounds(3)[1]))
 
 
-def test_pose_nees_after_a_moving_start_is_inside_on_85_percent_of_every_run(moving_start_6):
-    """Issue 11's NEES criterion on the moving starts (uncalibrated gyro). Measured: 95.6 99.3
-    75.0 98.7 94.9 92.6 99.1 99.5 % of the rows inside; 17.8 % on seed 6 when the rows
-    reported ``P`` alone (then: yaw 19 deg off with a standard deviation of 0.6 deg). Seed 2 misses
-    on the safe side: its rows outside lie below the bounds (errors of 2 deg and 0.2 m against
-    standard deviations of 14 deg and 1 m, the gyro-scale prior over the angle turned), and
-    none above. It was 94.8 % while the yaw-rate model's radius mismatch acted on the speed
-    state: the errors are now about 10 % smaller under the same covariance."""
+@pytest.fixture(scope="module")
+def moving_start_nees(moving_start_6):
+    """Per seed 0-7 of the moving starts: fractions of the rows inside the NEES bounds and
+    above them."""
     measured = [_nees_inside_and_above(moving_start_6 if seed == 6 else
                                        physics_scenario("all", seed=seed, moving_start=True))
                 for seed in range(8)]
-    inside = np.array([m[0] for m in measured])
-    above = np.array([m[1] for m in measured])
+    return np.array([m[0] for m in measured]), np.array([m[1] for m in measured])
+
+
+def test_pose_nees_after_a_moving_start_is_inside_on_7_runs_of_8_and_never_overconfident(
+        moving_start_nees):
+    """Issue 11's NEES criterion on the moving starts (uncalibrated gyro). Measured: 95.6 99.3
+    75.0 98.7 94.9 92.7 99.1 99.5 % of the rows inside; 17.8 % on seed 6 when the rows
+    reported ``P`` alone (then: yaw 19 deg off with a standard deviation of 0.6 deg). Seed 2
+    misses on the safe side: its rows outside lie below the bounds (errors of 2 deg and 0.2 m
+    against standard deviations of 14 deg and 1 m, the gyro-scale prior over the angle
+    turned), and none above. It was 94.8 % while the yaw-rate model's radius mismatch acted
+    on the speed state: the errors are now about 10 % smaller under the same covariance."""
+    inside, above = moving_start_nees
     assert np.sum(inside >= 0.85) >= 7 and inside.min() >= 0.7, inside
     assert above.max() <= 0.05, above  # never overconfident beyond the bound's own 2.5 %
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "issue 11 asks for the pose NEES inside its 95 % bounds on at least 85 % of EACH run; on "
+    "the moving starts seed 2 has 75.0 %, all of the rest below the lower bound "
+    "(underconfident: see the test above)"))
+def test_pose_nees_after_a_moving_start_is_inside_on_85_percent_of_every_run(
+        moving_start_nees):
+    assert moving_start_nees[0].min() >= 0.85, moving_start_nees[0]
 
 
 def test_the_pipelines_records_report_the_held_pose_covariance(moving_start_6):

@@ -81,10 +81,10 @@ tests/test_blackbox_replay.py).
 Held out once more after the EKF's wheel yaw-rate model took the frame's measured speed for the
 radius mismatch's c*v and the persistent-disagreement slip test came in (EkfNoise.slip_window,
 2026-11-27; found on long straight drives without a stop, tests/test_ekf_slip.py): plain, all
-and dead within 0.01 of the table above (means and worst runs); moving 1.48 / 3.69 (worst
-3.75 / 5.83) against 1.37 / 3.48 (3.62 / 5.54), mostly moving 104 (3.83 -> 4.71 deg: its bias
-before the first stop, learnt from the wheels alone, now lands 0.1 deg/s further from the
-truth). On the tuning seeds 301-308 moving went 4.17 -> 4.05 deg and on the physics
+and dead within 0.01 of the table above (means and worst runs); moving 1.46 / 3.65 (worst
+yaw 5.80) against 1.37 / 3.48 (5.54), mostly moving 104 (3.83 -> 4.71 deg: its bias before
+the first stop, learnt from the wheels alone, now lands 0.1 deg/s further from the truth). On
+the tuning seeds 301-308 moving went 4.17 -> 4.06 deg and on the physics
 simulator's moving starts (benchmarks/ekf_accuracy.py, seeds 0-7) 4.24 -> 4.05 deg (calibrated
 1.42 -> 1.12, worst 5.9 -> 3.6): a draw on this simulator's held-out moving starts, a gain on
 the others.

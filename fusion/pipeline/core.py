@@ -174,7 +174,8 @@ class PipelineStats:
         twist_out_of_order: twists dropped because their stamp did not increase.
         records: records published.
         late_dropped, late_applied: inputs the EKF dropped as too late / fused at its own time.
-        slips, zupts: wheel frames down-weighted as slip; zero-velocity updates.
+        slips, zupts: wheel frames fused as slipping (yaw rate not fused; see the EKF's
+            ``stats``); zero-velocity updates.
         accel_slips: of the slips, the wheel frames the accelerometer flagged
             (:mod:`fusion.planar.accel_slip`).
         wheel_rate_distrusted: turning wheel frames (or twists) whose yaw rate was not fused

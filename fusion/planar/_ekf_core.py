@@ -689,19 +689,26 @@ def _persistent_disagreement(aux, par, y_w, s_w, stamp_w):
     (tests/test_ekf_slip.py). Summed over frames the slip is plain: innovations of a consistent
     filter are white, so the sum's variance is the sum of theirs (a tick's quantisation
     telescopes, so this over-counts it: the test errs toward silence), except the stamp's
-    share, one latency for all frames, whose standard deviations add up instead. 0: off.
-    A disagreement that lasts longer than :data:`PERSISTENT_SLIP_MAX` starts the sum afresh
-    and is not reported (see there)."""
+    share, one latency for all frames, whose standard deviations add up instead. A frame above
+    the per-frame gate counts as one standard deviation its way. 0: off. A disagreement that
+    lasts longer than :data:`PERSISTENT_SLIP_MAX` starts the sum afresh and is not reported
+    (see there)."""
     tau = par[P_SLIP_WINDOW]
     if tau <= 0.0:
         return False
     t = aux[A_T]
-    decay = math.exp(-(t - aux[A_WIN_T]) / tau) if t > aux[A_WIN_T] else 1.0
-    aux[A_WIN_T] = max(t, aux[A_WIN_T])
-    # a frame counts for at most the gate's worth: a big slip, caught by the gate anyway,
-    # would otherwise keep the sum significant long after it ends
-    bound = math.sqrt(par[P_GATE] * s_w)
-    aux[A_WIN_Y] = decay * aux[A_WIN_Y] + min(max(y_w, -bound), bound)
+    last = aux[A_WIN_T]  # NaN before the first frame
+    decay = 1.0
+    if math.isnan(last) or t > last:
+        if t > last:
+            decay = math.exp(-(t - last) / tau)
+        aux[A_WIN_T] = t
+    # a frame the per-frame gate caught (a slip already) counts as one standard deviation of
+    # disagreement its way: enough to keep the sum pointing the slip's way, too little to keep
+    # it significant long after a big slip ends
+    if y_w * y_w > par[P_GATE] * s_w:
+        y_w = math.copysign(math.sqrt(s_w), y_w)
+    aux[A_WIN_Y] = decay * aux[A_WIN_Y] + y_w
     aux[A_WIN_VAR] = decay * decay * aux[A_WIN_VAR] + max(s_w - stamp_w * stamp_w, 0.0)
     aux[A_WIN_STAMP] = decay * aux[A_WIN_STAMP] + stamp_w
     var = aux[A_WIN_VAR] + aux[A_WIN_STAMP] * aux[A_WIN_STAMP]
@@ -727,10 +734,12 @@ def _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip, stamp_w):
 
     The yaw-rate component is gated (chi-square, 1 dof, against the gyro-corrected rate
     state): a frame above the gate is a slip, and only its speed is fused, with its noise
-    multiplied by ``slip_inflation`` (0: nothing is fused). A slipping frame's yaw rate is
-    never fused, so it cannot bend the heading. Nor is any twist's before the external
-    odometry has proven itself in turns, or any frame's once most turns disagree
-    (:func:`_wheel_rate_trust`):
+    multiplied by ``slip_inflation`` (0: nothing is fused). So is one that the persistent
+    test (:func:`_persistent_disagreement`, only for yaw rates that would be fused) finds
+    within a significant run of disagreement, its speed with its own noise. A slipping
+    frame's yaw rate is never fused, so it cannot bend the heading. Nor is any twist's
+    before the external odometry has proven itself in turns, or any frame's once most turns
+    disagree (:func:`_wheel_rate_trust`):
     then only the speed is fused, with its own noise (and, once disproven, no slip flag: the
     yaw rates' disagreement says nothing about slipping), unless the gyro was
     saturated within ``wheel_rate_proof_time`` (the wheels are then the only yaw rate; their
@@ -747,17 +756,16 @@ def _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip, stamp_w):
     s_w = innovation_variance(P, H, R, 1)
     d2 = y[1] * y[1] / s_w
     slip = d2 > par[P_GATE]
+    gated = slip
     turning = abs(z[1]) > TURN_RATE or abs(x[4]) > TURN_RATE
     if aux[A_T] - aux[A_CLIPPED] < par[P_PROOF_TIME]:
         # the gyro is (or was just) saturated: the wheels are all there is, and the gyro's
         # rate state around the saturation is no test of them
         fuse_rate, disproven = True, False
-        gated = slip
     else:
         close = _rate_scale_agrees(aux, x[4] + x[5], z[1], turning)
         fuse_rate, disproven = _wheel_rate_trust(aux, par, interval, slip, turning,
                                                  kind == EV_WHEELS, close)
-        gated = slip
         if fuse_rate:
             # only yaw rates that would be fused: a disagreement nothing absorbs (an
             # unproven or disproven odometry) would keep the sum significant forever

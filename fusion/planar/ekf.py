@@ -7,8 +7,8 @@ the vertical axis, rad/s.
 
 State ``x = [x, y, yaw, v, w, b, k, c, g, s]``, covariance ``P`` (10x10). ``k`` (dimensionless) and
 ``c`` (rad/m) describe how the wheels' yaw rate departs from the gyro's:
-``w_wheels = (1 + k)*w + c*v``. A wheel-separation error shows up as ``k``
-(``k ~ L_true/L_nominal - 1``), a left/right radius mismatch as ``c``
+``w_wheels = (1 + k)*w + c*v`` (``v`` the frame's measured speed). A wheel-separation error
+shows up as ``k`` (``k ~ L_true/L_nominal - 1``), a left/right radius mismatch as ``c``
 (``c ~ (e_right - e_left)/L`` with ``e`` each wheel's relative distance error). The gyro makes
 both observable (turning reveals ``k``, driving straight reveals ``c``) once its bias is pinned
 by zero-velocity updates; a common distance scale (``speed_ratio`` wrong on both wheels alike)
@@ -262,9 +262,12 @@ class EkfNoise:
             spins a few per cent faster than the floor, which one frame's quantisation noise
             hides from the per-frame gate and which, frame by frame, pulled the bias by
             degrees per second before the first stop
-            (:func:`fusion.planar._ekf_core._persistent_disagreement`). After a slip the
-            sum stays significant for up to about ``slip_window`` s, and those frames are
-            flagged too (tests/test_ekf.py). 0: off. Default 0.2 s, set from that trade
+            (:func:`fusion.planar._ekf_core._persistent_disagreement`). A frame the
+            per-frame gate catches counts as one standard deviation, so the flags end within
+            about ``slip_window`` s of a slip's end (none after tests/test_ekf.py's 30 %
+            slip at 0.2 s; 0.1-0.2 s at 0.5 s). Needs ``stamp_std``: with exact stamps an
+            unmodelled 15 ms latency looks like a persistent disagreement in every spin-up
+            (tests/test_ekf_timing.py). 0: off. Default 0.2 s, set from that trade
             (detection within a few frames, a short tail): on benchmarks/blackbox's tuning
             runs (seeds 301-308, four scenarios) 0.1, 0.2 and 0.3 s give the same means
             within 0.01 deg, so no run chose it; tests/test_ekf_slip.py's coarse encoder
@@ -748,7 +751,9 @@ class PlanarEKF(ExtendedKalmanFilter):
 
     Attributes:
         t: filter time, s (None before the first input).
-        stats: counters: ``slips`` (frames fused as slipping), ``accel_slips`` (of those, the
+        stats: counters: ``slips`` (frames fused as slipping: yaw rate not fused, speed
+            down-weighted, or with its own noise when only the persistent-disagreement test
+            flagged the frame, ``slip_window``), ``accel_slips`` (of those, the
             ones the accelerometer flagged), ``wheel_rate_distrusted`` (turning frames or
             twists whose yaw rate was not fused because most turns disagreed with the gyro, or
             twists that disagreed before the external odometry was proven in turns),
@@ -855,7 +860,9 @@ class PlanarEKF(ExtendedKalmanFilter):
         # nor v: the first fused wheel frame or twist sets it (_ekf_core._wheel_event)
         self._aux[core.A_FIRST_SPEED] = 1.0 if P0 is None else 0.0
         self._aux[core.A_TWIST_T] = math.nan  # no wheel twist yet (stamp noise)
-        self._aux[core.A_WIN_SINCE] = math.nan  # no persistent disagreement under way
+        # the persistent-disagreement test: no frame yet, no disagreement under way
+        self._aux[core.A_WIN_T] = math.nan
+        self._aux[core.A_WIN_SINCE] = math.nan
 
     # -- state -------------------------------------------------------------------------------
     @property

@@ -26,12 +26,13 @@ the project restates this algebra.
   uncertain pushed ``1 + g`` through zero). So g moves only with an absolute yaw, and its
   variance makes the yaw's grow with the angle turned (not with time: no white process noise
   can represent it).
-- Wheel frame or external twist: ``v_m = v + c*w*L^2/4``, ``w_m = (1 + k)*w + c*v``
-  (m/s, rad/s), with ``L`` the wheel distance (m); ``k`` is the wheels' yaw-rate scale
-  relative to the gyro's. ``v`` is the speed *in the wheels' scale*: the true speed is
-  ``v/(1 + s)``, ``s`` the common distance scale error of both wheels (``speed_ratio``), which
-  no sensor here observes either (the same change of variables as for g): the position's
-  covariance grows with the distance driven, along the track.
+- Wheel frame or external twist: ``v_m = v + c*w*L^2/4``, ``w_m = (1 + k)*w + c*v_m``
+  (m/s, rad/s), with ``L`` the wheel distance (m) and ``v_m`` the frame's own measured speed
+  (see :func:`wheel_h`); ``k`` is the wheels' yaw-rate scale relative to the gyro's. ``v``
+  is the speed *in the wheels' scale*: the true speed is ``v/(1 + s)``, ``s`` the common
+  distance scale error of both wheels (``speed_ratio``), which no sensor here observes
+  either (the same change of variables as for g): the position's covariance grows with the
+  distance driven, along the track.
   A twist's stamp is uncertain too (transport latency and jitter, and during a ramp a
   period's mean is not exactly the speed at its midpoint): a stamp error of ``stamp_std`` s
   makes the speed err by ``dv/dt * stamp_std`` and the yaw rate by ``dw/dt * stamp_std``,
@@ -40,7 +41,8 @@ the project restates this algebra.
 - Absolute yaw: ``z = yaw``, the residual wrapped to (-pi, pi].
 
 Measurement functions come in threes: ``*_h(x)`` the predicted measurement (m,),
-``*_jacobian(x)`` its Jacobian (m, NX), ``*_noise(...)`` its covariance R (m, m).
+``*_jacobian(x)`` its Jacobian (m, NX), ``*_noise(...)`` its covariance R (m, m); the wheels'
+pair also takes the measured speed the radius mismatch acts on.
 """
 
 from __future__ import annotations
