@@ -105,7 +105,7 @@ class DemoReport:
             f"yaw RMSE              {math.degrees(self.fused_yaw_rmse):7.2f} deg "
             f"{math.degrees(self.wheel_yaw_rmse):7.2f} deg",
             f"handled: {self.frames} wheel frames, {self.samples} IMU samples, "
-            f"{self.records} fused records ({self.slips} slip frames down-weighted, "
+            f"{self.records} fused records ({self.slips} slip frames, their yaw rate not fused, "
             f"{self.zupts} zero-velocity updates; {self.imu_lost} IMU samples lost, "
             f"{self.imu_errors} failed I2C reads)",
             f"gyro z bias: true {math.degrees(self.gyro_bias_true):.3f} deg/s, "
