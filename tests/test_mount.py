@@ -1,4 +1,5 @@
-"""fusion.geometry.mount: IMU mount rotation and vertical rate against scipy's Rotation."""
+"""fusion.geometry.mount: IMU mount rotation, vertical rate and heading rate against scipy's
+Rotation."""
 
 from __future__ import annotations
 
@@ -6,7 +7,13 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from fusion.geometry.mount import base_to_imu, imu_to_base, mount_matrix, vertical_rate
+from fusion.geometry.mount import (
+    base_to_imu,
+    heading_rate,
+    imu_to_base,
+    mount_matrix,
+    vertical_rate,
+)
 
 RPY = [(0.0, 0.0, 0.0), (0.03, -0.02, 0.0), (0.4, -0.3, 1.2), (np.pi, 0.1, -2.0)]
 
@@ -64,6 +71,44 @@ def test_vertical_rate_matches_scipy():
     assert vertical_rate(g[5], q[5]) == vertical_rate(g, q)[5]
 
 
+def test_heading_rate_is_the_rate_of_scipys_zyx_yaw():
+    # central difference of scipy's ZYX yaw over a small body rotation at random attitudes
+    # (pitch within +-70 deg) and rates
+    rng = np.random.default_rng(6)
+    euler = np.column_stack([rng.uniform(-np.pi, np.pi, 300), rng.uniform(-1.2, 1.2, 300),
+                             rng.uniform(-np.pi, np.pi, 300)])  # yaw, pitch, roll
+    rot = Rotation.from_euler("ZYX", euler)
+    g = rng.normal(size=(300, 3))
+    h = 1e-5
+    ahead = (rot * Rotation.from_rotvec(g * h)).as_euler("ZYX")[:, 0]
+    back = (rot * Rotation.from_rotvec(-g * h)).as_euler("ZYX")[:, 0]
+    expected = np.angle(np.exp(1j * (ahead - back))) / (2 * h)
+    q = rot.as_quat()[:, [3, 0, 1, 2]] * 2.0  # scalar first, not normalised
+    np.testing.assert_allclose(heading_rate(g, q), expected, rtol=0, atol=1e-8)
+    np.testing.assert_array_equal(heading_rate(g), g[:, 2])
+    # one sample: the same floats as its row in the batch
+    assert heading_rate(g[7], q[7]) == heading_rate(g, q)[7]
+
+
+def test_heading_rate_integrates_to_the_heading_across_hills_where_the_vertical_rate_drifts():
+    # roll and pitch changing together (driving across rolling hills, exaggerated): the
+    # integral of the rate about the vertical leaves the heading by degrees, the heading
+    # rate's does not
+    t = np.linspace(0.0, 20.0, 200_001)
+    dt = t[1] - t[0]
+    euler = np.column_stack([0.5 * np.sin(0.3 * t) + 0.2 * t, 0.25 * np.sin(0.7 * t + 1.0),
+                             0.3 * np.sin(0.5 * t + 2.0)])
+    rot = Rotation.from_euler("ZYX", euler)
+    step = (rot[:-1].inv() * rot[1:]).as_rotvec()  # body rotation of each step
+    mid = (rot[:-1] * Rotation.from_rotvec(step / 2)).as_quat()[:, [3, 0, 1, 2]]
+    rates = step / dt
+    yaw = euler[:, 0]
+    by_heading = yaw[0] + np.concatenate([[0.0], np.cumsum(heading_rate(rates, mid) * dt)])
+    by_vertical = yaw[0] + np.concatenate([[0.0], np.cumsum(vertical_rate(rates, mid) * dt)])
+    assert np.abs(by_heading - yaw).max() < 1e-6
+    assert np.degrees(np.abs(by_vertical - yaw).max()) > 5.0
+
+
 def test_the_public_ekf_copy_gives_the_same_floats():
     # fusion.planar.ekf.vertical_rate (public) is to delegate here: nothing may move
     from fusion.planar import ekf
@@ -78,6 +123,10 @@ def test_bad_shapes_name_the_shape():
         vertical_rate(np.zeros(2))
     with pytest.raises(ValueError, match=r"\(3,\)"):
         vertical_rate(np.zeros(3), np.zeros(3))
+    with pytest.raises(ValueError, match=r"\(2,\)"):
+        heading_rate(np.zeros(2))
+    with pytest.raises(ValueError, match=r"\(3,\)"):
+        heading_rate(np.zeros(3), np.zeros(3))
     with pytest.raises(ValueError, match="rpy"):
         mount_matrix((0.0, 0.0))
     with pytest.raises(ValueError, match=r"\(4,\)"):

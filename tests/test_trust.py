@@ -24,6 +24,7 @@ from fusion.evaluation.trust import (
     GYRO_BIAS_LIMIT,
     HEADING_FLOOR,
     SLIP_FRACTION_LIMIT,
+    WHEEL_SCALE_LIMIT,
     trust_warnings,
 )
 from fusion.jobs.status import STRICT_EXIT_STATUS
@@ -184,6 +185,20 @@ def test_a_gyro_turning_the_other_way_makes_the_headings_diverge(logdir, tmp_pat
     assert ("warning: the fused odometry above should not be trusted unless the gyro is right"
             in printed)
     assert main([*argv, "--strict"]) == STRICT_EXIT_STATUS
+
+
+def test_wheel_scale_check_is_three_prior_sigmas_of_k_and_only_for_wheel_frames() -> None:
+    from fusion.planar.ekf import EkfNoise
+
+    assert WHEEL_SCALE_LIMIT == pytest.approx(3 * EkfNoise.calib_k_std)
+    frames = {"wheel_frames": 1000, "gyro_time": 60.0}
+    assert trust_warnings(frames, 0.0, 0.15) == []
+    assert trust_warnings(frames, 0.0, None) == []  # not given: not checked
+    (w,) = trust_warnings(frames, 0.0, -0.151)
+    assert w.name == "wheel_scale" and "-15 % off the gyro's" in w.message
+    assert w.figures["wheel_rate_scale"] == -0.151
+    # twists only (external odometry: its own driver's scale, judged by the other checks)
+    assert trust_warnings({"twist_messages": 1000, "gyro_time": 60.0}, 0.0, 0.5) == []
 
 
 def test_run_writes_the_status_record_last(tmp_path, capsys, monkeypatch) -> None:

@@ -9,10 +9,16 @@ from their array code: one sample at a time in arrival order.
   (this one included), 0 before the first. The attitude filter is fed the gyro minus it.
 - The EKF's yaw rate: the rate about the world vertical (``vertical_rate``) minus
   ``bx*(r20 - r20_rest) + by*(r21 - r21_rest)``, ``(r20, r21)`` the world vertical's base x, y
-  components and ``r20_rest, r21_rest`` their means over the same still samples.
+  components and ``r20_rest, r21_rest`` their means over the same still samples, plus the
+  heading's extra term ``roll_dot * (sin(pitch) - sin_pitch_rest)``: the roll change since the
+  previous sample (wrapped) times the mean of the two samples' ``sin(pitch) = -r20`` less the
+  mean of ``sin(pitch)`` over the still samples so far, over their interval (0 at the first
+  sample and until the first still sample).
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -81,6 +87,8 @@ def tilt_rate_by_hand(robot: RobotConfig, imu_t, gyro, q, codes, wheel_t=(), tic
                                   twist_v, twist_w, gap_periods=gap_periods)
     s20 = s21 = 0.0
     count = 0
+    previous = None  # (stamp, roll, sin(pitch))
+    sin_pitch_sum = 0.0
     out = np.empty(len(imu_t))
     for i in range(len(imu_t)):
         qw, qx, qy, qz = (float(c) for c in q[i])
@@ -95,5 +103,15 @@ def tilt_rate_by_hand(robot: RobotConfig, imu_t, gyro, q, codes, wheel_t=(), tic
         if count:
             bx, by = float(bias[i, 0]), float(bias[i, 1])
             rate -= bx * (r20 - s20 / count) + by * (r21 - s21 / count)
+        r22 = 1.0 - 2.0 * (qx * qx + qy * qy) / n2
+        roll = math.atan2(r21, r22)
+        if still[i]:
+            sin_pitch_sum += -r20
+        if previous is not None and count:
+            t0, roll0, s0 = previous
+            turn = roll - roll0
+            turn -= 2.0 * math.pi * round(turn / (2.0 * math.pi))
+            rate += turn * (0.5 * (-r20 + s0) - sin_pitch_sum / count) / (float(imu_t[i]) - t0)
+        previous = (float(imu_t[i]), roll, -r20)
         out[i] = rate
     return out

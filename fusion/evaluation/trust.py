@@ -22,6 +22,15 @@ Checks (each a :class:`TrustWarning` with its figures):
     zero-rate output tolerance, +-20 deg/s at 25 C (InvenSense MPU-6000/MPU-6050 Product
     Specification rev. 3.4, section 6.1, "Initial ZRO Tolerance"). A larger "bias" is a
     disagreement the filter folded into its bias state.
+``wheel_scale``
+    The EKF's wheel yaw-rate scale ``k`` (the wheels' yaw rate over the gyro's, less one) at
+    the end of a run with wheel frames is beyond :data:`WHEEL_SCALE_LIMIT`: robot.toml's
+    wheel_distance is that far from what the gyro sees, three times the EKF's prior for it
+    (``EkfNoise.calib_k_std``, 5 %). A skid-steer base with its geometric track (its wheels
+    turn more than a differential drive's) or a mistyped distance; until it is corrected the
+    turns' disagreement went partly into the gyro bias (benchmarks/terrain: a base whose
+    wheels turn 1.5 times too fast, driving from the first sample, ended with k = +0.49 and
+    28 deg of yaw RMSE, without any other warning).
 ``heading_divergence``
     The odometry's heading change (wheel frames and twists) and the gyro's (its bias
     estimate taken out) differ by more than
@@ -51,6 +60,7 @@ __all__ = [
     "HEADING_FRACTION",
     "HEADING_RATE",
     "SLIP_FRACTION_LIMIT",
+    "WHEEL_SCALE_LIMIT",
     "TrustWarning",
     "trust_warnings",
 ]
@@ -59,6 +69,9 @@ __all__ = [
 SLIP_FRACTION_LIMIT = 0.5
 #: rad/s: the MPU-6050's initial ZRO tolerance, +-20 deg/s (datasheet rev. 3.4, 6.1).
 GYRO_BIAS_LIMIT = math.radians(20.0)
+#: Largest wheel yaw-rate scale error ``|k|`` (1) taken as a calibration error the EKF follows:
+#: three times its prior's standard deviation (EkfNoise.calib_k_std).
+WHEEL_SCALE_LIMIT = 0.15
 #: rad: heading disagreement always allowed (noise, start-up).
 HEADING_FLOOR = math.radians(15.0)
 #: Heading disagreement allowed per radian turned (a wheel_distance error up to 10 %).
@@ -70,7 +83,8 @@ HEADING_RATE = math.radians(0.5)
 
 @dataclass(frozen=True)
 class TrustWarning:
-    """One failed check: ``name`` (``slip``, ``gyro_bias``, ``heading_divergence``), a
+    """One failed check: ``name`` (``slip``, ``gyro_bias``, ``wheel_scale``,
+    ``heading_divergence``), a
     sentence for the user with the figures, and the figures (SI: rad, rad/s, s, fractions)."""
 
     name: str
@@ -82,10 +96,12 @@ class TrustWarning:
         return {"name": self.name, "message": self.message, **self.figures}
 
 
-def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None) -> list[TrustWarning]:
+def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
+                   wheel_rate_scale: float | None = None) -> list[TrustWarning]:
     """The checks of the module docstring over a run's counters ``stats`` (the keys of
-    :meth:`fusion.pipeline.core.PipelineStats.as_dict`; missing keys count as 0) and the EKF's
-    final gyro bias estimate (rad/s; None without an IMU). Empty when nothing disagrees."""
+    :meth:`fusion.pipeline.core.PipelineStats.as_dict`; missing keys count as 0), the EKF's
+    final gyro bias estimate (rad/s; None without an IMU) and its final wheel yaw-rate scale
+    ``k`` (1; None: not checked). Empty when nothing disagrees."""
     out: list[TrustWarning] = []
     frames = int(stats.get("wheel_frames", 0)) + int(stats.get("twist_messages", 0))
     slips = int(stats.get("slips", 0))
@@ -115,6 +131,19 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None) -> list[Tr
             f"MPU-6050's zero-rate tolerance (+-{math.degrees(GYRO_BIAS_LIMIT):.0f} deg/s): "
             "the filter absorbed a disagreement into its bias",
             {"gyro_bias": gyro_bias, "limit": GYRO_BIAS_LIMIT}))
+    wheel_frames = int(stats.get("wheel_frames", 0))
+    if wheel_frames and wheel_rate_scale is not None and not (
+            abs(wheel_rate_scale) <= WHEEL_SCALE_LIMIT):
+        k = wheel_rate_scale
+        out.append(TrustWarning(
+            "wheel_scale",
+            f"the wheels' yaw rate is {100 * k:+.0f} % off the gyro's (the EKF's wheel "
+            f"yaw-rate scale; more than {100 * WHEEL_SCALE_LIMIT:.0f} % means robot.toml's "
+            "wheel_distance does not fit this base, e.g. a skid-steer base's geometric track): "
+            "part of that went into the gyro bias; correct wheel_distance (`fusion calibrate "
+            "odometry`) and replay",
+            {"wheel_rate_scale": k, "limit": WHEEL_SCALE_LIMIT,
+             "wheel_frames": float(wheel_frames)}))
     if not frames:
         return out
     odometry = float(stats.get("wheel_turn", 0.0)) + float(stats.get("twist_turn", 0.0))

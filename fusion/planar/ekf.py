@@ -69,9 +69,11 @@ Model:
 - Implausible inputs (a rate above ``max_rate``, a speed above ``max_speed``: a corrupt
   value, not a measurement) and non-finite ones are counted in ``stats["invalid"]`` and
   never fused.
-- Gyro update: ``z = w + b`` where z is the rate about the *world* vertical. On a
-  level robot that is ``gyro[2]``; on a tilted one :func:`vertical_rate` projects the body
-  rate with the attitude quaternion (the pipeline's: Keel's).
+- Gyro update: ``z = w + b`` where z is the heading rate (the rate of the ZYX yaw that the
+  pose integrates). On a level robot that is ``gyro[2]``; on a tilted one
+  :func:`heading_rate` computes it from the body rates and the attitude quaternion (the
+  pipeline's: Keel's). :func:`vertical_rate`, the rate about the world vertical, is the same
+  on a level floor or a constant tilt but not while roll and pitch change together (hills).
 - Wheel update: one DATA-uart2 frame's ticks give the period's mean speed ``v = (dl+dr)/(2T)``
   and yaw rate ``w = (dr-dl)/(L T)`` (seed 000's names: ``speed_ratio`` m/tick,
   ``wheel_distance`` L, ``encode_sampling_time`` T), modelled as ``v + c*w*L^2/4`` and
@@ -167,7 +169,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from fusion.geometry.angles import wrap_angle_scalar
 from fusion.geometry.kinematics import DiffDriveParams
-from fusion.geometry.mount import vertical_rate
+from fusion.geometry.mount import heading_rate, vertical_rate
 from fusion.planar import _ekf_core as core
 from fusion.planar.model import NX
 from fusion.types.constants import UNOBSERVED_VARIANCE
@@ -180,6 +182,7 @@ __all__ = [
     "PlanarEKF",
     "ReorderBuffer",
     "fuse",
+    "heading_rate",
     "merge_events",
     "odometry_covariances",
     "pose_covariances",
@@ -942,10 +945,10 @@ class PlanarEKF(ExtendedKalmanFilter):
                                   float(a), float(b)))
 
     def update_gyro(self, t: float, rate_z: float, motion: int = 0) -> int:
-        """Fuse a yaw rate about the world vertical (rad/s) stamped ``t`` (s), with the
-        sample's IMU motion code ``motion`` (:mod:`fusion.planar.imu_motion`; 0 unknown).
+        """Fuse a heading rate (rad/s) stamped ``t`` (s), with the sample's IMU motion code
+        ``motion`` (:mod:`fusion.planar.imu_motion`; 0 unknown).
 
-        Use :func:`vertical_rate` for a tilted robot. Returns the status code of
+        Use :func:`heading_rate` for a tilted robot. Returns the status code of
         :func:`fusion.planar._ekf_core.step_core` (0 applied, 5 dropped as too late, 6 invalid).
         """
         return self._step(core.EV_GYRO, t, rate_z, motion)
@@ -1084,8 +1087,8 @@ def fuse(
 
     Args:
         robot: chassis parameters.
-        imu_t, gyro_z: gyro stamps (s) and rates about the world vertical (rad/s; for a tilted
-            robot use :func:`vertical_rate`).
+        imu_t, gyro_z: gyro stamps (s) and heading rates (rad/s; for a tilted robot use
+            :func:`heading_rate`).
         wheel_t, ticks: wheel frame stamps (s, end of each period) and (M, 2) ticks.
         noise: filter tuning.
         yaw_t, yaw, yaw_std: optional absolute yaw (s, rad, rad).

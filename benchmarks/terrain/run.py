@@ -1,0 +1,362 @@
+"""Drive `fusion replay` with the terrain simulator (sim.py) and score it against truth.
+
+Run (single process; each 300 s run takes ~10 s to simulate and ~20 s to replay twice):
+
+    python benchmarks/terrain/run.py [--out DIR] [--seeds 6] [--duration 300]
+        [--scenarios level hills ...] [--no-level]
+
+For each scenario and seed it writes DIR/SCENARIO/seedN/log (a log directory, datasets/LOGDIR.md),
+runs `fusion replay log -o fused.csv` (and `--level` -> fused_level.csv), saves the printed
+summary in replay.txt, and prints per run, then per scenario (mean / worst over seeds):
+final position error in % of the horizontal distance travelled and yaw RMSE (deg, wrapped) of
+  fused     `fusion replay` (default: tilt-compensated with its attitude)
+  level     `fusion replay --level` (gyro z as the yaw rate)
+  wheel     wheel-only differential-drive odometry from the ticks and robot.toml
+  gs-z      gyro-at-stops: base-frame gyro z, bias (3 axes) re-learnt at each stop of >= 1 s
+            (wheels still), heading integrated, wheel distance
+  gs-vert   the same, rate about the TRUE vertical (up . omega, an oracle using the truth)
+  gs-euler  the same, the exact ZYX yaw rate (w_y sin(roll) + w_z cos(roll)) / cos(pitch) with
+            the true roll and pitch (oracle)
+  floor     yaw only: the TRUE body rates times the gyro's scale error, exact Euler yaw rate
+            (what any gyro-based heading keeps without a scale calibration; oracle)
+  geo-vert  yaw only: the TRUE body rates, no error at all, integrated about the true vertical
+  geo-z     yaw only: the TRUE body rates, no error, body z integrated (both: what the choice
+            of "yaw rate" alone costs on this terrain; the exact Euler rate gives 0.00 deg)
+and the health of the fused output: largest step between consecutive rows / (3 v_max dt),
+largest yaw step / (3 |yaw rate|max dt + 0.5 deg), NaN/inf count, rows flagged zupt / slip /
+encoder_fault, zupt rows while the robot truly moves, and replay warnings.
+
+Scenarios: level, hills (rolling hills, steepest slope on the path 10-15 deg), hills+vibration,
+hills+moving-start, hills+mount (IMU rolled +90, yawed -90, said in robot.toml), ramps (flat with
+0.3-0.6 m mesas whose edges are 10-15 deg ramps and 3-5 cm bumps); extras: level+moving-start,
+hills+30Hz, hills+skid (effective track 1.5x robot.toml's), hills+slip, outdoor (hills +
+vibration + moving start + mount + 30 Hz + skid 1.5). Same seed = same mission and sensor errors
+on every terrain (paired). Radius errors N(0, 0.2 %) per wheel make wheel-only poor everywhere.
+
+What it found (seeds 1-6, 300 s, ~220-265 m per run; yaw RMSE deg, mean / worst):
+  scenario            fused       --level     gs-z        gs-euler    floor  geo-vert
+  level               1.22/1.78   1.20/1.66   1.93/3.01   1.93/3.01   0.73   0.00
+  hills               1.72/2.92   1.29/2.02   2.18/3.89   2.00/3.38   0.73   1.49/2.60
+  hills+vibration     1.73/2.38   1.34/1.99   1.85/3.65   1.63/3.11   0.73   1.49
+  hills+moving-start  6.92/12.40  3.08/4.91   32 (baseline has no stop to learn from for ~60 s)
+  level+moving-start  3.89/8.74   3.91/8.74
+  hills+mount         identical to hills (the mount is undone exactly)
+  ramps               3.38/6.22   3.45/5.54   3.31/7.24   1.93/3.05   0.73   3.33/7.19
+  hills+30Hz          1.91/3.57   1.72/2.69
+  hills+skid          1.66/2.72   1.43/2.71
+  outdoor             25.0/84.8   23.2/87.2   (seed 6: 58 % position error, no warning)
+  No NaN/inf, no position or yaw jumps (largest step = v_max * dt), no zupt while moving
+  (<= 8 rows at the edges of stops) in any run.
+  1. The default tilt compensation integrates the rate about the vertical (its error tracks
+     geo-vert, r = 0.78 on hills seed 2). That is not the heading rate: psi_dot = w_world_z +
+     roll_dot * sin(pitch); on 10-15 deg hills the TRUE rates integrated that way are already
+     1.5 deg RMS off (2.6 worst), twice body z's 0.75, so on hills --level beats the default
+     (1.29 vs 1.72 deg). The exact ZYX rate (w_y sin(roll) + w_z cos(roll)) / cos(pitch) has no
+     such error (gs-euler, 1.93 deg on ramps against 3.4 for both library modes).
+  2. Moving start on hills: the gyro's vertical rate and the wheels' rate about the surface normal
+     disagree, and the EKF puts that into its bias and per-metre wheel rate (hills+moving-start
+     seed 1: bias 1.23 deg/s at 40 s, truth 0.38; heading -32 deg), paid back only after the
+     first stop. --level does not do this (3.8 deg on that seed).
+  3. Ramps/bumps: 120-700 rows flagged slip per run with the default (no slip simulated),
+     0 with --level.
+  4. Skid-steer (track 1.5x) + moving start, even on level ground (sim.py --terrain level
+     --moving-start --track-scale 1.5 --seed 6): the first seconds' wheel/gyro disagreement goes
+     into the bias (-3.05 deg/s, truth -0.56) instead of the wheel-rate scale; heading error
+     -60 deg at 70 s, 28 deg RMSE, no warning. With hills, vibration and 30 Hz: 85 deg.
+  5. Distances are not projected onto the horizontal: the fused path equals the surface path
+     (+0.3-0.5 % here, 1.5 % at a sustained 10 deg).
+
+After finding 1 (the pipeline now adds the heading's roll_dot * (sin(pitch) - sin(pitch) at
+rest) to the rate about the vertical once the robot has stopped once, FusionPipeline._roll_term;
+nothing tuned), same seeds, --no-level (yaw RMSE deg, mean / worst; final position error %):
+  scenario            yaw before   yaw after    pos after    (--level, before)
+  level               1.22/1.78    1.22/1.76    0.80/1.27
+  hills               1.72/2.92    1.31/2.20    0.81/1.64    (1.29/2.02)
+  ramps               3.38/6.22    1.26/1.74    0.78/1.25    (3.45/5.54)
+  hills+moving-start  6.92/12.40   6.47/12.13   3.29/8.36    (3.08/4.91)
+  Tried and not kept: the heading rate from the gyro rates and the attitude's roll and pitch
+  (fusion.geometry.mount.heading_rate) from the first sample: hills 1.09/1.52, hills+moving-
+  start 3.92/5.82, but on the black-box simulator with a real MPU6050's horizontal biases
+  (tests/test_blackbox_replay.py, seed 101) 2.86 deg instead of 2.29: the attitude's tilt
+  error times every turn. The roll term from the first sample (no stop yet, the attitude
+  unproven) turned a moving start's first attitude swing into a 9 deg/s gyro bias (black-box
+  moving_303: 72 deg).
+  Still open: finding 2 (moving start on hills: before the first stop the wheels' rate about
+  the surface normal and the gyro's rate about the vertical disagree and pull the bias; --level
+  does better there), 3 (slip rows on ramps, mean 221 per run, none simulated), 4 (now
+  flagged: trust check wheel_scale, tests/test_terrain_replay.py) and 5.
+  tests/test_terrain_replay.py replays hills seed 2 (2.92 deg before).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import sim
+
+SCENARIOS = {
+    "level": dict(terrain="level"),
+    "hills": dict(terrain="hills"),
+    "hills+vibration": dict(terrain="hills", vibration=True),
+    "hills+moving-start": dict(terrain="hills", moving_start=True),
+    "hills+mount": dict(terrain="hills", mount=True),
+    "ramps": dict(terrain="ramps"),
+    # extras, closer to the target robot
+    "hills+30Hz": dict(terrain="hills", imu_rate=30.0),
+    "hills+skid": dict(terrain="hills", track_scale=1.5),
+    "hills+slip": dict(terrain="hills", slip=True),
+    "level+moving-start": dict(terrain="level", moving_start=True),
+    "outdoor": dict(terrain="hills", vibration=True, moving_start=True, mount=True,
+                    imu_rate=30.0, track_scale=1.5),
+}
+MAIN = ["level", "hills", "hills+vibration", "hills+moving-start", "hills+mount", "ramps"]
+
+
+def wrap(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def read_csv(path):
+    with open(path) as fh:
+        names = fh.readline().strip().split(",")
+    data = np.genfromtxt(path, delimiter=",", skip_header=1)   # blank cells -> NaN
+    return {n: data[:, i] for i, n in enumerate(names)}
+
+
+class Truth:
+    def __init__(self, log):
+        d = read_csv(os.path.join(log, "truth.csv"))
+        self.t, self.x, self.y, self.yaw = d["t"], d["x"], d["y"], np.unwrap(d["yaw"])
+        self.dist = float(np.sum(np.hypot(np.diff(self.x), np.diff(self.y))))
+        dt = np.diff(self.t)
+        self.speed = np.concatenate([[0], np.hypot(np.diff(self.x), np.diff(self.y)) / dt])
+        self.rate = np.concatenate([[0], np.diff(self.yaw) / dt])
+
+    def at(self, t):
+        return (np.interp(t, self.t, self.x), np.interp(t, self.t, self.y),
+                np.interp(t, self.t, self.yaw))
+
+    def score(self, t, x, y, yaw):
+        """final position error (% of distance), yaw RMSE (deg) of a track sampled at t."""
+        tx, ty, tyaw = self.at(t)
+        ok = np.isfinite(x) & np.isfinite(y) & np.isfinite(yaw)
+        if not ok.any():
+            return np.nan, np.nan
+        k = np.flatnonzero(ok)[-1]
+        pos = 100 * np.hypot(x[k] - tx[k], y[k] - ty[k]) / self.dist
+        rmse = np.degrees(np.sqrt(np.mean(wrap(yaw[ok] - tyaw[ok]) ** 2)))
+        return pos, rmse
+
+
+def wheel_only(wt, ticks, L, sr):
+    ds = ticks.sum(1) / 2 * sr
+    dth = (ticks[:, 1] - ticks[:, 0]) * sr / L
+    th = np.cumsum(dth)
+    mid = th - dth / 2                      # heading at the middle of each period
+    return np.cumsum(ds * np.cos(mid)), np.cumsum(ds * np.sin(mid)), th
+
+
+def stops_from_wheels(wt, ticks, T, min_len=1.0):
+    """[(start, end)] of runs of frames with both wheels at zero ticks lasting >= min_len s."""
+    still = (ticks == 0).all(1)
+    out, i = [], 0
+    while i < len(still):
+        if still[i]:
+            j = i
+            while j + 1 < len(still) and still[j + 1]:
+                j += 1
+            if wt[j] - (wt[i] - T) >= min_len:
+                out.append((wt[i] - T, wt[j]))
+            i = j + 1
+        else:
+            i += 1
+    return out
+
+
+def gyro_at_stops(imu_t, g_base, up, wt, ticks, T, sr, trim=0.3):
+    """Headings (body z, true vertical, exact Euler rate) with the bias re-learnt at each stop,
+    then dead reckoning with the wheel distance. Returns {name: (t, x, y, yaw)}."""
+    bias = np.zeros_like(g_base)
+    for a, b in stops_from_wheels(wt, ticks, T):
+        m = (imu_t > a + trim) & (imu_t < b - trim)
+        if m.sum() >= 5:
+            bias[imu_t >= b - trim] = g_base[m].mean(0)      # causal: used after it is learnt
+    g = g_base - bias
+    th = -np.arcsin(np.clip(up[:, 0], -1, 1))                # true pitch, roll from the vertical
+    ph = np.arctan2(up[:, 1], up[:, 2])
+    rates = {"gs-z": g[:, 2], "gs-vert": (g * up).sum(1),
+             "gs-euler": (g[:, 1] * np.sin(ph) + g[:, 2] * np.cos(ph)) / np.cos(th)}
+    dt = np.diff(np.concatenate([[0.0], imu_t]))              # sample j covers (t_j-1, t_j]
+    ds = ticks.sum(1) / 2 * sr
+    out = {}
+    for k, r in rates.items():
+        yaw = np.cumsum(r * dt)
+        h = np.interp(wt - T / 2, np.concatenate([[0.0], imu_t]), np.concatenate([[0.0], yaw]))
+        out[k] = (imu_t, yaw, np.cumsum(ds * np.cos(h)), np.cumsum(ds * np.sin(h)), wt)
+    return out
+
+
+def replay(log, out_csv, level=False, reuse=False):
+    if reuse and os.path.exists(out_csv) and os.path.exists(out_csv[:-4] + ".txt"):
+        txt = open(out_csv[:-4] + ".txt").read().split("\n", 1)
+        return 0, txt[1], txt[0]
+    cmd = ["fusion", "replay", log, "-o", out_csv, "--no-progress"] + (["--level"] if level else [])
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    return p.returncode, p.stdout + p.stderr, " ".join(cmd)
+
+
+def fused_metrics(path, truth, vmax, wmax):
+    d = read_csv(path)
+    t, x, y, yaw = d["t"], d["x"], d["y"], d["yaw"]
+    state = [c for c in d if c not in ("wheel_left_speed", "wheel_right_speed")]
+    nonfinite = int(sum((~np.isfinite(d[c])).sum() for c in state))
+    pos, rmse = truth.score(t, x, y, yaw)
+    dt = np.diff(t)
+    step = np.hypot(np.diff(x), np.diff(y)) / (3 * vmax * dt)
+    ystep = np.abs(wrap(np.diff(yaw))) / (3 * wmax * dt + np.deg2rad(0.5))
+    spd = np.interp(t, truth.t, truth.speed)
+    rate = np.abs(np.interp(t, truth.t, truth.rate))
+    moving = (spd > 0.02) | (rate > 0.02)
+    zupt = d["zupt"] > 0
+    return dict(pos=pos, yaw=rmse, step=float(np.nanmax(step)), ystep=float(np.nanmax(ystep)),
+                step_t=float(t[1:][np.nanargmax(step)]), nonfinite=nonfinite,
+                zupt=int(zupt.sum()), slip=int((d["slip"] > 0).sum()),
+                encf=int((d["encoder_fault"] > 0).sum()), zupt_moving=int((zupt & moving).sum()),
+                rows=len(t),
+                final_yaw_err=float(np.degrees(wrap(yaw[-1] - truth.at(t[-1:])[2][0]))))
+
+
+def one_run(root, scen, seed, duration, do_level=True, reuse=False):
+    cfg = sim.Config(seed=seed, duration=duration, **SCENARIOS[scen])
+    out = os.path.join(root, scen, f"seed{seed}")
+    run = sim.simulate(cfg)
+    log = sim.write(run, cfg, out)
+    info = run["info"]
+    truth = Truth(log)
+    vmax, wmax = info["max_surface_speed"], info["max_abs_psi_rate"]
+    res = {"info": info}
+    rc, txt, cmd = replay(log, os.path.join(out, "fused.csv"), reuse=reuse)
+    open(os.path.join(out, "fused.txt"), "w").write(cmd + "\n" + txt)
+    res["cmd"], res["rc"] = cmd, rc
+    res["warnings"] = [ln.strip() for ln in txt.splitlines() if "warning" in ln.lower()]
+    res["fused"] = (fused_metrics(os.path.join(out, "fused.csv"), truth, vmax, wmax)
+                    if rc == 0 else None)
+    if do_level:
+        rc2, txt2, cmd2 = replay(log, os.path.join(out, "fused_level.csv"), level=True, reuse=reuse)
+        open(os.path.join(out, "fused_level.txt"), "w").write(cmd2 + "\n" + txt2)
+        res["level"] = (fused_metrics(os.path.join(out, "fused_level.csv"), truth, vmax, wmax)
+                        if rc2 == 0 else None)
+    # baselines from the log files (as a user has them) + the oracle's true vertical
+    imu = read_csv(os.path.join(log, "imu.csv"))
+    wh = read_csv(os.path.join(log, "wheels.csv"))
+    wt, ticks = wh["t"], np.column_stack([wh["left"], wh["right"]])
+    imu_t = imu["t"]
+    g_imu = np.column_stack([imu["gx"], imu["gy"], imu["gz"]])
+    Rm = Rotation.from_euler("ZYX", run["mount_rpy"][::-1]).as_matrix()
+    g_base = g_imu @ Rm.T                                  # IMU -> base frame
+    T, sr, L = cfg.wheel_period, cfg.speed_ratio, cfg.wheel_distance
+    wx, wy, wth = wheel_only(wt, ticks, L, sr)
+    p, _ = truth.score(wt, wx, wy, wth)
+    res["wheel"] = dict(pos=p, yaw=truth.score(wt, wx, wy, wth)[1])
+    up = np.load(os.path.join(out, "oracle.npz"))["up_base"]
+    for k, (ti, yaw, bx, by, wt2) in gyro_at_stops(imu_t, g_base, up, wt, ticks, T, sr).items():
+        _, ry = truth.score(ti, ti * 0, ti * 0, yaw)
+        tx, ty, _ = truth.at(wt2[-1:])
+        res[k] = dict(pos=100 * float(np.hypot(bx[-1] - tx[0], by[-1] - ty[0])) / truth.dist,
+                      yaw=ry)
+    # floor: the exact Euler yaw rate of the TRUE rates with only the gyro's scale error (what
+    # no bias estimate can remove; an oracle)
+    ora = np.load(os.path.join(out, "oracle.npz"))
+    gs = ora["gyro_true"] * (1 + np.array(info["gyro_scale"]))
+    th, ph = -np.arcsin(np.clip(up[:, 0], -1, 1)), np.arctan2(up[:, 1], up[:, 2])
+    yaw_f = np.cumsum((gs[:, 1] * np.sin(ph) + gs[:, 2] * np.cos(ph)) / np.cos(th)
+                      * np.diff(np.concatenate([[0.0], imu_t])))
+    res["floor"] = dict(pos=np.nan, yaw=truth.score(imu_t, imu_t * 0, imu_t * 0, yaw_f)[1])
+    # geometry alone: TRUE rates, no sensor error, integrated about the true vertical (up . w)
+    # or as body z: how far each of these is from the heading on this terrain (oracle)
+    dti = np.diff(np.concatenate([[0.0], imu_t]))
+    for k, rate in (("geo-vert", (ora["gyro_true"] * up).sum(1)),
+                    ("geo-z", ora["gyro_true"][:, 2])):
+        yaw_k = np.cumsum(rate * dti)
+        res[k] = dict(pos=np.nan, yaw=truth.score(imu_t, imu_t * 0, imu_t * 0, yaw_k)[1])
+    res["dist"] = truth.dist
+    json.dump(res, open(os.path.join(out, "result.json"), "w"), indent=1, default=float)
+    return res
+
+
+METHODS = ["fused", "level", "wheel", "gs-z", "gs-vert", "gs-euler", "floor", "geo-vert", "geo-z"]
+
+
+def fmt_run(scen, seed, r):
+    f = r["fused"]
+    s = f"{scen:20s} s{seed} {r['dist']:6.1f}m slope{r['info']['max_slope_path_deg']:5.1f} "
+    for m in METHODS:
+        if r.get(m):
+            s += f"| {m} {r[m]['pos']:6.2f}% {r[m]['yaw']:6.2f}d "
+    if f:
+        s += (f"| step {f['step']:.2f} ystep {f['ystep']:.2f} nan {f['nonfinite']} zupt {f['zupt']}"
+              f" (moving {f['zupt_moving']}) slip {f['slip']} encf {f['encf']}"
+              f" warn {len(r['warnings'])}")
+    else:
+        s += f"| REPLAY FAILED rc={r['rc']}"
+    return s
+
+
+def summary(results):
+    print("\nscenario              method   pos% mean  worst | yawRMSE mean  worst (deg)")
+    for scen, runs in results.items():
+        for m in METHODS:
+            v = [r[m] for r in runs if r.get(m)]
+            if not v:
+                continue
+            P = np.array([x["pos"] for x in v])
+            Y = np.array([x["yaw"] for x in v])
+            print(f"{scen:20s} {m:9s} {P.mean():7.2f} {P.max():7.2f} | "
+                  f"{Y.mean():8.2f} {Y.max():7.2f}"
+                  f"   per seed yaw: {' '.join(f'{y:.2f}' for y in Y)}")
+        f = [r["fused"] for r in runs if r["fused"]]
+        if f:
+            print(f"{'':20s} health: max step ratio {max(x['step'] for x in f):.2f}, yaw step "
+                  f"{max(x['ystep'] for x in f):.2f}, nonfinite {sum(x['nonfinite'] for x in f)}, "
+                  f"zupt rows {np.mean([x['zupt'] for x in f]):.0f} (moving: max "
+                  f"{max(x['zupt_moving'] for x in f)}), slip rows mean "
+                  f"{np.mean([x['slip'] for x in f]):.0f}, encoder_fault rows max "
+                  f"{max(x['encf'] for x in f)}, runs with warnings "
+                  f"{sum(bool(r['warnings']) for r in runs)}/{len(runs)}")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", default=None)
+    ap.add_argument("--seeds", type=int, default=6)
+    ap.add_argument("--first-seed", type=int, default=1)
+    ap.add_argument("--duration", type=float, default=300.0)
+    ap.add_argument("--scenarios", nargs="+", default=MAIN, choices=list(SCENARIOS))
+    ap.add_argument("--no-level", action="store_true", help="skip the --level replays")
+    ap.add_argument("--reuse", action="store_true",
+                    help="reuse fused*.csv already in --out (re-simulates, re-scores only)")
+    a = ap.parse_args()
+    root = a.out or tempfile.mkdtemp(prefix="terrain-")
+    print("runs in", root)
+    results = {}
+    for scen in a.scenarios:
+        results[scen] = []
+        for seed in range(a.first_seed, a.first_seed + a.seeds):
+            r = one_run(root, scen, seed, a.duration, not a.no_level, a.reuse)
+            results[scen].append(r)
+            print(fmt_run(scen, seed, r), flush=True)
+            for w in r["warnings"]:
+                print("    ", w[:200])
+    summary(results)
+
+
+if __name__ == "__main__":
+    main()
