@@ -33,11 +33,12 @@ SEED = 2
 def terrain_run():
     """The benchmark's two scripts as modules (run.py imports sim.py by bare name), taken out
     of ``sys.modules`` again afterwards so that no other test sees a module called ``sim``."""
+    saved = sys.path[:]  # run.py puts its own folder on sys.path too
     sys.path.insert(0, str(TERRAIN))
     try:
         run = importlib.import_module("run")
     finally:
-        sys.path.remove(str(TERRAIN))
+        sys.path[:] = saved
     yield run
     for name in ("sim", "run"):
         sys.modules.pop(name, None)
@@ -46,7 +47,9 @@ def terrain_run():
 @pytest.fixture(scope="module")
 def hills(terrain_run, tmp_path_factory):
     root = tmp_path_factory.mktemp("terrain")
-    return terrain_run.one_run(str(root), "hills", SEED, 300.0, do_level=False)
+    result = terrain_run.one_run(str(root), "hills", SEED, 300.0, do_level=False)
+    assert result["rc"] == 0, result["cmd"]
+    return result
 
 
 def test_the_run_is_hilly_and_the_vertical_rate_is_not_the_heading_rate(hills):

@@ -1,15 +1,19 @@
-"""Oracle of what the pipeline does with the horizontal gyro bias, written here from the policy
-stated in ``FusionPipeline._rest_gyro_bias`` and ``_bias_leak`` (fusion/pipeline/core.py), not
-from their array code: one sample at a time in arrival order.
+"""Oracle of what the pipeline feeds the EKF as its yaw rate (the horizontal gyro bias, the tilt,
+the heading's roll term), written here from the policy stated in
+``FusionPipeline._rest_gyro_bias``, ``_bias_leak`` and ``_roll_term`` (fusion/pipeline/core.py),
+not from their array code: one sample at a time in arrival order. It restates the formulas, so
+it checks the streaming/batch machinery, not the geometry (tests/test_mount.py and
+tests/test_terrain_replay.py do).
 
 - Still samples: the IMU's motion code still, and the newest wheel frame or twist that arrived
   before the sample (at equal stamps the IMU sample arrives first) at most ``gap_periods``
   (2.5) wheel periods old with ``|v| <= EkfNoise.twist_zero_v`` and ``|w| <= twist_zero_w``.
 - The bias learnt at rest: the mean of the base x, y gyro rates over the still samples so far
   (this one included), 0 before the first. The attitude filter is fed the gyro minus it.
-- The EKF's yaw rate: the rate about the world vertical (``vertical_rate``) minus
-  ``bx*(r20 - r20_rest) + by*(r21 - r21_rest)``, ``(r20, r21)`` the world vertical's base x, y
-  components and ``r20_rest, r21_rest`` their means over the same still samples, plus the
+- The EKF's yaw rate: before the first still sample, if a wheel frame or twist arrived before
+  the sample, the base gyro's z axis; otherwise the rate about the world vertical
+  (``vertical_rate``) minus ``bx*r20 + by*r21``, ``(r20, r21)`` the world vertical's base x, y
+  components, plus the
   heading's extra term ``roll_dot * (sin(pitch) - sin_pitch_rest)``: the roll change since the
   previous sample (wrapped) times the mean of the two samples' ``sin(pitch) = -r20`` less the
   mean of ``sin(pitch)`` over the still samples so far, over their interval (0 at the first
@@ -31,14 +35,16 @@ __all__ = ["rest_gyro_bias_by_hand", "tilt_rate_by_hand"]
 
 
 def _still_samples(robot, imu_t, codes, wheel_t, ticks, twist_t, twist_v, twist_w,
-                   gap_periods) -> np.ndarray:
-    """(N,) bool: the IMU samples at which the robot stood still (the module docstring)."""
+                   gap_periods, with_odometry: bool = False):
+    """(N,) bool: the IMU samples at which the robot stood still (the module docstring);
+    with ``with_odometry`` also (N,) bool: a wheel frame or twist arrived before the sample."""
     period = robot.chassis.encode_sampling_time
     events = sorted([(float(t), 0, i) for i, t in enumerate(imu_t)]
                     + [(float(t), 1, i) for i, t in enumerate(wheel_t)]
                     + [(float(t), 2, i) for i, t in enumerate(twist_t)])
     newest = None  # (stamp, v, w) of the newest wheel frame or twist
     still = np.zeros(len(imu_t), dtype=bool)
+    odometry = np.zeros(len(imu_t), dtype=bool)
     for t, kind, i in events:
         if kind == 1:
             v, w = ticks_to_twist(int(ticks[i][0]), int(ticks[i][1]), robot.chassis)
@@ -46,11 +52,12 @@ def _still_samples(robot, imu_t, codes, wheel_t, ticks, twist_t, twist_v, twist_
         elif kind == 2:
             newest = (t, float(twist_v[i]), float(twist_w[i]))
         else:
+            odometry[i] = newest is not None
             still[i] = (codes[i] == MOTION_STILL and newest is not None
                         and t - newest[0] <= gap_periods * period
                         and abs(newest[1]) <= robot.ekf.twist_zero_v
                         and abs(newest[2]) <= robot.ekf.twist_zero_w)
-    return still
+    return (still, odometry) if with_odometry else still
 
 
 def rest_gyro_bias_by_hand(robot: RobotConfig, imu_t, gyro, codes, wheel_t=(), ticks=(),
@@ -81,11 +88,10 @@ def tilt_rate_by_hand(robot: RobotConfig, imu_t, gyro, q, codes, wheel_t=(), tic
     """(N,) rad/s: the EKF's yaw-rate input for base-frame ``gyro`` (rad/s, as measured) with
     attitudes ``q`` ([w, x, y, z]; of the gyro minus :func:`rest_gyro_bias_by_hand`) and the
     other arguments as there."""
-    still = _still_samples(robot, imu_t, codes, wheel_t, ticks, twist_t, twist_v, twist_w,
-                           gap_periods)
+    still, odometry = _still_samples(robot, imu_t, codes, wheel_t, ticks, twist_t, twist_v,
+                                     twist_w, gap_periods, with_odometry=True)
     bias = rest_gyro_bias_by_hand(robot, imu_t, gyro, codes, wheel_t, ticks, twist_t,
                                   twist_v, twist_w, gap_periods=gap_periods)
-    s20 = s21 = 0.0
     count = 0
     previous = None  # (stamp, roll, sin(pitch))
     sin_pitch_sum = 0.0
@@ -96,22 +102,19 @@ def tilt_rate_by_hand(robot: RobotConfig, imu_t, gyro, q, codes, wheel_t=(), tic
         r20 = 2.0 * (qx * qz - qw * qy) / n2
         r21 = 2.0 * (qy * qz + qw * qx) / n2
         if still[i]:
-            s20 += r20
-            s21 += r21
             count += 1
         rate = float(vertical_rate(np.asarray(gyro[i], dtype=float), np.asarray(q[i])))
         if count:
             bx, by = float(bias[i, 0]), float(bias[i, 1])
-            rate -= bx * (r20 - s20 / count) + by * (r21 - s21 / count)
+            rate -= bx * r20 + by * r21
         r22 = 1.0 - 2.0 * (qx * qx + qy * qy) / n2
         roll = math.atan2(r21, r22)
         if still[i]:
             sin_pitch_sum += -r20
         if previous is not None and count:
             t0, roll0, s0 = previous
-            turn = roll - roll0
-            turn -= 2.0 * math.pi * round(turn / (2.0 * math.pi))
+            turn = math.remainder(roll - roll0, 2.0 * math.pi)
             rate += turn * (0.5 * (-r20 + s0) - sin_pitch_sum / count) / (float(imu_t[i]) - t0)
         previous = (float(imu_t[i]), roll, -r20)
-        out[i] = rate
+        out[i] = float(gyro[i][2]) if (odometry[i] and not count) else rate
     return out

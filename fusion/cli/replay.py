@@ -82,8 +82,9 @@ def register(subparsers) -> None:
                         "[ekf] tuning; optional) or a log directory (instead of its own)")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 3 when the inputs disagree beyond what the model "
-                        "explains (most frames slip, an implausible gyro bias, odometry and "
-                        "gyro headings diverging; printed as 'warning: inputs disagree' "
+                        "explains (most frames slip, an implausible gyro bias, a wheel "
+                        "yaw-rate scale beyond 15 %%, odometry and gyro headings diverging; "
+                        "printed as 'warning: inputs disagree' "
                         "either way)")
     bag = p.add_argument_group("ROS bags")
     bag.add_argument("--imu-topic", help="sensor_msgs/Imu topic (bags only)")

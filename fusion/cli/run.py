@@ -80,8 +80,9 @@ def register(subparsers: Any) -> None:
                         "unaccounted, source faults (0: none; default 10)")
     p.add_argument("--strict", action="store_true",
                    help="exit with status 3 when the inputs disagree beyond what the model "
-                        "explains (most frames slip, an implausible gyro bias, odometry and "
-                        "gyro headings diverging); the final status says so either way")
+                        "explains (most frames slip, an implausible gyro bias, a wheel "
+                        "yaw-rate scale beyond 15 %%, odometry and gyro headings diverging); "
+                        "the final status says so either way")
     p.set_defaults(func=run)
 
 

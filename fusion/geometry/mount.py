@@ -142,7 +142,10 @@ def heading_rate(gyro: ArrayLike, quaternion: ArrayLike | None = None) -> NDArra
     (driving across rolling hills: about 1.5 deg RMS of heading over 300 s on 10-15 deg
     slopes, benchmarks/terrain). Both agree on a level floor, on a constant tilt (a mount
     tilt) and whenever the robot turns about the world vertical. The pitch's cosine is
-    floored (:data:`MIN_COS2_PITCH`). Without ``quaternion`` the robot is taken as level and
+    floored (:data:`MIN_COS2_PITCH`). Exact on an exact attitude; with an estimated one, a
+    pitch error scales every turn (``tan(pitch) * error``), where the vertical rate's error
+    is of second order: the fusion pipeline adds the roll term to the vertical rate instead
+    (``FusionPipeline._roll_term``). Without ``quaternion`` the robot is taken as level and
     ``gyro[..., 2]`` is returned.
 
     Raises:

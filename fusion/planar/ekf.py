@@ -70,10 +70,13 @@ Model:
   value, not a measurement) and non-finite ones are counted in ``stats["invalid"]`` and
   never fused.
 - Gyro update: ``z = w + b`` where z is the heading rate (the rate of the ZYX yaw that the
-  pose integrates). On a level robot that is ``gyro[2]``; on a tilted one
-  :func:`heading_rate` computes it from the body rates and the attitude quaternion (the
-  pipeline's: Keel's). :func:`vertical_rate`, the rate about the world vertical, is the same
-  on a level floor or a constant tilt but not while roll and pitch change together (hills).
+  pose integrates). On a level robot that is ``gyro[2]``; on a tilted one the rate about the
+  world vertical, :func:`vertical_rate` (the body rates projected with the attitude
+  quaternion), is the same on a level floor or at a constant tilt but not while roll and
+  pitch change together (hills: it misses ``roll_dot * sin(pitch)``).
+  :func:`heading_rate` is exact on an exact attitude but turns a tilt error into a scale
+  error of every turn; the pipeline (:class:`fusion.pipeline.core.FusionPipeline`) feeds
+  the vertical rate plus the roll term taken from its attitude's roll change.
 - Wheel update: one DATA-uart2 frame's ticks give the period's mean speed ``v = (dl+dr)/(2T)``
   and yaw rate ``w = (dr-dl)/(L T)`` (seed 000's names: ``speed_ratio`` m/tick,
   ``wheel_distance`` L, ``encode_sampling_time`` T), modelled as ``v + c*w*L^2/4`` and
@@ -948,8 +951,9 @@ class PlanarEKF(ExtendedKalmanFilter):
         """Fuse a heading rate (rad/s) stamped ``t`` (s), with the sample's IMU motion code
         ``motion`` (:mod:`fusion.planar.imu_motion`; 0 unknown).
 
-        Use :func:`heading_rate` for a tilted robot. Returns the status code of
-        :func:`fusion.planar._ekf_core.step_core` (0 applied, 5 dropped as too late, 6 invalid).
+        Use :func:`vertical_rate` for a tilted robot (on hills see the module docstring).
+        Returns the status code of :func:`fusion.planar._ekf_core.step_core` (0 applied, 5
+        dropped as too late, 6 invalid).
         """
         return self._step(core.EV_GYRO, t, rate_z, motion)
 
@@ -1087,8 +1091,8 @@ def fuse(
 
     Args:
         robot: chassis parameters.
-        imu_t, gyro_z: gyro stamps (s) and heading rates (rad/s; for a tilted robot use
-            :func:`heading_rate`).
+        imu_t, gyro_z: gyro stamps (s) and heading rates (rad/s; for a tilted robot
+            :func:`vertical_rate`, on hills see the module docstring).
         wheel_t, ticks: wheel frame stamps (s, end of each period) and (M, 2) ticks.
         noise: filter tuning.
         yaw_t, yaw, yaw_std: optional absolute yaw (s, rad, rad).
