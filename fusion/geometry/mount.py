@@ -71,6 +71,14 @@ def base_to_imu(R: ArrayLike, v: ArrayLike) -> NDArray[np.float64]:
     return imu_to_base(np.asarray(R, dtype=np.float64).T, v)
 
 
+def _gyro_rates(gyro: ArrayLike) -> NDArray[np.float64]:
+    """``gyro`` as float rates (..., 3), rad/s; ValueError naming any other shape."""
+    g = np.asarray(gyro, dtype=float)
+    if g.shape[-1:] != (3,):
+        raise ValueError(f"gyro must have shape (..., 3), got {g.shape}")
+    return g
+
+
 def vertical_rate(gyro: ArrayLike, quaternion: ArrayLike | None = None) -> NDArray[np.float64]:
     """Rate about the world vertical (rad/s) from body-frame gyro rates (..., 3).
 
@@ -82,9 +90,7 @@ def vertical_rate(gyro: ArrayLike, quaternion: ArrayLike | None = None) -> NDArr
     Raises:
         ValueError: ``gyro`` not (..., 3) or ``quaternion`` not (..., 4).
     """
-    g = np.asarray(gyro, dtype=float)
-    if g.shape[-1:] != (3,):
-        raise ValueError(f"gyro must have shape (..., 3), got {g.shape}")
+    g = _gyro_rates(gyro)
     if quaternion is None:
         return g[..., 2].copy()
     q = np.asarray(quaternion, dtype=float)
@@ -151,20 +157,8 @@ def heading_rate(gyro: ArrayLike, quaternion: ArrayLike | None = None) -> NDArra
     Raises:
         ValueError: ``gyro`` not (..., 3) or ``quaternion`` not (..., 4).
     """
-    g = np.asarray(gyro, dtype=float)
-    if g.shape[-1:] != (3,):
-        raise ValueError(f"gyro must have shape (..., 3), got {g.shape}")
+    g = _gyro_rates(gyro)
     if quaternion is None:
         return g[..., 2].copy()
-    if np.shape(quaternion) == (4,) and g.size == 3:
-        # one vector (a live sample): the same operations on Python floats, at a fraction of
-        # numpy's per-call overhead, giving the same bits
-        (w, x, y, z), (_, gy, gz) = np.asarray(quaternion, float).tolist(), g.reshape(3).tolist()
-        n2 = w * w + x * x + y * y + z * z
-        r20 = 2.0 * (x * z - w * y) / n2
-        r21 = 2.0 * (y * z + w * x) / n2
-        r22 = 1.0 - 2.0 * (x * x + y * y) / n2
-        c2 = max(1.0 - r20 * r20, MIN_COS2_PITCH)
-        return np.full(g.shape[:-1], r21 / c2 * gy + r22 / c2 * gz)
     ky, kz = heading_coefficients(quaternion)
     return ky * g[..., 1] + kz * g[..., 2]
