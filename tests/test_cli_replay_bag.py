@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
 from tilt_rate_reference import (  # tests/tilt_rate_reference.py
+    heading_frame_twists_by_hand,
     rest_gyro_bias_by_hand,
     tilt_rate_by_hand,
 )
@@ -126,6 +127,7 @@ def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
     for level in (False, True):
         assert _replay(bag, out, *(["--level"] if level else [])) == 0
         codes = imu_motion_codes(imu.t, imu.gyro, imu.accel)
+        twist_v, twist_w = odom.v, odom.w
         if level:
             gz = imu.gyro[:, 2]
         else:
@@ -136,8 +138,11 @@ def test_csv_equals_the_filters_composed_by_hand(bag, msgs, tmp_path):
                              twist_v=odom.v, twist_w=odom.w, sample_period=0.02)
             gz = tilt_rate_by_hand(NEUTRAL, imu.t, imu.gyro, q, codes, twist_t=odom.t,
                                    twist_v=odom.v, twist_w=odom.w)
+            twist_v, twist_w = heading_frame_twists_by_hand(NEUTRAL, imu.t, q, gz,
+                                                            imu.gyro[:, 2], odom.t, odom.v,
+                                                            odom.w)
         track, _ = fuse(NEUTRAL.chassis, imu.t, gz, noise=NEUTRAL.ekf, twist_t=odom.t,
-                        twist_v=odom.v, twist_w=odom.w, imu_motion=codes)
+                        twist_v=twist_v, twist_w=twist_w, imu_motion=codes)
         rows = track.output_rows()
         assert rows.sum() == N_IMU
         no_wheels = np.full((int(rows.sum()), 2), np.nan)

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
 from tilt_rate_reference import (  # tests/tilt_rate_reference.py
+    heading_frame_ticks_by_hand,
+    heading_frame_twists_by_hand,
     rest_gyro_bias_by_hand,
     tilt_rate_by_hand,
 )
@@ -74,7 +76,9 @@ def test_streaming_pipeline_equals_the_filters_composed_by_hand(run, noise):
     slip = accel_slip_flags(run.robot.speed_ratio, run.robot.encode_sampling_time, run.imu_t,
                             run.accel[:, :2], gz, motion, run.wheel_t, run.ticks)
     accel_x = run.accel[:, 0] if noise.accel_speed_psd > 0 else None
-    track, ekf = fuse(run.robot, run.imu_t, gz, run.wheel_t, run.ticks, noise,
+    ticks = heading_frame_ticks_by_hand(robot, run.imu_t, q, gz, run.gyro[:, 2], run.wheel_t,
+                                        run.ticks)
+    track, ekf = fuse(run.robot, run.imu_t, gz, run.wheel_t, ticks, noise,
                       imu_motion=motion, wheel_slip=slip, accel_x=accel_x)
     rows = track.states[track.kind == core.EV_WHEELS]
     t_rows = track.t_filter[track.kind == core.EV_WHEELS]
@@ -362,8 +366,9 @@ def test_twists_stream_into_the_ekfs_own_twist_update(run):
     q = keel_by_hand(robot, run.imu_t, fed, run.accel, twist_t=tt, twist_v=tv, twist_w=tw)
     gz = tilt_rate_by_hand(robot, run.imu_t, run.gyro, q, motion, twist_t=tt, twist_v=tv,
                            twist_w=tw)
-    track, ekf = fuse(run.robot, run.imu_t, gz, noise=EkfNoise(), twist_t=tt, twist_v=tv,
-                      twist_w=tw, imu_motion=motion)
+    fv, fw = heading_frame_twists_by_hand(robot, run.imu_t, q, gz, run.gyro[:, 2], tt, tv, tw)
+    track, ekf = fuse(run.robot, run.imu_t, gz, noise=EkfNoise(), twist_t=tt, twist_v=fv,
+                      twist_w=fw, imu_motion=motion)
     is_t = track.kind == core.EV_TWIST
     rows, t_rows = track.states[is_t], track.t_filter[is_t]
 

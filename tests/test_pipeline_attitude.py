@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
 from tilt_rate_reference import (  # tests/tilt_rate_reference.py
+    heading_frame_ticks_by_hand,
     rest_gyro_bias_by_hand,
     tilt_rate_by_hand,
 )
@@ -81,7 +82,9 @@ def _by_hand(run, q) -> np.ndarray:
                              run.wheel_t, run.ticks)
     slip = accel_slip_flags(run.robot.speed_ratio, run.robot.encode_sampling_time, run.imu_t,
                             run.accel[:, :2], rate, motion, run.wheel_t, run.ticks)
-    track, _ = fuse(run.robot, run.imu_t, rate, run.wheel_t, run.ticks, EkfNoise(),
+    ticks = heading_frame_ticks_by_hand(RobotConfig(chassis=run.robot), run.imu_t, q, rate,
+                                        run.gyro[:, 2], run.wheel_t, run.ticks)
+    track, _ = fuse(run.robot, run.imu_t, rate, run.wheel_t, ticks, EkfNoise(),
                     imu_motion=motion, wheel_slip=slip)
     return track.states[track.kind == core.EV_WHEELS]
 

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from keel_feed_reference import keel_by_hand  # tests/keel_feed_reference.py
 from tilt_rate_reference import (  # tests/tilt_rate_reference.py
+    heading_frame_ticks_by_hand,
     rest_gyro_bias_by_hand,
     tilt_rate_by_hand,
 )
@@ -114,17 +115,21 @@ def _reference(run, window: float, sources: tuple[str, ...]):
     slip = accel_slip_flags(robot.speed_ratio, robot.encode_sampling_time, run.imu_t,
                             run.accel[:, :2], rate, motion, run.wheel_t, run.ticks)
     slip_at = dict(zip(run.wheel_t.tolist(), slip.tolist()))
+    # the ticks as the pipeline hands them to the EKF (on a slope: horizontal, heading rate)
+    ticks_at = dict(zip(run.wheel_t.tolist(), heading_frame_ticks_by_hand(
+        RobotConfig(chassis=robot), run.imu_t, q, rate, run.gyro[:, 2], run.wheel_t,
+        run.ticks).tolist()))
     heap: list = []
     marks = {name: -math.inf for name in sources}
     newest = -math.inf
     out = []
 
     def apply(ev):
-        kind, t, a, b = ev
+        kind, t, a, _ = ev
         if kind == "imu":
             ekf.update_gyro(t, a, motion_at[t])
         else:
-            ekf.update_wheels(t, a, b, slip=slip_at[t])
+            ekf.update_wheels(t, *ticks_at[t], slip=slip_at[t])
             out.append(ekf.x.copy())
 
     for n, ev in enumerate(_events(run)):

@@ -18,6 +18,12 @@ tests/test_terrain_replay.py do).
   previous sample (wrapped) times the mean of the two samples' ``sin(pitch) = -r20`` less the
   mean of ``sin(pitch)`` over the still samples so far, over their interval (0 at the first
   sample and until the first still sample).
+- The wheel frames the EKF is given (``FusionPipeline``'s ``HeadingFrame``): a frame stamped
+  ``t`` with a tick on either wheel, and IMU samples stamped in ``(t - period, t]``, gets the
+  twist ``(v * mean cos(pitch), w + mean(rate - gyro z))`` over those samples, written back as
+  left and right ticks; any other frame is kept as it is. A twist the same over the samples
+  since the previous twist (at most 0.5 s; 0.5 s before the first), unless it is a
+  standstill (``|v| <= twist_zero_v`` and ``|w| <= twist_zero_w``).
 """
 
 from __future__ import annotations
@@ -31,7 +37,8 @@ from fusion.geometry.mount import vertical_rate
 from fusion.planar.imu_motion import MOTION_STILL
 from fusion.planar.robot import RobotConfig
 
-__all__ = ["rest_gyro_bias_by_hand", "tilt_rate_by_hand"]
+__all__ = ["heading_frame_ticks_by_hand", "heading_frame_twists_by_hand",
+           "rest_gyro_bias_by_hand", "tilt_rate_by_hand"]
 
 
 def _still_samples(robot, imu_t, codes, wheel_t, ticks, twist_t, twist_v, twist_w,
@@ -118,3 +125,52 @@ def tilt_rate_by_hand(robot: RobotConfig, imu_t, gyro, q, codes, wheel_t=(), tic
         previous = (float(imu_t[i]), roll, -r20)
         out[i] = float(gyro[i][2]) if (odometry[i] and not count) else rate
     return out
+
+
+def _means(q, rate, gyro_z, near):
+    """Mean cos(pitch) and mean (rate - gyro z) over the samples ``near``."""
+    qw, qx, qy, qz = np.asarray(q)[near].T
+    sin_pitch = -2.0 * (qx * qz - qw * qy) / (qw * qw + qx * qx + qy * qy + qz * qz)
+    cos_pitch = np.sqrt(np.maximum(1.0 - sin_pitch * sin_pitch, 0.0)).mean()
+    return cos_pitch, (np.asarray(rate)[near] - np.asarray(gyro_z)[near]).mean()
+
+
+def heading_frame_ticks_by_hand(robot: RobotConfig, imu_t, q, rate, gyro_z, wheel_t, ticks):
+    """(M, 2) float ticks of the wheel frames as the pipeline hands them to the EKF (the module
+    docstring), one frame at a time: ``q`` (N, 4) the attitudes, ``rate`` (N,) the EKF's yaw
+    rate and ``gyro_z`` (N,) the base gyro's z rate of the IMU samples at ``imu_t``."""
+    chassis = robot.chassis
+    period, L = chassis.encode_sampling_time, chassis.wheel_distance
+    per_speed = period / chassis.speed_ratio  # ticks per m/s
+    out = np.asarray(ticks, dtype=np.float64).copy()
+    imu_t = np.asarray(imu_t)
+    for i, t in enumerate(np.asarray(wheel_t).tolist()):
+        left, right = out[i]
+        near = (imu_t > t - period) & (imu_t <= t)
+        if (left == 0.0 and right == 0.0) or not near.any():
+            continue
+        cos_pitch, diff = _means(q, rate, gyro_z, near)
+        v = 0.5 * (left + right) / per_speed * cos_pitch
+        w = (right - left) / (per_speed * L) + diff
+        out[i] = ((v - 0.5 * w * L) * per_speed, (v + 0.5 * w * L) * per_speed)
+    return out
+
+
+def heading_frame_twists_by_hand(robot: RobotConfig, imu_t, q, rate, gyro_z, twist_t, twist_v,
+                                 twist_w):
+    """(K,) speeds and (K,) yaw rates of the twists as the pipeline hands them to the EKF (the
+    module docstring); the other arguments as for :func:`heading_frame_ticks_by_hand`."""
+    v, w = np.array(twist_v, dtype=np.float64), np.array(twist_w, dtype=np.float64)
+    imu_t = np.asarray(imu_t)
+    previous = None
+    for i, t in enumerate(np.asarray(twist_t).tolist()):
+        span = 0.5 if previous is None else min(t - previous, 0.5)
+        previous = t
+        near = (imu_t > t - span) & (imu_t <= t)
+        still = abs(v[i]) <= robot.ekf.twist_zero_v and abs(w[i]) <= robot.ekf.twist_zero_w
+        if still or not near.any():
+            continue
+        cos_pitch, diff = _means(q, rate, gyro_z, near)
+        v[i] *= cos_pitch
+        w[i] += diff
+    return v, w

@@ -8,7 +8,23 @@ and written as a log directory (datasets/LOGDIR.md), plus an oracle.npz beside i
 vertical in the base frame, true biases) for the baselines of run.py.
 
     python benchmarks/terrain/sim.py OUTDIR --terrain hills --seed 1 [--vibration]
-        [--moving-start] [--mount] [--imu-rate 30] [--track-scale 1.5] [--slip]
+        [--moving-start] [--mount] [--imu-rate 30] [--track-scale 1.5] [--slip] [--bag]
+
+With --bag (write_bag; needs rosbags) also OUTDIR/run.bag, a ROS 1 bag in the shape of issue
+11's outdoor robot's, stamped on an epoch clock (t0 = T0 = 1700008765.432109056 s + sim time,
+integer ns, so every stamp has a sub-second part), and OUTDIR/run_truth.csv (t on that clock, s;
+x, y, m; yaw, rad; 100 Hz):
+  /imu/data  sensor_msgs/Imu, every IMU sample (rad/s, m/s^2, in the mounted IMU frame),
+             orientation unknown (orientation_covariance[0] = -1), stamp t0 + imu_t
+  /odom      nav_msgs/Odometry, 10 Hz: a skid-steer controller's twist from each wheel's
+             surface distance over the last period on the encoder's tick grid, v = (vl+vr)/2,
+             w = (vr-vl)/wheel_distance with robot.toml's wheel_distance (so w is track_scale
+             times too fast, as a skid-steer's own odometry is), pose = its integral
+  /gps/fix   sensor_msgs/NavSatFix, 5 Hz: the TRUE horizontal position + N(0, 1 m) per axis,
+             on WGS84's tangent plane at 48 N, 11 E (x east, y north), status 0 (fix)
+Imperfections: odometry loop jitter N(0, 2 ms) (read times, the twist divided by the actual
+interval), its stamps 0.5-3 ms after the read, bag record times 1-4 ms (IMU, odometry) or
+20-80 ms (GPS) after the stamps, the tick quantisation (5 mm/s at 10 Hz).
 
 Modelling choices (not tuned against the library):
 - The mission is scripted in HORIZONTAL speed u(t) and heading rate about the world vertical
@@ -297,8 +313,9 @@ def simulate(cfg: Config):
                 path_horizontal=float(np.sum(np.hypot(np.diff(x), np.diff(y)))),
                 path_surface=float(np.sum(v_int) * DT),
                 climb=float(np.sum(np.abs(np.diff(z)))))
-    return dict(t=t, x=x, y=y, psi=psi, wheel_t=wheel_t, ticks=ticks.astype(int), imu_t=imu_t,
-                gyro=gyro_imu, acc=acc_imu, up_base=up_base, gyro_base=gyro, gyro_true=gyro_true,
+    return dict(t=t, x=x, y=y, z=z, psi=psi, Dl=Dl, Dr=Dr, wheel_t=wheel_t,
+                ticks=ticks.astype(int), imu_t=imu_t, gyro=gyro_imu, acc=acc_imu,
+                up_base=up_base, gyro_base=gyro, gyro_true=gyro_true,
                 mount_rpy=mount_rpy, info=info)
 
 
@@ -343,6 +360,168 @@ imu_mount_rpy = [{rpy}]
     return log
 
 
+# --------------------------------------------------------------------------- ROS 1 bag
+T0 = 1_700_000_000.0 + 8765.432109   # s, epoch stamp of sim time 0 in the bag (default)
+ORIGIN = (48.0, 11.0, 520.0)         # lat (deg), lon (deg), altitude (m) of sim x = y = 0
+WGS84_A, WGS84_E2 = 6378137.0, 6.69437999014e-3
+
+
+def _radii(lat_deg):
+    """WGS84 meridian and prime-vertical radii of curvature at lat_deg (m)."""
+    s2 = np.sin(np.deg2rad(lat_deg)) ** 2
+    n = WGS84_A / np.sqrt(1 - WGS84_E2 * s2)
+    return n * (1 - WGS84_E2) / (1 - WGS84_E2 * s2), n
+
+
+def to_latlon(east, north):
+    """Local tangent plane (sim x = east, y = north, m) -> latitude, longitude (deg)."""
+    m, n = _radii(ORIGIN[0])
+    return (ORIGIN[0] + np.rad2deg(north / m),
+            ORIGIN[1] + np.rad2deg(east / (n * np.cos(np.deg2rad(ORIGIN[0])))))
+
+
+def from_latlon(lat, lon):
+    """Inverse of to_latlon: east, north (m)."""
+    m, n = _radii(ORIGIN[0])
+    return (np.deg2rad(np.asarray(lon) - ORIGIN[1]) * n * np.cos(np.deg2rad(ORIGIN[0])),
+            np.deg2rad(np.asarray(lat) - ORIGIN[0]) * m)
+
+
+def bag_odometry(run, cfg, odom_rate, rng):
+    """What a skid-steer base's controller publishes at odom_rate Hz (see write_bag).
+
+    Returns read times (s, sim clock), stamps (s, sim clock), v (m/s), w (rad/s) and its own
+    dead-reckoned pose x, y (m), yaw (rad)."""
+    n = len(run["t"])
+    k = np.arange(1, int((cfg.duration - 0.006) * odom_rate) + 1)
+    jitter = np.clip(rng.normal(0, 0.002, len(k)), -0.006, 0.006)     # loop scheduling, s
+    i = np.minimum(np.round((k / odom_rate + jitter) * FS).astype(int), n - 1)
+    t_read = i * DT
+    q = cfg.speed_ratio                                    # encoder resolution, m per tick
+    dl = np.diff(np.floor(np.concatenate([[0.0], run["Dl"][i]]) / q)) * q
+    dr = np.diff(np.floor(np.concatenate([[0.0], run["Dr"][i]]) / q)) * q
+    dt = np.diff(np.concatenate([[0.0], t_read]))
+    v = (dl + dr) / 2 / dt
+    w = (dr - dl) / cfg.wheel_distance / dt                # robot.toml's track, not the true one
+    yaw = np.cumsum(w * dt)
+    mid = yaw - w * dt / 2                                 # 2nd-order Runge-Kutta
+    x = np.cumsum(v * dt * np.cos(mid))
+    y = np.cumsum(v * dt * np.sin(mid))
+    stamp = t_read + rng.uniform(0.0005, 0.003, len(k))    # stamped after reading, computing
+    return t_read, stamp, v, w, x, y, yaw
+
+
+def write_bag(run, cfg: Config, out_path, *, odom_rate=10.0, gps_rate=5.0, gps_std=1.0,
+              t0=T0, seed):
+    """Write run as a ROS 1 bag (rosbags), shaped like issue 11's outdoor robot's bag.
+
+    Stamps are integer ns on the bag clock: t0 (s, epoch) + sim time.
+    - /imu/data sensor_msgs/Imu: every IMU sample of run (rad/s, m/s^2, mounted IMU frame,
+      frame imu_link), stamp t0 + imu_t, orientation unknown (orientation_covariance[0] = -1).
+    - /odom nav_msgs/Odometry at odom_rate Hz: each wheel's surface distance over the last
+      period on the encoder's tick grid (speed_ratio), v = (vl + vr) / 2 (m/s),
+      w = (vr - vl) / wheel_distance (rad/s) with robot.toml's wheel_distance, so a skid-steer
+      base's (track_scale > 1) twist turns track_scale times too fast; pose = the Runge-Kutta
+      integral of the twist (the bag's own dead reckoning).
+    - /gps/fix sensor_msgs/NavSatFix at gps_rate Hz from t = 0: the TRUE horizontal position +
+      N(0, gps_std) m per axis, as latitude/longitude on WGS84's tangent plane at ORIGIN (sim
+      x = east, y = north), altitude ORIGIN + terrain height + N(0, 2 gps_std) m, status 0
+      (fix), covariance diagonal (gps_std^2, gps_std^2, (2 gps_std)^2), type 2.
+    Imperfections (a real recording's, values judged plausible, not tuned): the odometry loop
+    reads the encoders at k / odom_rate + N(0, 2 ms) (clipped to +-6 ms, 1 ms grid) and divides
+    by the actual interval; its stamp is 0.5-3 ms after the read; each message is recorded
+    (bag time) 1-4 ms (IMU, odometry) or 20-80 ms (GPS) after its stamp; the encoder ticks
+    quantise the twist (5e-4 m / 0.1 s = 5 mm/s per tick). seed: the stream of these and of
+    the GPS noise (independent of the simulator's). Also writes OUT_truth.csv beside the bag
+    (t on the bag clock, s; x, y, m; yaw, rad; 100 Hz). Returns the odometry and the fixes
+    written (sim clock) for checks.
+    """
+    from rosbags.rosbag1 import Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 11]))
+    t0_ns = round(t0 * 1e9)
+    store = get_typestore(Stores.ROS1_NOETIC)
+    T = store.types
+    Time, Header = T["builtin_interfaces/msg/Time"], T["std_msgs/msg/Header"]
+    V3, Q = T["geometry_msgs/msg/Vector3"], T["geometry_msgs/msg/Quaternion"]
+
+    def header(seq, t, frame):
+        ns = t0_ns + round(float(t) * 1e9)
+        return Header(seq=seq, stamp=Time(sec=ns // 10**9, nanosec=ns % 10**9), frame_id=frame)
+
+    def diag(*d):
+        c = np.zeros((len(d), len(d)))
+        c[np.diag_indices(len(d))] = d
+        return c.ravel()
+
+    events = []    # (record time ns, topic index, serialized message)
+    lag = rng.uniform(0.001, 0.004, len(run["imu_t"]))
+    imu_cov = diag(*[np.deg2rad(0.1) ** 2] * 3), diag(*[0.05 ** 2] * 3)
+    for j, (t, g, a) in enumerate(zip(run["imu_t"], run["gyro"], run["acc"])):
+        msg = T["sensor_msgs/msg/Imu"](
+            header=header(j, t, "imu_link"), orientation=Q(x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=diag(-1.0, 0.0, 0.0), angular_velocity=V3(*g),
+            angular_velocity_covariance=imu_cov[0], linear_acceleration=V3(*a),
+            linear_acceleration_covariance=imu_cov[1])
+        events.append((t + lag[j], 0, store.serialize_ros1(msg, "sensor_msgs/msg/Imu")))
+
+    _, stamp, v, w, ox, oy, oyaw = bag_odometry(run, cfg, odom_rate, rng)
+    lag = rng.uniform(0.001, 0.004, len(stamp))
+    P = T["geometry_msgs/msg/Point"]
+    pose_cov = diag(1e-3, 1e-3, 1e6, 1e6, 1e6, 1e-2)     # diff_drive_controller-like
+    twist_cov = diag(1e-3, 1e-3, 1e6, 1e6, 1e6, 3e-2)
+    for j in range(len(stamp)):
+        msg = T["nav_msgs/msg/Odometry"](
+            header=header(j, stamp[j], "odom"), child_frame_id="base_link",
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                pose=T["geometry_msgs/msg/Pose"](
+                    position=P(x=ox[j], y=oy[j], z=0.0),
+                    orientation=Q(x=0.0, y=0.0, z=np.sin(oyaw[j] / 2), w=np.cos(oyaw[j] / 2))),
+                covariance=pose_cov),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](linear=V3(x=v[j], y=0.0, z=0.0),
+                                                   angular=V3(x=0.0, y=0.0, z=w[j])),
+                covariance=twist_cov))
+        events.append((stamp[j] + lag[j], 1, store.serialize_ros1(msg, "nav_msgs/msg/Odometry")))
+
+    gps_t = np.arange(0, int(cfg.duration * gps_rate) + 1) / gps_rate
+    i = np.round(gps_t * FS).astype(int)
+    east = run["x"][i] + rng.normal(0, gps_std, len(i))
+    north = run["y"][i] + rng.normal(0, gps_std, len(i))
+    alt = ORIGIN[2] + run["z"][i] + rng.normal(0, 2 * gps_std, len(i))
+    lat, lon = to_latlon(east, north)
+    lag = rng.uniform(0.02, 0.08, len(i))
+    for j in range(len(i)):
+        msg = T["sensor_msgs/msg/NavSatFix"](
+            header=header(j, gps_t[j], "gps"),
+            status=T["sensor_msgs/msg/NavSatStatus"](status=0, service=1),
+            latitude=lat[j], longitude=lon[j], altitude=alt[j],
+            position_covariance=diag(gps_std ** 2, gps_std ** 2, 4 * gps_std ** 2),
+            position_covariance_type=2)
+        events.append((gps_t[j] + lag[j], 2,
+                       store.serialize_ros1(msg, "sensor_msgs/msg/NavSatFix")))
+
+    if os.path.exists(out_path):
+        os.remove(out_path)
+    events.sort(key=lambda e: (e[0], e[1]))
+    with Writer(out_path) as writer:
+        conns = [writer.add_connection(topic, typ, typestore=store) for topic, typ in (
+            ("/imu/data", "sensor_msgs/msg/Imu"), ("/odom", "nav_msgs/msg/Odometry"),
+            ("/gps/fix", "sensor_msgs/msg/NavSatFix"))]
+        for t, c, raw in events:
+            writer.write(conns[c], t0_ns + round(t * 1e9), raw)
+
+    with open(os.path.splitext(out_path)[0] + "_truth.csv", "w") as fh:   # 100 Hz, bag clock
+        fh.write("t,x,y,yaw\n")
+        for k in range(0, len(run["t"]), 10):
+            ns = t0_ns + k * 1_000_000
+            x, y, psi = (float(run[c][k]) for c in ("x", "y", "psi"))
+            fh.write(f"{ns // 10**9}.{ns % 10**9:09d},{x!r},{y!r},{psi!r}\n")
+    return dict(t0=t0_ns / 1e9, odom_t=stamp, odom_v=v, odom_w=w, odom_x=ox, odom_y=oy,
+                gps_t=gps_t, gps_east=east, gps_north=north)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("out")
@@ -355,12 +534,17 @@ def main():
     ap.add_argument("--slip", action="store_true")
     ap.add_argument("--imu-rate", type=float, default=200.0)
     ap.add_argument("--track-scale", type=float, default=1.0)
+    ap.add_argument("--bag", action="store_true",
+                    help="also write OUTDIR/run.bag (ROS 1: /imu/data, /odom, /gps/fix)")
     a = ap.parse_args()
     cfg = Config(seed=a.seed, duration=a.duration, terrain=a.terrain, vibration=a.vibration,
                  moving_start=a.moving_start, mount=a.mount, imu_rate=a.imu_rate,
                  track_scale=a.track_scale, slip=a.slip)
     run = simulate(cfg)
-    print(write(run, cfg, a.out), json.dumps({k: v for k, v in run["info"].items()
+    log = write(run, cfg, a.out)
+    if a.bag:
+        write_bag(run, cfg, os.path.join(a.out, "run.bag"), seed=a.seed)
+    print(log, json.dumps({k: v for k, v in run["info"].items()
                                               if k not in ("config",)}))
 
 

@@ -38,7 +38,12 @@ Event-time model, stated once:
   the gyro the attitude filter sees (:meth:`FusionPipeline._rest_gyro_bias`) and, projected
   by the estimated tilt, off the vertical rate (:meth:`FusionPipeline._bias_leak`), so the
   bias the EKF learns at a stop holds while driving; before the first stop a robot with
-  odometry fuses its gyro's own z axis (no leak of the unknown x, y biases).
+  odometry fuses its gyro's own z axis (no leak of the unknown x, y biases). With tilt
+  compensation, each wheel frame or twist that is not a standstill reaches the EKF in the
+  pose's own terms (:mod:`fusion.pipeline.heading_frame`): its speed times the mean
+  ``cos(pitch)`` over its period (the wheels count along a slope, the pose moves on the
+  horizontal), its yaw rate plus the mean difference between that heading rate and the
+  gyro's z rate (the wheels turn about the surface normal).
 - The EKF's own policy orders the inputs: each event is keyed by its *effective* time (a wheel
   frame's is ``stamp - encode_sampling_time/2 - wheel_latency``, the middle of its period; an
   IMU sample's and a twist's is its stamp) and held in a :class:`fusion.planar.ekf.ReorderBuffer`
@@ -93,6 +98,7 @@ from fusion.geometry import quaternion as quat
 from fusion.geometry.kinematics import ticks_to_twist
 from fusion.geometry.mount import imu_to_base, vertical_rate
 from fusion.pipeline import _event_core as ev_core
+from fusion.pipeline.heading_frame import HeadingFrame
 from fusion.pipeline.records import _fast_record, _record_fields
 from fusion.planar import _ekf_core as core
 from fusion.planar.accel_slip import AccelSlipDetector, AccelSlipParams
@@ -432,6 +438,9 @@ class FusionPipeline(Lifecycle):
         self._m_per_s = chassis.speed_ratio / self.period
         self._m_per_turn = chassis.speed_ratio / chassis.wheel_distance  # rad per tick
         self._wheel_shift = 0.5 * self.period  # a frame's effective time: stamp - this - latency
+        # wheel frames and twists into the EKF's horizontal, heading-rate terms (tilt only)
+        self._heading_frame = HeadingFrame(self.period, chassis.speed_ratio,
+                                           chassis.wheel_distance)
 
     @staticmethod
     def _attitude_filter(config: AttitudeConfig, attitude: Keel | Mahony | None,
@@ -689,6 +698,8 @@ class FusionPipeline(Lifecycle):
                 self._last_imu_t = float(imu_t[-1])
                 stats.imu_samples += imu_t.size
                 ref0 = self._imu_rows.append(q, gyro, accel)
+                if self.tilt:
+                    self._heading_frame.add_imu(imu_t, q, rate - gyro[:, 2])
                 parts.append((imu_t, _EV_GYRO, imu_t, rate, imu_codes,
                               np.arange(ref0, ref0 + imu_t.size)))
                 if self.ekf.noise.accel_speed_psd > 0.0:
@@ -709,8 +720,8 @@ class FusionPipeline(Lifecycle):
             t_eff = wheel_t - self._wheel_shift - self.ekf.noise.wheel_latency
             kind = _EV_WHEELS if wheel_slip is None else np.where(
                 wheel_slip, core.EV_WHEELS_SLIP, _EV_WHEELS)
-            parts.append((wheel_t, kind, t_eff, ticks[:, 0].astype(np.float64),
-                          ticks[:, 1].astype(np.float64),
+            left, right = self._heading_frame.ticks(wheel_t, ticks)
+            parts.append((wheel_t, kind, t_eff, left, right,
                           np.arange(ref0, ref0 + wheel_t.size)))
         if twist_t is not None and twist_t.size:
             stats.twist_turn = _add_up(stats.twist_turn,
@@ -719,8 +730,12 @@ class FusionPipeline(Lifecycle):
             stats.twist_messages += twist_t.size
             ref0 = self._n_twists
             self._n_twists += twist_t.size
+            noise = self.ekf.noise
+            twist_v, twist_w = self._heading_frame.twists(twist_t, twist_v, twist_w,
+                                                          noise.twist_zero_v, noise.twist_zero_w)
             parts.append((twist_t, _EV_TWIST, twist_t, twist_v, twist_w,
                           np.arange(ref0, ref0 + twist_t.size)))
+        self._heading_frame.forget_old()
         if not parts:
             if flush:
                 self._run(*_NO_EVENTS, flush=True)
