@@ -45,7 +45,9 @@ def test_held_offset_is_the_lag_behind_the_filter_without_a_budget(moving_start_
     kinds, t, a, b, _ = merge_events(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
                                      chassis.encode_sampling_time,
                                      imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
-    held = PlanarEKF(chassis, EkfNoise())
+    # the former default budget (0.5 deg/s; 5 deg/s pays this run's owed heading within 3 s),
+    # so that the held pose's offset lasts long enough to be compared over many seconds
+    held = PlanarEKF(chassis, EkfNoise(yaw_fix_rate=math.radians(0.5)))
     free = PlanarEKF(chassis, EkfNoise(yaw_fix_rate=math.inf, yaw_fix_burst=math.inf))
     offsets, lags = [], []
     edges = np.searchsorted(t, np.arange(0.0, t[-1] + 1.0, 1.0))

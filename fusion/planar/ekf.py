@@ -444,7 +444,7 @@ class EkfNoise:
     stop_decel: float = 3.0
     turn_w_std: float = 0.0
     wheel_w_corr_time: float = 0.0
-    yaw_fix_rate: float = math.radians(0.5)
+    yaw_fix_rate: float = math.radians(5.0)
     yaw_fix_burst: float = math.radians(1.0)
     late_tolerance: float = 0.05
     max_dt: float = 0.05
