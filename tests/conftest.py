@@ -1,6 +1,8 @@
 from __future__ import annotations
 
+import importlib
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -12,6 +14,22 @@ DATASETS = ROOT / "datasets"
 @pytest.fixture(scope="session")
 def datasets_dir() -> Path:
     return DATASETS
+
+
+@pytest.fixture(scope="module")
+def terrain_run():
+    """benchmarks/terrain's run.py as a module (it imports sim.py by bare name: that one is
+    ``sys.modules["sim"]``), both taken out of ``sys.modules`` again afterwards so that no
+    other test sees a module called ``sim``."""
+    saved = sys.path[:]  # run.py puts its own folder on sys.path too
+    sys.path.insert(0, str(ROOT / "benchmarks" / "terrain"))
+    try:
+        run = importlib.import_module("run")
+    finally:
+        sys.path[:] = saved
+    yield run
+    for name in ("sim", "run"):
+        sys.modules.pop(name, None)
 
 
 @pytest.fixture(params=[0o022, 0o077, 0o002])

@@ -11,10 +11,8 @@ bound (3 x the fastest twist speed x the row interval). The bag is read back wit
 
 from __future__ import annotations
 
-import importlib
 import sys
 from decimal import Decimal
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,23 +22,8 @@ from fusion.jobs.status import STRICT_EXIT_STATUS
 
 pytest.importorskip("rosbags")
 
-TERRAIN = Path(__file__).resolve().parent.parent / "benchmarks" / "terrain"
 SEED = 1
 MOUNT = ("1.5708", "0", "-1.5708")  # the real bag's --imu-mount-rpy, rad
-
-
-@pytest.fixture(scope="module")
-def terrain_sim():
-    """sim.py as a module, taken out of ``sys.modules`` again afterwards so that no other test
-    sees a module called ``sim``."""
-    saved = sys.path[:]
-    sys.path.insert(0, str(TERRAIN))
-    try:
-        sim = importlib.import_module("sim")
-    finally:
-        sys.path[:] = saved
-    yield sim
-    sys.modules.pop("sim", None)
 
 
 def _read(bag):
@@ -59,8 +42,8 @@ def _read(bag):
 
 
 @pytest.fixture(scope="module")
-def replayed(terrain_sim, tmp_path_factory):
-    sim = terrain_sim
+def replayed(terrain_run, tmp_path_factory):
+    sim = sys.modules["sim"]  # imported by run.py
     root = tmp_path_factory.mktemp("terrain_bag")
     config = sim.Config(seed=SEED, duration=150.0, terrain="hills", moving_start=True,
                         mount=True, imu_rate=30.0, track_scale=1.5)

@@ -14,7 +14,6 @@ vertical (``FusionPipeline._roll_term``), seed 2 had 2.92 deg of yaw RMSE agains
 
 from __future__ import annotations
 
-import importlib
 import json
 import math
 import sys
@@ -25,23 +24,7 @@ import pytest
 from fusion.cli import main
 from fusion.jobs.status import STRICT_EXIT_STATUS
 
-TERRAIN = Path(__file__).resolve().parent.parent / "benchmarks" / "terrain"
 SEED = 2
-
-
-@pytest.fixture(scope="module")
-def terrain_run():
-    """The benchmark's two scripts as modules (run.py imports sim.py by bare name), taken out
-    of ``sys.modules`` again afterwards so that no other test sees a module called ``sim``."""
-    saved = sys.path[:]  # run.py puts its own folder on sys.path too
-    sys.path.insert(0, str(TERRAIN))
-    try:
-        run = importlib.import_module("run")
-    finally:
-        sys.path[:] = saved
-    yield run
-    for name in ("sim", "run"):
-        sys.modules.pop(name, None)
 
 
 @pytest.fixture(scope="module")

@@ -100,11 +100,21 @@ status 0 and no warning printed in all 12 runs; no NaN, largest step 0.33 of 3 v
   bias before the first stop either.
 
 Wheel frames in the pose's terms (fusion/pipeline/heading_frame.py: speed times cos(pitch),
-yaw rate plus the heading rate's difference from the gyro's z), seeds 1-3, 300 s: fused path
-against the true horizontal one hills +0.03..+0.50 % -> -0.13..+0.05 %, ramps +0.06..+0.26 %
--> -0.13..+0.05 % (the rest: the wheels' radius errors); rows flagged slip (none simulated)
-hills 592 / 15 / 0 -> 0, ramps 318 / 104 / 48 -> 0; yaw RMSE hills 1.21 -> 1.27, ramps 1.16
--> 1.19, hills+moving-start 2.99 -> 3.15 deg (mean; seed by seed -0.35 .. +0.55).
+yaw rate plus the heading rate's difference from the gyro's z), first measured on seeds 1-3
+with a prototype: fused path against the true horizontal one, hills +0.03..+0.50 % ->
+-0.13..+0.05 %, ramps +0.06..+0.26 % -> -0.13..+0.05 % (the rest: the wheels' radius
+errors); rows flagged slip (none simulated) hills 592 / 15 / 0 -> 0, ramps 318 / 104 / 48 ->
+0. With it and yaw_fix_rate 5 deg/s (below), the committed code, seeds 1-6 (python
+benchmarks/terrain/run.py --scenarios level hills ramps hills+moving-start outdoor --no-level;
+yaw RMSE deg mean / worst, final position error % mean / worst; the previous "after" figures
+in brackets):
+  level               1.21 / 1.71   0.79 / 1.22   (1.22 / 1.76, 0.80 / 1.27)
+  hills               1.16 / 1.41   0.65 / 0.90   (1.09 / 1.48, 0.81 / 1.64)
+  ramps               1.11 / 1.54   0.69 / 1.05   (1.26 / 1.74, 0.78 / 1.25)
+  hills+moving-start  3.18 / 5.11   1.06 / 1.60   (3.46 / 5.22, 3.29 / 8.36 before finding 1)
+  outdoor             17.8 / 52.9   4.44 / 9.12   (23.2 / 87.5 measured this morning)
+  No slip row on level, hills, ramps, hills+moving-start; outdoor's 130 per run are its
+  skid-steer wheels' real disagreement.
 
 What it found (seeds 1-6, 300 s, ~220-265 m per run; yaw RMSE deg, mean / worst):
   scenario            fused       --level     gs-z        gs-euler    floor  geo-vert
