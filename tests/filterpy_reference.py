@@ -60,12 +60,14 @@ class FilterpyReference:
         self.stats = dict.fromkeys(("slips", "wheel_rate_distrusted", "zupts",
                                     "late_dropped", "late_applied", "invalid",
                                     "gyro_saturated", "encoder_faults", "updates",
-                                    "speed_resets", "predictions", "accel_slips"), 0)
+                                    "speed_resets", "predictions", "accel_slips",
+                                    "straight_frames"), 0)
         # the wheels' yaw rates are fused only while few turning frames fail the slip gate
         self.slip_share = 0.0
         self.distrust = False  # disproven: most turns disagree
         self.agreed = 0.0  # s of turning frames that agreed (proven at wheel_rate_proof_time)
         self.fit: list[tuple[float, float]] = []  # (gyro rate with bias, wheels' rate), turns
+        self.lin = np.zeros(6)  # n, sums of x, y, x^2, x*y, y^2 of the same over moving frames
         self.clipped_at = -math.inf  # filter time of the last saturated gyro sample
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
@@ -416,6 +418,21 @@ class FilterpyReference:
                 # with the gyro saturated the wheels are all there is
                 fuse_rate, disproven = True, False
                 turning = abs(z[1]) > 0.1 or abs(kf.x[4]) > 0.1  # a turn tests the wheels
+                # does the source's yaw rate follow the gyro's, whatever its scale? Over every
+                # moving frame: correlation >= 0.9 once the gyro rates spread by 0.05 rad/s
+                # (_ekf_core.LINEAR_SOURCE_CORRELATION, PROOF_SPREAD)
+                moving = abs(z[0]) > n.twist_zero_v
+                if moving:
+                    gr = kf.x[4] + kf.x[5]
+                    self.lin += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
+                ln, sx, sy, sxx, sxy, syy = self.lin
+                linear = False
+                if ln >= 2:
+                    var_x = sxx / ln - (sx / ln) ** 2
+                    var_y = syy / ln - (sy / ln) ** 2
+                    cov = sxy / ln - sx * sy / ln ** 2
+                    linear = (var_x >= 0.05 ** 2 and var_y > 0 and cov > 0
+                              and cov * cov >= 0.81 * var_x * var_y)
                 if self.t - self.clipped_at >= n.wheel_rate_proof_time:
                     if turning:
                         w = min(1.0, interval / n.wheel_rate_trust_time)
@@ -468,6 +485,19 @@ class FilterpyReference:
                     H_v = np.zeros((1, model.NX))
                     H_v[0, 3] = H[0, 3]
                     self._rate_update(y[:1], H_v, R[:1, :1] * inflation)
+                    if (not slip and not accel_slip and not fuse_rate and moving and linear
+                            and abs(z[1]) < n.straight_rate):
+                        # an untrusted yaw rate near zero: driving straight, its noise
+                        # widened by the rate (scale unknown) and by 2 s of correlation
+                        # (_ekf_core.STRAIGHT_SCALE_STD, STRAIGHT_CORR_TIME)
+                        H_w = model.wheel_jacobian(kf.x, L, z[0])[1:2]
+                        y_w = z[1:2] - model.wheel_h(kf.x, L, z[0])[1:2]
+                        R_w = np.array([[(R[1, 1] + z[1] ** 2)
+                                         * max(1.0, 2.0 / max(interval,
+                                                              r.encode_sampling_time))]])
+                        if y_w[0] ** 2 <= n.slip_gate * (H_w @ kf.P @ H_w.T + R_w)[0, 0]:
+                            self.stats["straight_frames"] += 1
+                            self._rate_update(y_w, H_w, R_w)
                     self._remember_twist(t)
                     self._learn_offset(driven, v_prior, interval)
                     self._measured(3, 4)
