@@ -199,7 +199,8 @@ def _print_result(r, level_note: bool = True) -> None:
           f"{r.distance:.2f} m")
     print(f"gyro bias {math.degrees(r.gyro_bias):+.4f} deg/s; ZUPTs {s['zupts']}, "
           f"slip frames {s['slips']} ({s.get('accel_slips', 0)} seen by the accelerometer), "
-          f"turning frames whose yaw rate was not trusted {s['wheel_rate_distrusted']}, "
+          f"turning frames whose yaw rate was not trusted {s['wheel_rate_distrusted']} "
+          f"(near-zero ones fused as driving straight {s.get('straight_frames', 0)}), "
           f"encoder faults (zero ticks while the IMU moved, not "
           f"fused) {s['encoder_faults']}, late inputs fused {s['late_applied']}, dropped "
           f"{s['late_dropped']}, invalid {s['invalid']}; wheel frames missing "
@@ -575,7 +576,8 @@ def run_bag(args: argparse.Namespace) -> int:
     ekf = r.pipeline.ekf
     print(f"gyro bias {math.degrees(ekf.gyro_bias):+.4f} deg/s; ZUPTs {stats.zupts}, slip "
           f"(twist/gyro disagreement) {stats.slips}, turning twists whose yaw rate was not "
-          f"trusted {stats.wheel_rate_distrusted}, encoder faults (zero twist while the IMU "
+          f"trusted {stats.wheel_rate_distrusted} (near-zero ones fused as driving straight "
+          f"{stats.straight_frames}), encoder faults (zero twist while the IMU "
           f"moved, not fused) {stats.encoder_faults}, invalid {ekf.stats['invalid']}")
     print(f"the bag's own odometry ({args.odom_topic}) final pose from its start: x "
           f"{own[-1, 0]:.3f} m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")

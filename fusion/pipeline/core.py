@@ -190,6 +190,9 @@ class PipelineStats:
             because most turns disagreed with the gyro (a skid-steer base, a wrong
             wheel_distance; :class:`fusion.planar.ekf.EkfNoise` ``max_slip_share``), or
             twists that disagreed before the external odometry was proven in turns.
+        straight_frames: of the frames whose yaw rate was not trusted, those whose near-zero
+            yaw rate was fused as driving straight (the EKF's ``straight_rate``: what teaches
+            the gyro bias before the first stop when the odometry is a skid-steer's).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
@@ -225,6 +228,7 @@ class PipelineStats:
     slips: int = 0
     accel_slips: int = 0
     wheel_rate_distrusted: int = 0
+    straight_frames: int = 0
     zupts: int = 0
     encoder_faults: int = 0
     gap_count: int = 0
@@ -1226,6 +1230,7 @@ class FusionPipeline(Lifecycle):
         self.stats.slips = s["slips"]
         self.stats.accel_slips = s["accel_slips"]
         self.stats.wheel_rate_distrusted = s["wheel_rate_distrusted"]
+        self.stats.straight_frames = s["straight_frames"]
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
         self.stats.speed_resets = s["speed_resets"]

@@ -164,8 +164,9 @@ A_WIN_Y = 48
 A_WIN_VAR = 49
 A_WIN_STAMP = 50
 A_WIN_SINCE = 51
-# the same sums over every moving frame (_rates_linear): the zero of a straight drive
-# counts too, so that one turn's rate beside it shows whether the source's rate is linear
+# the same sums (same order: _fit_add) plus y^2 over every moving frame (_rates_linear): the
+# zero of a straight drive counts too, so that one turn's rate beside it shows whether the
+# source's rate is linear
 A_LIN_N = 52
 A_LIN_SX = 53
 A_LIN_SY = 54
@@ -627,26 +628,41 @@ PERSISTENT_SLIP_MAX = 3.0
 
 
 @njit
+def _fit_add(aux, first, gyro_rate, wheel_rate):
+    """Add one pair of rates (rad/s) to the least-squares sums ``aux[first:first + 5]``:
+    count, sum of x, of y, of x^2 and of x*y (x the gyro's rate, y the wheels')."""
+    aux[first] += 1.0
+    aux[first + 1] += gyro_rate
+    aux[first + 2] += wheel_rate
+    aux[first + 3] += gyro_rate * gyro_rate
+    aux[first + 4] += gyro_rate * wheel_rate
+
+
+@njit
+def _fit_moments(aux, first):
+    """``(n, mean_y, var_x, cov_xy)`` of the sums at ``aux[first:first + 5]`` (see
+    :func:`_fit_add`); the moments are NaN below two pairs."""
+    n = aux[first]
+    if n < 2.0:
+        return n, math.nan, math.nan, math.nan
+    mean_x = aux[first + 1] / n
+    mean_y = aux[first + 2] / n
+    return (n, mean_y, aux[first + 3] / n - mean_x * mean_x,
+            aux[first + 4] / n - mean_x * mean_y)
+
+
+@njit
 def _rate_scale_agrees(aux, gyro_rate, wheel_rate, turning):
     """Add a turning frame (the gyro-scale rate with its bias, ``gyro_rate``, and the wheels'
     ``wheel_rate``, rad/s) to the least-squares fit of the one against the other; True once
     the fitted rates spread by :data:`PROOF_SPREAD` and the slope is within
     :data:`PROOF_TOLERANCE` of 1."""
     if turning:
-        aux[A_FIT_N] += 1.0
-        aux[A_FIT_SX] += gyro_rate
-        aux[A_FIT_SY] += wheel_rate
-        aux[A_FIT_SXX] += gyro_rate * gyro_rate
-        aux[A_FIT_SXY] += gyro_rate * wheel_rate
-    n = aux[A_FIT_N]
-    if n < 2.0:
+        _fit_add(aux, A_FIT_N, gyro_rate, wheel_rate)
+    n, _, var_x, cov = _fit_moments(aux, A_FIT_N)
+    if n < 2.0 or var_x < PROOF_SPREAD * PROOF_SPREAD:
         return False
-    mean_x = aux[A_FIT_SX] / n
-    var_x = aux[A_FIT_SXX] / n - mean_x * mean_x
-    if var_x < PROOF_SPREAD * PROOF_SPREAD:
-        return False
-    slope = (aux[A_FIT_SXY] / n - mean_x * aux[A_FIT_SY] / n) / var_x
-    return abs(slope - 1.0) <= PROOF_TOLERANCE
+    return abs(cov / var_x - 1.0) <= PROOF_TOLERANCE
 
 
 @njit
@@ -859,23 +875,14 @@ def _rates_linear(aux, gyro_rate, wheel_rate, moving):
     gyro's by at least :data:`LINEAR_SOURCE_CORRELATION`: whatever its scale, the source's
     rate is then a rate of the robot's rotation, and near zero means not turning."""
     if moving:
-        aux[A_LIN_N] += 1.0
-        aux[A_LIN_SX] += gyro_rate
-        aux[A_LIN_SY] += wheel_rate
-        aux[A_LIN_SXX] += gyro_rate * gyro_rate
-        aux[A_LIN_SXY] += gyro_rate * wheel_rate
+        _fit_add(aux, A_LIN_N, gyro_rate, wheel_rate)
         aux[A_LIN_SYY] += wheel_rate * wheel_rate
-    n = aux[A_LIN_N]
-    if n < 2.0:
+    n, mean_y, var_x, cov = _fit_moments(aux, A_LIN_N)
+    if n < 2.0 or var_x < PROOF_SPREAD * PROOF_SPREAD:
         return False
-    mx = aux[A_LIN_SX] / n
-    my = aux[A_LIN_SY] / n
-    var_x = aux[A_LIN_SXX] / n - mx * mx
-    var_y = aux[A_LIN_SYY] / n - my * my
-    if var_x < PROOF_SPREAD * PROOF_SPREAD or var_y <= 0.0:
-        return False
-    cov = aux[A_LIN_SXY] / n - mx * my
-    return cov > 0.0 and cov * cov >= (LINEAR_SOURCE_CORRELATION ** 2) * var_x * var_y
+    var_y = aux[A_LIN_SYY] / n - mean_y * mean_y
+    return (var_y > 0.0 and cov > 0.0
+            and cov * cov >= LINEAR_SOURCE_CORRELATION * LINEAR_SOURCE_CORRELATION * var_x * var_y)
 
 
 @njit
