@@ -731,6 +731,10 @@ def test_a_skid_steer_odometry_never_proves_itself(never_stopping_run, factor):
     assert ekf.stats["slips"] == 0
     assert ekf.stats["wheel_rate_distrusted"] > 50
     assert ekf.stats["straight_frames"] > 1000
+    # the twists' yaw rate against the gyro's, over every moving twist: the factor they
+    # were made with (the trust check odometry_scale warns on it)
+    frames, slope, correlation = ekf.odometry_rate_fit
+    assert frames > 3000 and slope == pytest.approx(factor, rel=0.03) and correlation > 0.99
     g = track.kind == core.EV_GYRO
     at_60 = np.searchsorted(track.t[g], 60.0)
     # issue 11: a robot that never stops at the start learns its bias within a minute

@@ -23,6 +23,7 @@ from fusion.cli import main
 from fusion.evaluation.trust import (
     GYRO_BIAS_LIMIT,
     HEADING_FLOOR,
+    ODOMETRY_CORRELATION,
     SLIP_FRACTION_LIMIT,
     WHEEL_SCALE_LIMIT,
     trust_warnings,
@@ -201,6 +202,28 @@ def test_wheel_scale_check_is_three_prior_sigmas_of_k_and_only_for_wheel_frames(
     assert trust_warnings({"twist_messages": 1000, "gyro_time": 60.0}, 0.0, 0.5) == []
 
 
+def test_odometry_scale_check_needs_twists_a_scale_off_and_a_correlation() -> None:
+    # a skid-steer base's twists (terrain benchmark bags: slope 1.49-1.50, correlation
+    # 0.998-0.999 over the moving twists) warn; a twist within the wheel-scale limit, one
+    # that does not correlate (the Jackal bag's: slip and heading_divergence speak), or no
+    # fit yet, do not; wheel frames have the wheel_scale check instead
+    base = {"twist_messages": 3000, "gyro_time": 300.0}
+    skid = {**base, "odometry_rate_slope": 1.49, "odometry_rate_correlation": 0.999}
+    (w,) = trust_warnings(skid, 0.0)
+    assert w.name == "odometry_scale" and "1.49 times the gyro's" in w.message
+    assert w.figures["odometry_rate_slope"] == 1.49
+    assert trust_warnings({**skid, "odometry_rate_slope": 0.8}, 0.0)[0].name == "odometry_scale"
+    assert trust_warnings({**skid, "odometry_rate_slope": 1.0 + WHEEL_SCALE_LIMIT}, 0.0) == []
+    assert trust_warnings({**skid, "odometry_rate_correlation": 0.6}, 0.0) == []
+    assert ODOMETRY_CORRELATION == 0.9
+    assert trust_warnings({**skid, "odometry_rate_correlation": 0.9}, 0.0)
+    assert trust_warnings({**base, "odometry_rate_slope": None,
+                           "odometry_rate_correlation": None}, 0.0) == []
+    wheels = {"wheel_frames": 3000, "gyro_time": 300.0, "odometry_rate_slope": 1.49,
+              "odometry_rate_correlation": 0.999}
+    assert trust_warnings(wheels, 0.0) == []
+
+
 def test_run_writes_the_status_record_last(tmp_path, capsys, monkeypatch) -> None:
     monkeypatch.chdir(tmp_path)
     rc = main(["run", "--imu", "sim", "--chassis", "sim", "--duration", "2", "--speed", "4",
@@ -290,6 +313,9 @@ def test_turn_counters_integrate_what_is_fused() -> None:
     # most frames flagged as slips, still fused for their speed and gated each time: the
     # EKF has not settled on either source
     ({"twist_messages": 100, "slips": 70, "wheel_rate_distrusted": 10}, 0.0, False),
+    # an odometry that turns at another scale (never fused for its yaw rate)
+    ({"twist_messages": 100, "odometry_rate_slope": 1.5, "odometry_rate_correlation": 0.99,
+      "gyro_time": 60.0}, 0.0, True),
     # a bias beyond the sensor's tolerance: something else is wrong, whatever the slips
     ({"twist_messages": 100, "slips": 10, "wheel_rate_distrusted": 70, "gyro_time": 60.0},
      math.radians(30.0), False),

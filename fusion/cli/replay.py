@@ -232,9 +232,12 @@ def _print_warnings(warnings) -> None:
         print(f"warning: inputs disagree ({w.name}): {w.message}")
     if not warnings:
         return
+    names = {w.name for w in warnings}
     slip = next((w for w in warnings if w.name == "slip"), None)
-    gyro_alone = (slip is not None and {w.name for w in warnings} <= {"slip", "heading_divergence"}
-                  and slip.figures["wheel_rate_distrusted"] > slip.figures["slips"])
+    gyro_alone = (names <= {"slip", "heading_divergence", "odometry_scale"}
+                  and ("odometry_scale" in names or (
+                      slip is not None
+                      and slip.figures["wheel_rate_distrusted"] > slip.figures["slips"])))
     if gyro_alone:
         # the EKF already stopped fusing the odometry's yaw rate: say what the heading rests on
         print("warning: the fused odometry above should not be trusted unless the gyro is "

@@ -4,7 +4,8 @@ The EKF always returns an answer; these checks say when that answer should not b
 because its inputs disagree beyond the model (wheel/twist odometry and the gyro describe
 different motions, or the gyro's bias estimate left the sensor's physical range). They look
 only at a run's counters (:meth:`fusion.pipeline.core.PipelineStats.as_dict`: ``wheel_frames``,
-``twist_messages``, ``slips``, ``gyro_turn``, ``gyro_time``, ``wheel_turn``, ``twist_turn``)
+``twist_messages``, ``slips``, ``gyro_turn``, ``gyro_time``, ``wheel_turn``, ``twist_turn``,
+``odometry_rate_slope``, ``odometry_rate_correlation``)
 and the EKF's final gyro bias estimate, so ``fusion replay`` and ``fusion run`` use the same
 checks, and a script can run them on a finished pipeline.
 
@@ -31,6 +32,16 @@ Checks (each a :class:`TrustWarning` with its figures):
     turns' disagreement went partly into the gyro bias (benchmarks/terrain: a base whose
     wheels turn 1.5 times too fast, driving from the first sample, ended with k = +0.49 and
     28 deg of yaw RMSE, without any other warning).
+``odometry_scale``
+    A run with odometry twists whose yaw rate, fitted against the gyro's over every moving
+    twist (``odometry_rate_slope``), is more than :data:`WHEEL_SCALE_LIMIT` off it, while
+    the two still correlate (``odometry_rate_correlation`` >= 0.9: the odometry measures
+    the rotation, at another scale). That is a skid-steer base's odometry computed with
+    its geometric track, or a wrong track or wheel radius in its driver. The EKF never
+    fuses such yaw rates (they are never proven in turns), so the fused heading rests on
+    the gyro; the warning says so instead of leaving it to the count of distrusted turning
+    twists (the terrain benchmark's skid-steer bags, slope 1.49-1.50: 0 of 12 runs warned
+    before, heading_divergence only where the turns happen not to cancel).
 ``heading_divergence``
     The odometry's heading change (wheel frames and twists) and the gyro's (its bias
     estimate taken out) differ by more than
@@ -59,6 +70,7 @@ __all__ = [
     "HEADING_FLOOR",
     "HEADING_FRACTION",
     "HEADING_RATE",
+    "ODOMETRY_CORRELATION",
     "SLIP_FRACTION_LIMIT",
     "WHEEL_SCALE_LIMIT",
     "TrustWarning",
@@ -72,6 +84,10 @@ GYRO_BIAS_LIMIT = math.radians(20.0)
 #: Largest wheel yaw-rate scale error ``|k|`` (1) taken as a calibration error the EKF follows:
 #: three times its prior's standard deviation (EkfNoise.calib_k_std).
 WHEEL_SCALE_LIMIT = 0.15
+#: The least correlation of the odometry's yaw rate with the gyro's for ``odometry_scale``
+#: (below it the rates are no scaled copy of each other and ``slip`` or
+#: ``heading_divergence`` speak; as ``_ekf_core.LINEAR_SOURCE_CORRELATION``).
+ODOMETRY_CORRELATION = 0.9
 #: rad: heading disagreement always allowed (noise, start-up).
 HEADING_FLOOR = math.radians(15.0)
 #: Heading disagreement allowed per radian turned (a wheel_distance error up to 10 %).
@@ -84,7 +100,7 @@ HEADING_RATE = math.radians(0.5)
 @dataclass(frozen=True)
 class TrustWarning:
     """One failed check: ``name`` (``slip``, ``gyro_bias``, ``wheel_scale``,
-    ``heading_divergence``), a
+    ``odometry_scale``, ``heading_divergence``), a
     sentence for the user with the figures, and the figures (SI: rad, rad/s, s, fractions)."""
 
     name: str
@@ -144,6 +160,20 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
             "odometry`) and replay",
             {"wheel_rate_scale": k, "limit": WHEEL_SCALE_LIMIT,
              "wheel_frames": float(wheel_frames)}))
+    slope = stats.get("odometry_rate_slope")
+    corr = stats.get("odometry_rate_correlation")
+    twists = int(stats.get("twist_messages", 0))
+    if (twists and slope is not None and corr is not None and corr >= ODOMETRY_CORRELATION
+            and not abs(slope - 1.0) <= WHEEL_SCALE_LIMIT):
+        out.append(TrustWarning(
+            "odometry_scale",
+            f"the odometry's yaw rate is {slope:.2f} times the gyro's (fitted over the "
+            f"moving twists, correlation {corr:.3f}; more than {100 * WHEEL_SCALE_LIMIT:.0f} "
+            "% off means it turns unlike the robot: a skid-steer base's odometry, or a wrong "
+            "track or wheel radius in its driver): its yaw rate was not fused, only its speed "
+            "and, when near zero, its straight driving",
+            {"odometry_rate_slope": float(slope), "odometry_rate_correlation": float(corr),
+             "limit": WHEEL_SCALE_LIMIT, "twist_messages": float(twists)}))
     if not frames:
         return out
     odometry = float(stats.get("wheel_turn", 0.0)) + float(stats.get("twist_turn", 0.0))

@@ -190,6 +190,10 @@ class PipelineStats:
             because most turns disagreed with the gyro (a skid-steer base, a wrong
             wheel_distance; :class:`fusion.planar.ekf.EkfNoise` ``max_slip_share``), or
             twists that disagreed before the external odometry was proven in turns.
+        odometry_rate_slope, odometry_rate_correlation: the slope and correlation of the
+            odometry's yaw rate against the gyro's over every moving frame (the EKF's
+            ``odometry_rate_fit``; None until the gyro's rates spread): a slope far from 1 is
+            an odometry that turns unlike the robot (a skid-steer base's).
         straight_frames: of the frames whose yaw rate was not trusted, those whose near-zero
             yaw rate was fused as driving straight (the EKF's ``straight_rate``: what teaches
             the gyro bias before the first stop when the odometry is a skid-steer's).
@@ -229,6 +233,8 @@ class PipelineStats:
     accel_slips: int = 0
     wheel_rate_distrusted: int = 0
     straight_frames: int = 0
+    odometry_rate_slope: float | None = None
+    odometry_rate_correlation: float | None = None
     zupts: int = 0
     encoder_faults: int = 0
     gap_count: int = 0
@@ -1231,6 +1237,9 @@ class FusionPipeline(Lifecycle):
         self.stats.accel_slips = s["accel_slips"]
         self.stats.wheel_rate_distrusted = s["wheel_rate_distrusted"]
         self.stats.straight_frames = s["straight_frames"]
+        fit = self.ekf.odometry_rate_fit
+        if fit is not None:
+            self.stats.odometry_rate_slope, self.stats.odometry_rate_correlation = fit[1:]
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
         self.stats.speed_resets = s["speed_resets"]

@@ -922,6 +922,20 @@ class PlanarEKF(ExtendedKalmanFilter):
         """Estimated gyro bias about the vertical, rad/s."""
         return float(self.x[5])
 
+    @property
+    def odometry_rate_fit(self) -> tuple[int, float, float] | None:
+        """How the wheels' or twists' yaw rate followed the gyro's over every moving frame so
+        far: ``(frames, slope, correlation)``, the slope of the least-squares line of the
+        odometry's rate against the gyro's (1: the same scale; a skid-steer base's twist
+        computed with its geometric track: about 1.5); None until the gyro's rates spread by
+        ``_ekf_core.PROOF_SPREAD`` (turns of one rate alone cannot tell a scale)."""
+        n, mean_y, var_x, cov = core._fit_moments(self._aux, core.A_LIN_N)
+        if not n >= 2 or not var_x >= core.PROOF_SPREAD ** 2:
+            return None
+        var_y = self._aux[core.A_LIN_SYY] / n - mean_y * mean_y
+        corr = cov / math.sqrt(var_x * var_y) if var_y > 0 else 0.0
+        return int(n), float(cov / var_x), float(corr)
+
     def get_state(self) -> dict:
         """A snapshot (copies) that :meth:`set_state` restores exactly."""
         return {"x": self.x.copy(), "P": self.P.copy(), "aux": self._aux.copy()}
