@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import sys
 from decimal import Decimal
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -59,7 +60,7 @@ def replayed(terrain_run, tmp_path_factory):
         header = fh.readline().strip().split(",")
         t_text = [line.split(",", 1)[0] for line in fh]
     table = np.genfromtxt(out, delimiter=",", names=True)
-    return code, _read(bag), header, t_text, table, run
+    return code, _read(bag), header, t_text, table, run, bag
 
 
 def test_the_replay_succeeds_or_only_distrusts_its_inputs(replayed):
@@ -79,7 +80,7 @@ def test_the_bag_has_the_real_bags_shape(replayed):
 
 
 def test_one_row_per_imu_message_on_its_full_precision_stamp(replayed):
-    _, topics, header, t_text, _, _ = replayed
+    _, topics, header, t_text, _, _, _ = replayed
     assert header[:4] == ["t", "x", "y", "yaw"]
     stamps = [Decimal(f"{s}.{n:09d}") for s, n, _ in topics["/imu/data"]]
     assert len(set(stamps)) == len(stamps) == len(t_text)
@@ -91,7 +92,7 @@ def test_one_row_per_imu_message_on_its_full_precision_stamp(replayed):
 
 
 def test_no_nan_and_no_step_beyond_three_times_the_fastest_twist(replayed):
-    _, topics, header, _, table, _ = replayed
+    _, topics, header, _, table, _, _ = replayed
     # the wheel speed columns stay blank for a bag: its odometry is a twist, not wheel speeds
     state = [c for c in header if c not in ("wheel_left_speed", "wheel_right_speed")]
     for name in state:
@@ -109,7 +110,7 @@ def test_the_bias_is_learnt_before_the_first_stop(replayed):
     # (the skid-steer twists' yaw rate is never trusted): 0.34 deg/s; before straight_rate
     # it was 0 until the stop. Seeds 1-6 of this bag: 0.015-0.15 deg/s off the oracle,
     # against 0.28-0.74 deg/s for a bias left at 0.
-    _, _, _, _, table, run = replayed
+    _, _, _, _, table, run, _ = replayed
     error = run["gyro_base"] - run["gyro_true"]
     vertical = np.sum(error * run["up_base"], axis=1)
     first = np.flatnonzero(table["zupt"] > 0)[0]
@@ -119,3 +120,26 @@ def test_the_bias_is_learnt_before_the_first_stop(replayed):
     assert abs(oracle) > 0.2  # a bias worth learning
     learnt = np.degrees(table["gyro_bias_z"][first - 1])
     assert abs(learnt - oracle) < 0.5 * abs(oracle), (learnt, oracle)
+
+
+def test_the_cross_validation_replays_the_bag_as_the_command_does(replayed, tmp_path):
+    # benchmarks/terrain/cv_straight_rate.py chooses EkfNoise.straight_rate on such bags
+    # through fusion.jobs.replay.replay_bag with its own robot: at the default straight_rate
+    # that must be the command's replay, row for row, or its figures are about another filter
+    import importlib
+
+    _, _, _, _, table, _, bag = replayed
+    saved = sys.path[:]
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks" / "terrain"))
+    try:
+        cv = importlib.import_module("cv_straight_rate")
+    finally:
+        sys.path[:] = saved
+    from fusion.planar.ekf import EkfNoise
+
+    rmse = cv.gps_rmse(str(bag), EkfNoise().straight_rate, str(tmp_path))
+    again = np.genfromtxt(tmp_path / "fused.csv", delimiter=",", names=True)
+    for name in ("t", "x", "y", "yaw", "gyro_bias_z"):
+        np.testing.assert_array_equal(again[name], table[name])
+    assert rmse["fused"] > 0 and rmse["gyro at stops"] > 0
+    sys.modules.pop("cv_straight_rate", None)

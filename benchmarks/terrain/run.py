@@ -99,16 +99,16 @@ status 0 and no warning printed in all 12 runs; no NaN, largest step 0.33 of 3 v
   the stop). A skid-steer twist is never proven, so its straight stretches do not teach the
   bias before the first stop either.
   After that: an untrusted twist whose rates follow the gyro's (correlation >= 0.9) says
-  "straight" when it reads below EkfNoise.straight_rate (0.02 rad/s, leave-one-seed-out CV
-  on seeds 1-6: 0.02 in 5 of 6 folds, CV 2.37 m), fused through the wheel model's yaw-rate
-  row (_ekf_core._straight_update). GPS RMSE (replay), mean of both scenarios: seeds 1-6
-  2.78 -> 2.02 m, held-out seeds 7-9 4.30 -> 2.50 m (gyro at stops 2.50 / 2.41; worst run
-  5.69 -> 3.93 m); yaw RMSE 10.1 -> 6.5 and 8.2 -> 4.3 deg. The fused track now beats the
-  baseline on 14 of 18 runs, ties (within 0.02 m) on 2, loses on hills-bag seed 2 (2.92
-  against 2.60 m) and outdoor-bag seed 8 (3.93 against 2.19: the bias half learnt before
-  the stop, the rest in the radius-mismatch state c, b + c*v being all a straight drive
-  shows). Finding 2 is answered by the trust check odometry_scale (the twists' rate 1.49
-  times the gyro's, fitted over the moving twists).
+  "straight" when it reads below EkfNoise.straight_rate (0.02 rad/s, leave-one-seed-out CV on
+  seeds 1-6, cv_straight_rate.py: 0.02 in 4 of 6 folds, CV 2.25 m), fused through the wheel
+  model's yaw-rate row (_ekf_core._straight_update). GPS RMSE (replay), mean of both scenarios:
+  seeds 1-6 2.78 -> 2.02 m, held-out seeds 7-9 4.30 -> 2.50 m (gyro at stops 2.50 / 2.41; worst
+  run 5.69 -> 3.93 m); yaw RMSE 10.1 -> 6.5 and 8.2 -> 4.3 deg. The fused track now beats the
+  baseline on 14 of 18 runs, ties (within 0.02 m) on 2, loses on hills-bag seed 2 (2.92 against
+  2.60 m) and outdoor-bag seed 8 (3.93 against 2.19: the bias half learnt before the stop, the
+  rest in the radius-mismatch state c, b + c*v being all a straight drive shows). Finding 2 is
+  answered by the trust check odometry_scale (the twists' rate 1.49 times the gyro's, fitted
+  over the moving twists).
 
 Wheel frames in the pose's terms (fusion/pipeline/heading_frame.py: speed times cos(pitch),
 yaw rate plus the heading rate's difference from the gyro's z), first measured on seeds 1-3

@@ -420,11 +420,11 @@ class EkfNoise:
             noise widened by the rate itself (the source's scale unknown), and gated
             (``_ekf_core._straight_update``). Before the first stop that is all that tells
             the gyro's bias of a robot that starts moving. Chosen by leave-one-seed-out
-            cross-validation over the terrain benchmark's bags (benchmarks/terrain/run.py
-            outdoor-bag hills-bag, seeds 1-6, position RMSE against GPS; grid 0.005, 0.01,
-            0.02, 0.03, 0.05 rad/s, on a prototype without the correlation test and
-            ``_ekf_core.STRAIGHT_CORR_TIME``): 0.02 in 5 of 6 folds, cross-validated 2.37 m;
-            seeds 7-9 were held out.
+            cross-validation over the terrain benchmark's bags
+            (benchmarks/terrain/cv_straight_rate.py: outdoor-bag and hills-bag, seeds 1-6,
+            position RMSE against GPS; grid 0, 0.005, 0.01, 0.02, 0.03, 0.05 rad/s): 0.02 in
+            4 of 6 folds, cross-validated 2.25 m (2.78 m without); seeds 7-9 held out (2.50
+            m, gyro at stops 2.42 m).
 
     Raises:
         ValueError: a value that is not a number, a measurement noise, prior, time step or
