@@ -107,7 +107,10 @@ Model:
 - External twist (kind 3, e.g. a nav_msgs/Odometry from a ROS bag): forward speed and yaw
   rate through the same wheel model, gate and ZUPT logic, noise ``twist_v_std``/``twist_w_std``;
   its yaw rate is fused only once proven in turns (``wheel_rate_proof_time``), and until then
-  a twist that fails the gate is no slip (its speed is fused as measured).
+  a twist that fails the gate is no slip (its speed is fused as measured). An unproven or
+  disproven twist (or wheel frame) whose rates have followed the gyro's in proportion still
+  tells "driving straight" when it reads below ``straight_rate``: what teaches the bias of a
+  skid-steer base that starts moving before its first stop.
 - Optional absolute yaw (a compass, a map match), residual wrapped to (-pi, pi].
 - Optional, off by default (``EkfNoise.accel_speed_psd`` > 0): the forward specific force of
   each IMU sample (kind 5, base frame x, ``accel_x=`` of :func:`fuse`,
