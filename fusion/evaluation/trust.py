@@ -65,6 +65,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from fusion.planar._ekf_core import LINEAR_SOURCE_CORRELATION
+
 __all__ = [
     "GYRO_BIAS_LIMIT",
     "HEADING_FLOOR",
@@ -86,8 +88,8 @@ GYRO_BIAS_LIMIT = math.radians(20.0)
 WHEEL_SCALE_LIMIT = 0.15
 #: The least correlation of the odometry's yaw rate with the gyro's for ``odometry_scale``
 #: (below it the rates are no scaled copy of each other and ``slip`` or
-#: ``heading_divergence`` speak; as ``_ekf_core.LINEAR_SOURCE_CORRELATION``).
-ODOMETRY_CORRELATION = 0.9
+#: ``heading_divergence`` speak): the EKF's own test for straight driving from such rates.
+ODOMETRY_CORRELATION = LINEAR_SOURCE_CORRELATION
 #: rad: heading disagreement always allowed (noise, start-up).
 HEADING_FLOOR = math.radians(15.0)
 #: Heading disagreement allowed per radian turned (a wheel_distance error up to 10 %).

@@ -1239,7 +1239,9 @@ class FusionPipeline(Lifecycle):
         self.stats.straight_frames = s["straight_frames"]
         fit = self.ekf.odometry_rate_fit
         if fit is not None:
-            self.stats.odometry_rate_slope, self.stats.odometry_rate_correlation = fit[1:]
+            self.stats.odometry_rate_slope = fit[1]
+            # None (JSON null), not NaN, while the odometry's rate has not varied
+            self.stats.odometry_rate_correlation = None if math.isnan(fit[2]) else fit[2]
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
         self.stats.speed_resets = s["speed_resets"]

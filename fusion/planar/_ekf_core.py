@@ -868,21 +868,30 @@ STRAIGHT_CORR_TIME = 2.0
 
 
 @njit
+def _linear_fit(aux):
+    """``(n, slope, correlation)`` of the wheels' yaw rate against the gyro's over the moving
+    frames summed so far (:func:`_rates_linear`); slope and correlation are NaN until the
+    gyro's rates spread by :data:`PROOF_SPREAD` (turns of one rate cannot tell a scale), the
+    correlation also while the wheels' rate has not varied."""
+    n, mean_y, var_x, cov = _fit_moments(aux, A_LIN_N)
+    if not (n >= 2.0 and var_x >= PROOF_SPREAD * PROOF_SPREAD):
+        return n, math.nan, math.nan
+    var_y = aux[A_LIN_SYY] / n - mean_y * mean_y
+    corr = cov / math.sqrt(var_x * var_y) if var_y > 0.0 else math.nan
+    return n, cov / var_x, corr
+
+
+@njit
 def _rates_linear(aux, gyro_rate, wheel_rate, moving):
     """Add a moving frame (the gyro-scale rate with its bias, ``gyro_rate``, and the wheels'
     ``wheel_rate``, rad/s) to the sums of every moving frame so far, and return True once
-    the gyro rates spread by :data:`PROOF_SPREAD` and the wheels' rate correlates with the
-    gyro's by at least :data:`LINEAR_SOURCE_CORRELATION`: whatever its scale, the source's
+    the wheels' rate correlates with the gyro's by at least
+    :data:`LINEAR_SOURCE_CORRELATION` (:func:`_linear_fit`): whatever its scale, the source's
     rate is then a rate of the robot's rotation, and near zero means not turning."""
     if moving:
         _fit_add(aux, A_LIN_N, gyro_rate, wheel_rate)
         aux[A_LIN_SYY] += wheel_rate * wheel_rate
-    n, mean_y, var_x, cov = _fit_moments(aux, A_LIN_N)
-    if n < 2.0 or var_x < PROOF_SPREAD * PROOF_SPREAD:
-        return False
-    var_y = aux[A_LIN_SYY] / n - mean_y * mean_y
-    return (var_y > 0.0 and cov > 0.0
-            and cov * cov >= LINEAR_SOURCE_CORRELATION * LINEAR_SOURCE_CORRELATION * var_x * var_y)
+    return _linear_fit(aux)[2] >= LINEAR_SOURCE_CORRELATION
 
 
 @njit

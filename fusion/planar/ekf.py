@@ -417,7 +417,7 @@ class EkfNoise:
         straight_rate: rad/s (0: off). A wheel frame or twist whose yaw rate is not fused
             (not yet proven in turns, or disproven) but is below this while the robot moves
             still says the robot drives straight, if the source's yaw rate has so far
-            correlated with the gyro's over its turns (by 0.9, whatever its scale,
+            correlated with the gyro's over its moving frames (by 0.9, whatever its scale,
             ``_ekf_core.LINEAR_SOURCE_CORRELATION``: a skid-steer base's twist, not the
             Jackal bag's): it is fused as such, through the wheel model's yaw-rate row, its
             noise widened by the rate itself (the source's scale unknown), and gated
@@ -930,14 +930,13 @@ class PlanarEKF(ExtendedKalmanFilter):
         """How the wheels' or twists' yaw rate followed the gyro's over every moving frame so
         far: ``(frames, slope, correlation)``, the slope of the least-squares line of the
         odometry's rate against the gyro's (1: the same scale; a skid-steer base's twist
-        computed with its geometric track: about 1.5); None until the gyro's rates spread by
+        computed with its geometric track: about 1.5) and their correlation (NaN while the
+        odometry's rate has not varied); None until the gyro's rates spread by
         ``_ekf_core.PROOF_SPREAD`` (turns of one rate alone cannot tell a scale)."""
-        n, mean_y, var_x, cov = core._fit_moments(self._aux, core.A_LIN_N)
-        if not n >= 2 or not var_x >= core.PROOF_SPREAD ** 2:
+        n, slope, corr = core._linear_fit(self._aux)
+        if math.isnan(slope):
             return None
-        var_y = self._aux[core.A_LIN_SYY] / n - mean_y * mean_y
-        corr = cov / math.sqrt(var_x * var_y) if var_y > 0 else 0.0
-        return int(n), float(cov / var_x), float(corr)
+        return int(n), float(slope), float(corr)
 
     def get_state(self) -> dict:
         """A snapshot (copies) that :meth:`set_state` restores exactly."""
