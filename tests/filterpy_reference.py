@@ -61,13 +61,14 @@ class FilterpyReference:
                                     "late_dropped", "late_applied", "invalid",
                                     "gyro_saturated", "encoder_faults", "updates",
                                     "speed_resets", "predictions", "accel_slips",
-                                    "straight_frames"), 0)
+                                    "straight_frames", "wheel_scale_refits"), 0)
         # the wheels' yaw rates are fused only while few turning frames fail the slip gate
         self.slip_share = 0.0
         self.distrust = False  # disproven: most turns disagree
         self.agreed = 0.0  # s of turning frames that agreed (proven at wheel_rate_proof_time)
         self.fit: list[tuple[float, float]] = []  # (gyro rate with bias, wheels' rate), turns
         self.lin = np.zeros(6)  # n, sums of x, y, x^2, x*y, y^2 of the same over moving frames
+        self.lin_turning = 0.0  # s of turning frames among them
         self.clipped_at = -math.inf  # filter time of the last saturated gyro sample
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
@@ -410,21 +411,15 @@ class FilterpyReference:
                     self.first_speed = False
                     kf.P[3, 3] += 100.0 ** 2  # v forgotten: 100 m/s, beyond any robot's speed
                     driven = False  # v's jump teaches the accelerometer's offset nothing
-                H = model.wheel_jacobian(kf.x, L, z[0])
-                S = H @ kf.P @ H.T + R
-                y = z - model.wheel_h(kf.x, L, z[0])
-                gated = y[1] ** 2 / S[1, 1] > n.slip_gate  # the yaw rate disagrees
-                slip = gated
-                # with the gyro saturated the wheels are all there is
-                fuse_rate, disproven = True, False
-                turning = abs(z[1]) > 0.1 or abs(kf.x[4]) > 0.1  # a turn tests the wheels
                 # does the source's yaw rate follow the gyro's, whatever its scale? Over every
                 # moving frame: correlation >= 0.9 once the gyro rates spread by 0.05 rad/s
                 # (_ekf_core.LINEAR_SOURCE_CORRELATION, PROOF_SPREAD)
                 moving = abs(z[0]) > n.twist_zero_v
+                turning = abs(z[1]) > 0.1 or abs(kf.x[4]) > 0.1  # a turn tests the wheels
                 if moving:
                     gr = kf.x[4] + kf.x[5]
                     self.lin += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
+                    self.lin_turning += interval if turning else 0.0
                 ln, sx, sy, sxx, sxy, syy = self.lin
                 linear = False
                 if ln >= 2:
@@ -433,6 +428,27 @@ class FilterpyReference:
                     cov = sxy / ln - sx * sy / ln ** 2
                     linear = (var_x >= 0.05 ** 2 and var_y > 0 and cov > 0
                               and cov * cov >= 0.81 * var_x * var_y)
+                    if (kind == WHEELS and linear and n.calib_k_std > 0
+                            and n.wheel_scale_refit > 0
+                            and self.lin_turning >= n.wheel_rate_proof_time
+                            and abs(cov / var_x - 1.0 - kf.x[6])
+                            > n.wheel_scale_refit * n.calib_k_std):
+                        # wheels whose fitted scale is that many prior sigmas off k: k
+                        # restarts at it, c at 0, both at their priors
+                        # (_ekf_core._refit_wheel_scale)
+                        kf.x[6], kf.x[7] = cov / var_x - 1.0, 0.0
+                        kf.P[6:8, :] = 0.0
+                        kf.P[:, 6:8] = 0.0
+                        kf.P[6, 6] = n.calib_k_std ** 2
+                        kf.P[7, 7] = n.calib_c_std ** 2
+                        self.stats["wheel_scale_refits"] += 1
+                H = model.wheel_jacobian(kf.x, L, z[0])
+                S = H @ kf.P @ H.T + R
+                y = z - model.wheel_h(kf.x, L, z[0])
+                gated = y[1] ** 2 / S[1, 1] > n.slip_gate  # the yaw rate disagrees
+                slip = gated
+                # with the gyro saturated the wheels are all there is
+                fuse_rate, disproven = True, False
                 if self.t - self.clipped_at >= n.wheel_rate_proof_time:
                     if turning:
                         w = min(1.0, interval / n.wheel_rate_trust_time)

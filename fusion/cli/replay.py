@@ -201,6 +201,7 @@ def _print_result(r, level_note: bool = True) -> None:
           f"slip frames {s['slips']} ({s.get('accel_slips', 0)} seen by the accelerometer), "
           f"turning frames whose yaw rate was not trusted {s['wheel_rate_distrusted']} "
           f"(near-zero ones fused as driving straight {s.get('straight_frames', 0)}), "
+          f"wheel yaw-rate scale re-set from its fit {s.get('wheel_scale_refits', 0)}, "
           f"encoder faults (zero ticks while the IMU moved, not "
           f"fused) {s['encoder_faults']}, late inputs fused {s['late_applied']}, dropped "
           f"{s['late_dropped']}, invalid {s['invalid']}; wheel frames missing "

@@ -197,6 +197,9 @@ class PipelineStats:
         straight_frames: of the frames whose yaw rate was not trusted, those whose near-zero
             yaw rate was fused as driving straight (the EKF's ``straight_rate``: what teaches
             the gyro bias before the first stop when the odometry is a skid-steer's).
+        wheel_scale_refits: times the EKF's wheel yaw-rate scale restarted at the slope of the
+            wheels' yaw rate fitted against the gyro's, more than three of its prior standard
+            deviations off (a skid-steer base or a wrong wheel_distance in robot.toml).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
@@ -233,6 +236,7 @@ class PipelineStats:
     accel_slips: int = 0
     wheel_rate_distrusted: int = 0
     straight_frames: int = 0
+    wheel_scale_refits: int = 0
     odometry_rate_slope: float | None = None
     odometry_rate_correlation: float | None = None
     zupts: int = 0
@@ -1237,6 +1241,7 @@ class FusionPipeline(Lifecycle):
         self.stats.accel_slips = s["accel_slips"]
         self.stats.wheel_rate_distrusted = s["wheel_rate_distrusted"]
         self.stats.straight_frames = s["straight_frames"]
+        self.stats.wheel_scale_refits = s["wheel_scale_refits"]
         fit = self.ekf.odometry_rate_fit
         if fit is not None:
             self.stats.odometry_rate_slope = fit[1]

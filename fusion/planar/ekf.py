@@ -428,6 +428,17 @@ class EkfNoise:
             position RMSE against GPS; grid 0, 0.005, 0.01, 0.02, 0.03, 0.05 rad/s): 0.02 in
             4 of 6 folds, cross-validated 2.25 m (2.78 m without); seeds 7-9 held out (2.50
             m, gyro at stops 2.42 m).
+        wheel_scale_refit: standard deviations of ``calib_k_std`` (0: off). When the slope
+            of the wheel frames' yaw rate fitted against the gyro's (every moving frame so
+            far, once the two correlate by 0.9 and the gyro's rates spread) is more than this
+            many prior standard deviations of ``k`` off ``1 + k``, ``k`` restarts at the
+            slope and ``c`` at 0, both with their prior variances
+            (``_ekf_core._refit_wheel_scale``): robot.toml's wheel_distance does not fit the
+            base (a skid-steer base counted with its geometric track, a mistyped distance),
+            which ``k`` would follow from its prior only after the turns' disagreement had
+            bent the gyro bias and ``c``. 3 is the trust check ``wheel_scale``'s limit (15 %
+            with the default prior); set from that reasoning, not tuned. Wheel frames only:
+            an external odometry's yaw rate is fused only once proven within 10 % of 1.
 
     Raises:
         ValueError: a value that is not a number, a measurement noise, prior, time step or
@@ -491,6 +502,7 @@ class EkfNoise:
     wheel_rate_trust_time: float = 5.0
     max_slip_share: float = 0.5
     straight_rate: float = 0.02
+    wheel_scale_refit: float = 3.0
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -782,7 +794,10 @@ class PlanarEKF(ExtendedKalmanFilter):
             twists whose yaw rate was not fused because most turns disagreed with the gyro, or
             twists that disagreed before the external odometry was proven in turns),
             ``straight_frames`` (of the frames whose yaw rate was not trusted, those fused as
-            driving straight, ``straight_rate``), ``zupts``, ``late_dropped``, ``late_applied``,
+            driving straight, ``straight_rate``), ``wheel_scale_refits`` (times the wheels'
+            yaw-rate scale ``k`` restarted at the slope fitted against the gyro, because it was
+            more than three ``calib_k_std`` off it: a skid-steer base, a wrong wheel_distance),
+            ``zupts``, ``late_dropped``, ``late_applied``,
             ``invalid`` (non-finite or implausible inputs), ``gyro_saturated``,
             ``encoder_faults``, ``updates``, ``speed_resets`` (v or w forgotten by the gap
             policy), ``predictions`` (prediction steps).
@@ -863,6 +878,9 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_MAX_SLIP_SHARE] = n.max_slip_share
         par[core.P_PROOF_TIME] = n.wheel_rate_proof_time
         par[core.P_STRAIGHT_RATE] = n.straight_rate
+        par[core.P_K_STD] = n.calib_k_std
+        par[core.P_REFIT] = n.wheel_scale_refit
+        par[core.P_C_STD] = n.calib_c_std
         par[core.P_ODO_ALONG] = n.odometry_along_var
         par[core.P_ODO_CROSS] = n.odometry_cross_var
         par[core.P_SLIP_Q_V] = n.slip_accel_psd
@@ -913,6 +931,7 @@ class PlanarEKF(ExtendedKalmanFilter):
             "speed_resets": int(a[core.A_SPEED_RESETS]),
             "predictions": int(a[core.A_PREDICTIONS]),
             "straight_frames": int(a[core.A_STRAIGHTS]),
+            "wheel_scale_refits": int(a[core.A_REFITS]),
         }
 
     @property
