@@ -8,7 +8,7 @@ Asserted: the exit status, one CSV row per IMU message on that message's full-pr
 stamp, no NaN, and issue 11's step bound (3 x the fastest twist speed x the row interval); the
 bag is read back with rosbags. And one behaviour: the gyro's bias is learnt before the first
 stop from the skid-steer twists' straight stretches (issue 11, item 4), against the
-simulator's own sensor error.
+simulator's own sensor error, and still with the odometry stamped 0.2 s late.
 """
 
 from __future__ import annotations
@@ -120,6 +120,51 @@ def test_the_bias_is_learnt_before_the_first_stop(replayed):
     assert abs(oracle) > 0.2  # a bias worth learning
     learnt = np.degrees(table["gyro_bias_z"][first - 1])
     assert abs(learnt - oracle) < 0.5 * abs(oracle), (learnt, oracle)
+
+
+def _odometry_stamped_late(bag: Path, out: Path, latency: float) -> None:
+    """Copy ``bag`` to ``out`` with every /odom message's header stamp (and record time)
+    ``latency`` s later, with rosbags: a driver that stamps its twist when it publishes it."""
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    shift = round(latency * 1e9)
+    with Reader(bag) as reader, Writer(out) as writer:
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                 for c in reader.connections}
+        for conn, t, raw in reader.messages():
+            if conn.topic == "/odom":
+                msg = store.deserialize_ros1(raw, conn.msgtype)
+                ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec + shift
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 10**9)
+                raw, t = store.serialize_ros1(msg, conn.msgtype), t + shift
+            writer.write(conns[conn.id], t, raw)
+
+
+def test_odometry_stamped_late_still_teaches_the_bias(replayed, tmp_path):
+    # A real driver may stamp its twist when it publishes it, not when it read the encoders:
+    # the same bag with the odometry 0.2 s late. The straight-driving test rests on the
+    # twists' rate correlating with the gyro's (>= 0.9), which a lag lowers: measured 0.983
+    # here (0.9995 on time on the 300 s bags), 234 straight frames, and the bias just before
+    # the first stop 0.38 deg/s against the on-time replay's 0.34. On the 300 s hills bags,
+    # seeds 1-3, the GPS RMSE moved by at most 0.13 m with the odometry -0.1 to +0.2 s off.
+    from fusion.jobs.replay import replay_bag
+
+    _, _, _, _, table, _, bag = replayed
+    late = tmp_path / "late.bag"
+    _odometry_stamped_late(bag, late, 0.2)
+    r = replay_bag(late, tmp_path / "late.csv", imu_topic="/imu/data", odom_topic="/odom",
+                   imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    stats = r.pipeline.stats
+    assert stats.odometry_rate_correlation > 0.95, stats.odometry_rate_correlation
+    assert stats.straight_frames > 100
+    again = np.genfromtxt(tmp_path / "late.csv", delimiter=",", names=True)
+    first = np.flatnonzero(table["zupt"] > 0)[0]
+    on_time = np.degrees(table["gyro_bias_z"][first - 1])
+    at = np.searchsorted(again["t"], table["t"][first - 1])
+    assert abs(np.degrees(again["gyro_bias_z"][at]) - on_time) < 0.1, (
+        np.degrees(again["gyro_bias_z"][at]), on_time)
 
 
 def test_the_cross_validation_replays_the_bag_as_the_command_does(replayed, tmp_path):
