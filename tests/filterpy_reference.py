@@ -68,7 +68,8 @@ class FilterpyReference:
         self.agreed = 0.0  # s of turning frames that agreed (proven at wheel_rate_proof_time)
         self.fit: list[tuple[float, float]] = []  # (gyro rate with bias, wheels' rate), turns
         self.lin = np.zeros(6)  # n, sums of x, y, x^2, x*y, y^2 of the same over moving frames
-        self.lin_turning = 0.0  # s of turning frames among them
+        self.ticks_fit = np.zeros(6)  # the same over moving tick frames since k's restart
+        self.ticks_turning = 0.0  # s of turning frames among those
         self.clipped_at = -math.inf  # filter time of the last saturated gyro sample
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
@@ -416,10 +417,9 @@ class FilterpyReference:
                 # (_ekf_core.LINEAR_SOURCE_CORRELATION, PROOF_SPREAD)
                 moving = abs(z[0]) > n.twist_zero_v
                 turning = abs(z[1]) > 0.1 or abs(kf.x[4]) > 0.1  # a turn tests the wheels
+                gr = kf.x[4] + kf.x[5]
                 if moving:
-                    gr = kf.x[4] + kf.x[5]
                     self.lin += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
-                    self.lin_turning += interval if turning else 0.0
                 ln, sx, sy, sxx, sxy, syy = self.lin
                 linear = False
                 if ln >= 2:
@@ -428,20 +428,31 @@ class FilterpyReference:
                     cov = sxy / ln - sx * sy / ln ** 2
                     linear = (var_x >= 0.05 ** 2 and var_y > 0 and cov > 0
                               and cov * cov >= 0.81 * var_x * var_y)
-                    if (kind == WHEELS and linear and n.calib_k_std > 0
-                            and n.wheel_scale_refit > 0
-                            and self.lin_turning >= n.wheel_rate_proof_time
-                            and abs(cov / var_x - 1.0 - kf.x[6])
-                            > n.wheel_scale_refit * n.calib_k_std):
-                        # wheels whose fitted scale is that many prior sigmas off k: k
-                        # restarts at it, c at 0, both at their priors
-                        # (_ekf_core._refit_wheel_scale)
-                        kf.x[6], kf.x[7] = cov / var_x - 1.0, 0.0
-                        kf.P[6:8, :] = 0.0
-                        kf.P[:, 6:8] = 0.0
-                        kf.P[6, 6] = n.calib_k_std ** 2
-                        kf.P[7, 7] = n.calib_c_std ** 2
-                        self.stats["wheel_scale_refits"] += 1
+                if (kind == WHEELS and moving and not accel_slip and n.calib_k_std > 0
+                        and n.wheel_scale_refit > 0):
+                    # the ticks' own fit since the last restart of k; k restarts at its slope
+                    # once it holds wheel_rate_proof_time s of turns, correlates by 0.9 and is
+                    # that many prior sigmas off, c at 0, both at their priors, and the fit
+                    # starts afresh (_ekf_core._refit_wheel_scale)
+                    self.ticks_fit += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
+                    self.ticks_turning += interval if turning else 0.0
+                    tn, tx, ty, txx, txy, tyy = self.ticks_fit
+                    if self.ticks_turning >= n.wheel_rate_proof_time:
+                        var_x = txx / tn - (tx / tn) ** 2
+                        var_y = tyy / tn - (ty / tn) ** 2
+                        cov = txy / tn - tx * ty / tn ** 2
+                        if (var_x >= 0.05 ** 2 and var_y > 0 and cov > 0
+                                and cov * cov >= 0.81 * var_x * var_y
+                                and abs(cov / var_x - 1.0 - kf.x[6])
+                                > n.wheel_scale_refit * n.calib_k_std):
+                            kf.x[6], kf.x[7] = cov / var_x - 1.0, 0.0
+                            kf.P[6:8, :] = 0.0
+                            kf.P[:, 6:8] = 0.0
+                            kf.P[6, 6] = n.calib_k_std ** 2
+                            kf.P[7, 7] = n.calib_c_std ** 2
+                            self.stats["wheel_scale_refits"] += 1
+                            self.ticks_fit[:] = 0.0
+                            self.ticks_turning = 0.0
                 H = model.wheel_jacobian(kf.x, L, z[0])
                 S = H @ kf.P @ H.T + R
                 y = z - model.wheel_h(kf.x, L, z[0])

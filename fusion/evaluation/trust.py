@@ -31,9 +31,10 @@ Checks (each a :class:`TrustWarning` with its figures):
     turn more than a differential drive's) or a mistyped distance; until it is corrected the
     turns' disagreement went partly into the gyro bias (benchmarks/terrain: a base whose
     wheels turn 1.5 times too fast, driving from the first sample, ended with k = +0.49 and
-    28 deg of yaw RMSE, without any other warning; 19.8 deg with the filter of 2026-11-27,
-    4.7 deg since the EKF restarts ``k`` at the wheels' fitted scale once 2 s of turns show
-    it, ``EkfNoise.wheel_scale_refit``: the turns before that still bend the bias).
+    28 deg of yaw RMSE, without any other warning; 19.8 deg with the filter of 2026-11-27;
+    4.7 deg opted in to the EKF's restart of ``k`` at the ticks' fitted scale once 2 s of
+    turns show it, ``EkfNoise.wheel_scale_refit``: the turns before that still bend the
+    bias).
 ``odometry_scale``
     A run with odometry twists whose yaw rate, fitted against the gyro's over every moving
     twist (``odometry_rate_slope``), is more than :data:`WHEEL_SCALE_LIMIT` off it, while

@@ -198,8 +198,8 @@ class PipelineStats:
             yaw rate was fused as driving straight (the EKF's ``straight_rate``: what teaches
             the gyro bias before the first stop when the odometry is a skid-steer's).
         wheel_scale_refits: times the EKF's wheel yaw-rate scale restarted at the slope of the
-            wheels' yaw rate fitted against the gyro's, more than three of its prior standard
-            deviations off (a skid-steer base or a wrong wheel_distance in robot.toml).
+            wheel ticks' yaw rate fitted against the gyro's (opt-in, ``EkfNoise.
+            wheel_scale_refit``: a skid-steer base or a wrong wheel_distance in robot.toml).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
