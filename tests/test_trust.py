@@ -199,9 +199,11 @@ def test_wheel_scale_check_is_three_prior_sigmas_of_k_and_only_for_wheel_frames(
     assert w.name == "wheel_scale" and "-15 % off the gyro's" in w.message
     assert w.figures["wheel_rate_scale"] == -0.151
     assert "part of that went into the gyro bias" in w.message
+    assert "wheel_scale_refit = 3" in w.message  # the opt-in is named
     # the EKF restarted k at the wheels' fitted scale (_ekf_core._refit_wheel_scale)
     (w,) = trust_warnings({**frames, "wheel_scale_refits": 1}, 0.0, 0.5)
     assert "restarted that scale" in w.message and w.figures["wheel_scale_refits"] == 1.0
+    assert "wheel_scale_refit = 3" not in w.message
     # twists only (external odometry: its own driver's scale, judged by the other checks)
     assert trust_warnings({"twist_messages": 1000, "gyro_time": 60.0}, 0.0, 0.5) == []
 

@@ -167,7 +167,9 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
             f"the wheels' yaw rate is {100 * k:+.0f} % off the gyro's (the EKF's wheel "
             f"yaw-rate scale; more than {100 * WHEEL_SCALE_LIMIT:.0f} % means robot.toml's "
             "wheel_distance does not fit this base, e.g. a skid-steer base's geometric track): "
-            f"{cost}; correct wheel_distance (`fusion calibrate odometry`) and replay",
+            f"{cost}; correct wheel_distance (`fusion calibrate odometry`) and replay"
+            + ("" if refits else ", or let the EKF restart its scale at the fitted one "
+               "(robot.toml [ekf] wheel_scale_refit = 3)"),
             {"wheel_rate_scale": k, "limit": WHEEL_SCALE_LIMIT,
              "wheel_frames": float(wheel_frames), "wheel_scale_refits": float(refits)}))
     slope = stats.get("odometry_rate_slope")
