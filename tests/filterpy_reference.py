@@ -29,6 +29,21 @@ ACCEL_HOLD = 0.1  # s: an older forward specific force drives v no more
 STILL, UNSURE, MOVING = 1, 2, 3  # fusion.planar.imu_motion
 
 
+
+def _linear_slope(sums):
+    """The slope of y against x from ``sums`` = (n, sum x, sum y, sum x^2, sum x*y, sum y^2),
+    or None unless x spreads by 0.05 rad/s and the two correlate by 0.9
+    (_ekf_core._linear_fit, PROOF_SPREAD, LINEAR_SOURCE_CORRELATION)."""
+    n, sx, sy, sxx, sxy, syy = sums
+    if n < 2:
+        return None
+    var_x = sxx / n - (sx / n) ** 2
+    var_y = syy / n - (sy / n) ** 2
+    cov = sxy / n - sx * sy / n ** 2
+    if var_x >= 0.05 ** 2 and var_y > 0 and cov > 0 and cov * cov >= 0.81 * var_x * var_y:
+        return cov / var_x
+    return None
+
 class FilterpyReference:
     """The planar EKF on ``filterpy.kalman.ExtendedKalmanFilter`` (not a subclass of it).
 
@@ -420,14 +435,7 @@ class FilterpyReference:
                 gr = kf.x[4] + kf.x[5]
                 if moving:
                     self.lin += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
-                ln, sx, sy, sxx, sxy, syy = self.lin
-                linear = False
-                if ln >= 2:
-                    var_x = sxx / ln - (sx / ln) ** 2
-                    var_y = syy / ln - (sy / ln) ** 2
-                    cov = sxy / ln - sx * sy / ln ** 2
-                    linear = (var_x >= 0.05 ** 2 and var_y > 0 and cov > 0
-                              and cov * cov >= 0.81 * var_x * var_y)
+                linear = _linear_slope(self.lin) is not None
                 if (kind == WHEELS and moving and not accel_slip and n.calib_k_std > 0
                         and n.wheel_scale_refit > 0):
                     # the ticks' own fit since the last restart of k; k restarts at its slope
@@ -436,23 +444,18 @@ class FilterpyReference:
                     # starts afresh (_ekf_core._refit_wheel_scale)
                     self.ticks_fit += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
                     self.ticks_turning += interval if turning else 0.0
-                    tn, tx, ty, txx, txy, tyy = self.ticks_fit
-                    if self.ticks_turning >= n.wheel_rate_proof_time:
-                        var_x = txx / tn - (tx / tn) ** 2
-                        var_y = tyy / tn - (ty / tn) ** 2
-                        cov = txy / tn - tx * ty / tn ** 2
-                        if (var_x >= 0.05 ** 2 and var_y > 0 and cov > 0
-                                and cov * cov >= 0.81 * var_x * var_y
-                                and abs(cov / var_x - 1.0 - kf.x[6])
-                                > n.wheel_scale_refit * n.calib_k_std):
-                            kf.x[6], kf.x[7] = cov / var_x - 1.0, 0.0
-                            kf.P[6:8, :] = 0.0
-                            kf.P[:, 6:8] = 0.0
-                            kf.P[6, 6] = n.calib_k_std ** 2
-                            kf.P[7, 7] = n.calib_c_std ** 2
-                            self.stats["wheel_scale_refits"] += 1
-                            self.ticks_fit[:] = 0.0
-                            self.ticks_turning = 0.0
+                    slope = _linear_slope(self.ticks_fit)
+                    if (self.ticks_turning >= n.wheel_rate_proof_time and slope is not None
+                            and abs(slope - 1.0 - kf.x[6])
+                            > n.wheel_scale_refit * n.calib_k_std):
+                        kf.x[6], kf.x[7] = slope - 1.0, 0.0
+                        kf.P[6:8, :] = 0.0
+                        kf.P[:, 6:8] = 0.0
+                        kf.P[6, 6] = n.calib_k_std ** 2
+                        kf.P[7, 7] = n.calib_c_std ** 2
+                        self.stats["wheel_scale_refits"] += 1
+                        self.ticks_fit[:] = 0.0
+                        self.ticks_turning = 0.0
                 H = model.wheel_jacobian(kf.x, L, z[0])
                 S = H @ kf.P @ H.T + R
                 y = z - model.wheel_h(kf.x, L, z[0])
