@@ -4,7 +4,8 @@ the IMU resampled to 30 Hz and mounted rolled +90 deg and yawed -90 deg, the odo
 
 The mount is applied with scipy's rotation (URDF roll-pitch-yaw: ``v_base = Rz Ry Rx v_imu``),
 independently of the library's own mount code; the bag is written with rosbags. Used by
-tests/test_replay_bag_shapes.py.
+tests/test_replay_bag_shapes.py. And :func:`rewrite_messages`: a bag copied with one topic's
+messages edited (tests/test_terrain_bag.py, tests/test_odometry_motion.py).
 """
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["IMU_TOPIC", "MOUNT_RPY", "ODOM_TOPIC", "reshape_jackal_bag"]
+__all__ = ["IMU_TOPIC", "MOUNT_RPY", "ODOM_TOPIC", "reshape_jackal_bag", "rewrite_messages"]
 
 IMU_TOPIC = "/imu/data"
 ODOM_TOPIC = "/odom"
@@ -81,3 +82,22 @@ def reshape_jackal_bag(source: Path, dest: Path, *, cut: float = 10.0, imu_rate:
         for t, kind, msg in events:
             writer.write(conns[kind], round(t * 1e9), store.serialize_ros1(msg, types[kind]))
     return float(grid[0])
+
+
+def rewrite_messages(source: Path, dest: Path, topic: str, edit) -> None:
+    """Copy the ROS 1 bag ``source`` to ``dest`` with every ``topic`` message passed through
+    ``edit(msg, record_ns) -> record_ns`` (it changes the deserialised message in place and
+    returns the record time to write, ns); other topics are copied byte for byte."""
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    with Reader(source) as reader, Writer(dest) as writer:
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                 for c in reader.connections}
+        for conn, t, raw in reader.messages():
+            if conn.topic == topic:
+                msg = store.deserialize_ros1(raw, conn.msgtype)
+                t = edit(msg, t)
+                raw = store.serialize_ros1(msg, conn.msgtype)
+            writer.write(conns[conn.id], t, raw)

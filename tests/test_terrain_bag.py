@@ -125,21 +125,16 @@ def test_the_bias_is_learnt_before_the_first_stop(replayed):
 def _odometry_stamped_late(bag: Path, out: Path, latency: float) -> None:
     """Copy ``bag`` to ``out`` with every /odom message's header stamp (and record time)
     ``latency`` s later, with rosbags: a driver that stamps its twist when it publishes it."""
-    from rosbags.rosbag1 import Reader, Writer
-    from rosbags.typesys import Stores, get_typestore
+    from reshaped_bag import rewrite_messages
 
-    store = get_typestore(Stores.ROS1_NOETIC)
     shift = round(latency * 1e9)
-    with Reader(bag) as reader, Writer(out) as writer:
-        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
-                 for c in reader.connections}
-        for conn, t, raw in reader.messages():
-            if conn.topic == "/odom":
-                msg = store.deserialize_ros1(raw, conn.msgtype)
-                ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec + shift
-                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 10**9)
-                raw, t = store.serialize_ros1(msg, conn.msgtype), t + shift
-            writer.write(conns[conn.id], t, raw)
+
+    def late(msg, t):
+        ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec + shift
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 10**9)
+        return t + shift
+
+    rewrite_messages(bag, out, "/odom", late)
 
 
 def test_odometry_stamped_late_still_teaches_the_bias(replayed, tmp_path):

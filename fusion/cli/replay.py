@@ -571,6 +571,8 @@ def run_bag(args: argparse.Namespace) -> int:
     print(f"{path}: {len(imu)} IMU messages ({imu.frame_id or 'no frame_id'}), {len(odom)} "
           f"odometry messages ({odom.frame_id} -> {odom.child_frame_id}) -> {args.output} "
           f"({written})")
+    if r.motion is not None and r.motion.note:
+        print(f"note: {r.motion.note}")
     if imu.out_of_order or odom.out_of_order:
         print(f"warning: messages out of order in the bag (sorted): IMU {imu.out_of_order}, "
               f"odometry {odom.out_of_order}")

@@ -29,7 +29,8 @@ always used, so its results are unchanged.
 :func:`increments` and :func:`integrate` are the vectorised form over many periods. They apply
 the very same operations (``cumsum`` adds in order, like a loop), so they agree bit for bit
 wherever numpy's ``sin``/``cos`` are the C library's, as on the platforms this is tested on
-(``tests/test_dead_reckoning.py`` checks it).
+(``tests/test_dead_reckoning.py`` checks it). :func:`motion_between` is the inverse of
+``"arc"``: the travel and turn between given poses.
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ __all__ = [
     "arc_factor",
     "increments",
     "integrate",
+    "motion_between",
     "step",
     "step_terms",
     "wheel_motion",
@@ -140,3 +142,32 @@ def integrate(d: ArrayLike, dtheta: ArrayLike, pose0: ArrayLike = (0.0, 0.0, 0.0
     x = np.cumsum(np.concatenate(([x0], dx)))[1:]
     y = np.cumsum(np.concatenate(([y0], dy)))[1:]
     return np.column_stack([x, y, theta[1:]])
+
+
+def motion_between(x: ArrayLike, y: ArrayLike, theta: ArrayLike
+                   ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """The travel ``d`` (m, negative backwards) and turn ``dtheta`` (rad, wrapped to
+    (-pi, pi]) of each period between N consecutive poses (``x``, ``y`` m, ``theta`` rad),
+    and the displacement across the heading ``lateral`` (m): three (N - 1,) arrays.
+
+    The inverse of the ``"arc"`` rule (:func:`integrate` of its output gives the poses back):
+    the displacement's component along ``phi = theta + dtheta/2`` is the chord ``d*sin(a)/a``
+    (``a = dtheta/2``). A differential drive never moves across its heading, so ``lateral``
+    is 0 for poses it integrated with that rule (``d*dtheta**2/24`` with ``"midpoint"``); more
+    is motion it cannot make (a pose that jumped, a holonomic base).
+    """
+    x, y, theta = (np.asarray(a, dtype=float).reshape(-1) for a in (x, y, theta))
+    if not x.shape == y.shape == theta.shape:
+        raise ValueError(f"x, y and theta must have the same length, got {x.shape}, "
+                         f"{y.shape} and {theta.shape}")
+    # wrapped as fusion.geometry.angles.wrap_angle does (not imported: drivers use this
+    # module, and angles needs fusion._jit)
+    dtheta = np.pi - np.mod(np.pi - np.diff(theta), 2.0 * np.pi)
+    phi = theta[:-1] + 0.5 * dtheta
+    dx, dy = np.diff(x), np.diff(y)
+    chord = dx * np.cos(phi) + dy * np.sin(phi)
+    lateral = -dx * np.sin(phi) + dy * np.cos(phi)
+    a = 0.5 * dtheta
+    small = np.abs(a) < SMALL_ANGLE
+    a_safe = np.where(small, 1.0, a)
+    return chord / np.where(small, 1.0 - a * a / 6.0, np.sin(a_safe) / a_safe), dtheta, lateral

@@ -34,6 +34,7 @@ from fusion.io.errors import LogFormatError
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
 from fusion.io.imu_csv import imu_csv_lines
 from fusion.io.logdir import read_logdir
+from fusion.io.odometry_motion import OdometryMotion, odometry_motion
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
 from fusion.jobs.engine import run_tasks
@@ -406,7 +407,9 @@ class BagReplay:
     trust warnings (:mod:`fusion.evaluation.trust`) and, given a GPS topic, its fixes and the
     fused track, the bag's odometry and the gyro-at-stops baseline against them
     (:mod:`fusion.evaluation.gps`; tracks ``"fused"``, ``"bag odometry"``, ``"gyro at
-    stops"``), or in ``gps_note`` why they could not be compared."""
+    stops"``), or in ``gps_note`` why they could not be compared; ``motion``: the twists
+    fused (:func:`fusion.io.odometry_motion.odometry_motion`: the odometry's own, or its
+    poses' differences where its twist is empty, and why in ``motion.note``)."""
 
     table: NDArray[np.float64]
     pipeline: FusionPipeline
@@ -419,6 +422,7 @@ class BagReplay:
     fixes: Any = None
     gps: GpsComparison | None = None
     gps_note: str = ""
+    motion: OdometryMotion | None = None
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
@@ -456,8 +460,9 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     imu, odom = bag.imu, bag.odometry
     if bag.fixes is not None:
         _check_fixes_overlap(path, bag.fixes, imu.t, odom.t)
-    streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=odom.t, twist_v=odom.v,
-                      twist_w=odom.w)
+    motion = odometry_motion(odom)
+    streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=motion.t, twist_v=motion.v,
+                      twist_w=motion.w)
     table, pipe, stats, warnings = fuse_streams(robot, streams, output, tilt=tilt,
                                                 progress=progress)
     x0, y0, th0 = odom.x[0], odom.y[0], odom.yaw[0]
@@ -471,7 +476,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
             gps = compare_with_fixes(fx.t, fixes_to_enu(fx.latitude, fx.longitude, fx.altitude),
                                      {"fused": (table[:, 0], table[:, 1:3]),
                                       "bag odometry": (odom.t, own[:, :2]),
-                                      "gyro at stops": _gyro_at_stops_track(robot, imu, odom)})
+                                      "gyro at stops": _gyro_at_stops_track(robot, imu,
+                                                                            motion)})
         except ValueError as exc:  # the output is written: no GPS figure, and why
             gps_note = f"GPS topic {fix_topic}: not compared: {exc}"
     if plot is not None:
@@ -494,7 +500,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps,
-                     gps_note)
+                     gps_note, motion)
 
 
 def _check_fixes_overlap(path: Path, fixes: Any, imu_t: NDArray[np.float64],
@@ -511,17 +517,17 @@ def _check_fixes_overlap(path: Path, fixes: Any, imu_t: NDArray[np.float64],
             f"GPS stamps on another clock?)")
 
 
-def _gyro_at_stops_track(robot: RobotConfig, imu, odom) -> tuple[NDArray[np.float64],
-                                                                  NDArray[np.float64]]:
+def _gyro_at_stops_track(robot: RobotConfig, imu, motion: OdometryMotion
+                         ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
     """(t s, (K, 2) x, y m) of the naive baseline issue 11 scored a real bag with: the mounted
-    gyro's vertical axis, its bias re-learnt at every stop, with the odometry's speed
-    (:func:`fusion.evaluation.baselines.gyro_at_stops_twist`)."""
+    gyro's vertical axis, its bias re-learnt at every stop, with the odometry's speed (the
+    twists the fusion took, ``motion``; :func:`fusion.evaluation.baselines.gyro_at_stops_twist`)."""
     from fusion.evaluation.baselines import gyro_at_stops_twist
     from fusion.geometry.mount import imu_to_base, mount_matrix
 
     R = mount_matrix(robot.imu_mount_rpy)
-    b = gyro_at_stops_twist(imu.t, imu_to_base(R, imu.gyro), imu_to_base(R, imu.accel), odom.t,
-                            odom.v, odom.w)
+    b = gyro_at_stops_twist(imu.t, imu_to_base(R, imu.gyro), imu_to_base(R, imu.accel),
+                            motion.t, motion.v, motion.w)
     return b.t, b.poses[:, :2]
 
 

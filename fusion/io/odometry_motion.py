@@ -1,0 +1,146 @@
+"""The motion a nav_msgs/Odometry topic reports, as the fusion takes it: its twist, or, where
+a driver leaves the twist empty or writes it in the wrong frame, the motion its poses show.
+
+nav_msgs/Odometry (REP-105) holds the pose of ``child_frame_id`` in ``frame_id`` and the twist
+in ``child_frame_id``: ``linear.x`` forward, ``angular.z`` the yaw rate. Two departures seen
+in drivers are recognised from the data, and said (:attr:`OdometryMotion.note`):
+
+- **The twist is empty** (every ``linear.x``, ``linear.y`` and ``angular.z`` exactly 0) while
+  the pose moves (gets :data:`MIN_POSE_PATH` m or :data:`MIN_POSE_TURN` rad away from the
+  first): a driver that publishes its dead-reckoned pose only. Taken as it is, every message
+  reads "standing still": a terrain benchmark bag rewritten that way replayed to a path of
+  0 m, with zero-velocity updates while the robot drove and a gyro bias of +3.2 deg/s. The
+  twist is then the motion between consecutive poses
+  (:func:`fusion.geometry.dead_reckoning.motion_between`, the exact inverse of an arc),
+  over each interval's duration, stamped at its middle; intervals longer than
+  :data:`MAX_GAP_PERIODS` times the median are left out (their mean speed is no rate of
+  any instant), and so are repeated stamps.
+- **The twist's linear velocity is in ``frame_id``** (the odometry frame) instead of the
+  robot's: then a differential drive seems to move sideways, by about as much as forward,
+  and turning it by the pose's heading makes the sideways part vanish. Recognised when over
+  the moving messages the sideways speed's RMS is above :data:`LATERAL_SHARE` of the speed's
+  and, turned by the heading, below :data:`ROTATED_LATERAL_SHARE` of it; the forward speed
+  is then the turned one. A holonomic base moving sideways does not pass the second test.
+
+Anything else is taken as the driver wrote it (``source`` ``"twist"``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion.geometry.dead_reckoning import motion_between
+
+if TYPE_CHECKING:
+    from fusion.io.bags import OdometryLog
+
+__all__ = [
+    "LATERAL_SHARE",
+    "MAX_GAP_PERIODS",
+    "MIN_POSE_PATH",
+    "MIN_POSE_TURN",
+    "MOVING_SPEED",
+    "ROTATED_LATERAL_SHARE",
+    "OdometryMotion",
+    "odometry_motion",
+]
+
+#: m: how far the poses must get from the first for an empty twist to be a pose-only
+#: driver's, not a robot that stood still (noisy or GPS-corrected poses wander by
+#: centimetres; summed over their steps that wander adds up, their reach does not).
+MIN_POSE_PATH = 0.5
+#: rad: the same for the heading (turning on the spot).
+MIN_POSE_TURN = 0.5
+#: Pose intervals longer than this many times the median interval are left out.
+MAX_GAP_PERIODS = 3.0
+#: m/s: a message moves when its planar speed (linear.x, linear.y) exceeds this.
+MOVING_SPEED = 0.05
+#: Sideways speed RMS over the speed's, above which the twist may be in frame_id.
+LATERAL_SHARE = 0.3
+#: The same after turning the velocity by the pose's heading, below which it is.
+ROTATED_LATERAL_SHARE = 0.1
+#: Moving messages needed before the frame test says anything.
+MIN_MOVING = 10
+
+
+@dataclass(frozen=True)
+class OdometryMotion:
+    """Twists for the fusion: ``t`` (s), forward speed ``v`` (m/s) and yaw rate ``w``
+    (rad/s), (K,) each; ``source``: ``"twist"`` (as written), ``"pose"`` (from consecutive
+    poses) or ``"twist in frame_id"`` (linear velocity turned by the heading); ``note``: a
+    sentence for the user when it is not ``"twist"``, else ``""``."""
+
+    t: NDArray[np.float64]
+    v: NDArray[np.float64]
+    w: NDArray[np.float64]
+    source: str = "twist"
+    note: str = ""
+
+
+def odometry_motion(odom: OdometryLog) -> OdometryMotion:
+    """The twists of ``odom`` the fusion should take (module docstring)."""
+    name = odom.topic or "the odometry"
+    empty = not (np.any(odom.v) or np.any(odom.vy) or np.any(odom.w))
+    if empty and len(odom) >= 2:
+        from_pose = _pose_motion(odom, name)
+        if from_pose is not None:
+            return from_pose
+    turned = _turned_to_robot(odom, name)
+    if turned is not None:
+        return turned
+    return OdometryMotion(odom.t, odom.v, odom.w)
+
+
+def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
+    """The twist between consecutive poses, or None when the poses hardly move."""
+    _, first = np.unique(odom.t, return_index=True)  # sorted stamps: drop repeats
+    t, x, y, yaw = odom.t[first], odom.x[first], odom.y[first], odom.yaw[first]
+    if len(t) < 2:
+        return None
+    d, dtheta, _ = motion_between(x, y, yaw)
+    reach = float(np.max(np.hypot(x - x[0], y - y[0])))
+    swing = float(np.max(np.abs(np.cumsum(dtheta))))
+    if reach < MIN_POSE_PATH and swing < MIN_POSE_TURN:
+        return None
+    path, turn = float(np.sum(np.abs(d))), float(np.sum(np.abs(dtheta)))
+    dt = np.diff(t)
+    keep = dt <= MAX_GAP_PERIODS * float(np.median(dt))
+    mid = t[:-1] + 0.5 * dt
+    gaps = int(np.count_nonzero(~keep))
+    repeats = len(odom) - len(t)
+    left_out = []
+    if repeats:
+        left_out.append(f"{repeats} repeated stamps")
+    if gaps:
+        left_out.append(f"{gaps} intervals longer than {MAX_GAP_PERIODS:g} times the median "
+                        f"{1e3 * float(np.median(dt)):.0f} ms")
+    note = (f"{name}: every twist is zero while its pose moves (a path of {path:.1f} m, "
+            f"turns adding up to {np.degrees(turn):.0f} deg; a driver that publishes the pose "
+            f"only): the speed and yaw rate are taken from consecutive poses "
+            f"({len(t) - 1 - gaps} intervals"
+            + (f"; left out: {', '.join(left_out)}" if left_out else "") + ")")
+    return OdometryMotion(mid[keep], d[keep] / dt[keep], dtheta[keep] / dt[keep], "pose", note)
+
+
+def _turned_to_robot(odom: OdometryLog, name: str) -> OdometryMotion | None:
+    """The forward speed of a linear velocity written in frame_id, or None when it is not."""
+    moving = np.hypot(odom.v, odom.vy) > MOVING_SPEED
+    if np.count_nonzero(moving) < MIN_MOVING:
+        return None
+    speed = float(np.sqrt(np.mean(odom.v[moving] ** 2 + odom.vy[moving] ** 2)))
+    lateral = float(np.sqrt(np.mean(odom.vy[moving] ** 2)))
+    c, s = np.cos(odom.yaw), np.sin(odom.yaw)
+    forward = c * odom.v + s * odom.vy
+    turned_lateral = float(np.sqrt(np.mean((-s * odom.v + c * odom.vy)[moving] ** 2)))
+    if not (lateral > LATERAL_SHARE * speed and turned_lateral < ROTATED_LATERAL_SHARE * speed):
+        return None
+    note = (f"{name}: its twist's linear velocity is in {odom.frame_id or 'frame_id'}, not in "
+            f"{odom.child_frame_id or 'child_frame_id'} as nav_msgs/Odometry says: sideways "
+            f"{100 * lateral / speed:.0f} % of the speed as written, "
+            f"{100 * turned_lateral / speed:.0f} % turned by the pose's heading; the forward "
+            "speed is the turned one")
+    return OdometryMotion(odom.t, forward, odom.w, "twist in frame_id", note)
