@@ -21,6 +21,7 @@ import pytest
 
 from fusion.cli import main
 from fusion.evaluation.trust import (
+    ENCODER_FAULT_LIMIT,
     GYRO_BIAS_LIMIT,
     HEADING_FLOOR,
     ODOMETRY_CORRELATION,
@@ -49,6 +50,43 @@ def test_slip_check_is_about_most_frames() -> None:
     assert "50 % of the 1000 odometry frames" in w.message
     # twists count as odometry frames too (a bag)
     assert trust_warnings({"twist_messages": 1000, "slips": 400}, None) == []
+
+
+def test_encoder_fault_check_is_about_a_tenth_of_the_frames() -> None:
+    assert ENCODER_FAULT_LIMIT == 0.1
+    base = {"wheel_frames": 1000}
+    assert trust_warnings({**base, "encoder_faults": 100}, None) == []
+    (w,) = trust_warnings({**base, "encoder_faults": 101}, None)
+    assert w.name == "encoder_fault"
+    assert w.figures["encoder_fault_fraction"] == pytest.approx(0.101)
+    assert "10 % of the 1000 odometry frames read zero speed" in w.message
+    (w,) = trust_warnings({"twist_messages": 300, "encoder_faults": 150}, None)
+    assert w.name == "encoder_fault" and w.figures["frames"] == 300
+
+
+def test_a_dead_encoder_feed_for_most_of_a_replay_warns(logdir, tmp_path, capsys) -> None:
+    # the simulated log with both wheels' ticks zero from 20 s on, two thirds of its frames,
+    # while the robot drives on: encoder faults wherever the IMU shows it moving (measured
+    # 46 % of the frames; the mission's own stops among them are stops), which the warning
+    # names
+    bad = tmp_path / "run4"
+    shutil.copytree(logdir, bad)
+    lines = (bad / "wheels.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    t0 = float(lines[1].split(",")[0])
+    rows = [x.split(",") for x in lines[1:]]
+    for r in rows:
+        if float(r[0]) - t0 > 20.0:
+            r[head.index("left")] = r[head.index("right")] = "0"
+    (bad / "wheels.csv").write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    out = tmp_path / "f.jsonl"
+    assert main(["replay", str(bad), "-o", str(out)]) == 0
+    assert "warning: inputs disagree (encoder_fault)" in capsys.readouterr().out
+    _, (status,) = _split(out)
+    (w,) = [w for w in status["warnings"] if w["name"] == "encoder_fault"]
+    zeroed = sum(float(r[0]) - t0 > 20.0 for r in rows) / len(rows)
+    assert 0.4 < w["encoder_fault_fraction"] < zeroed
+    assert status["counters"]["encoder_faults"] == w["encoder_faults"]
 
 
 def test_bias_check_uses_the_mpu6050_zero_rate_tolerance() -> None:
