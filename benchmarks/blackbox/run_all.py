@@ -332,6 +332,7 @@ def parse_replay(text):
         ("dropped", r"dropped (\d+)"),
         ("invalid", r"invalid (\d+)"),
         ("late", r"late inputs fused (\d+)"),
+        ("wheel_scale_refits", r"wheel yaw-rate scale re-set from its fit (\d+)"),
     ]:
         m = re.search(pat, text)
         d[key] = int(m.group(1)) if m else None
