@@ -21,7 +21,9 @@ issue 11).
 from __future__ import annotations
 
 import importlib
+import io
 import sys
+from contextlib import redirect_stdout
 from pathlib import Path
 
 import numpy as np
@@ -53,10 +55,24 @@ def dead_run(blackbox, tmp_path_factory):
     sim, run_all = blackbox
     truth_run = sim.simulate(sim.make_config("dead", SEED))
     folder = sim.write_run(truth_run, tmp_path_factory.mktemp("blackbox") / f"dead_{SEED}")
-    assert main(["replay", str(folder), "-o", str(folder / "fused.csv")]) == 0
+    printed = io.StringIO()
+    with redirect_stdout(printed):
+        assert main(["replay", str(folder), "-o", str(folder / "fused.csv")]) == 0
+    (folder / "replay.txt").write_text(printed.getvalue())
     read = run_all.read_csv_cols
     files = {name: read(folder / f"{name}.csv") for name in ("fused", "truth", "wheels", "imu")}
     return truth_run, folder, files
+
+
+def test_the_benchmark_reads_every_counter_the_replay_prints(dead_run, blackbox):
+    # run_all.parse_replay reads the counters off the replay's printed summary: a wording
+    # change there must not turn them into None unnoticed (two patterns were stale)
+    _, run_all = blackbox
+    _, folder, _ = dead_run
+    parsed = run_all.parse_replay((folder / "replay.txt").read_text())
+    assert all(v is not None for v in parsed.values()), parsed
+    assert parsed["enc_faults"] > 100 and parsed["zupts"] > 0
+    assert parsed["wheel_scale_refits"] == 0  # off by default
 
 
 def _true_speed(truth):
