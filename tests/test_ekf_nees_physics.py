@@ -6,7 +6,8 @@ None of these seeds was used to choose a parameter (benchmarks/tune_ekf.py tunes
 The gyro is taken as calibrated, as after the gyro-scale calibration (turns in place back to a
 mark): its z rate divided by (1 + the simulated scale error) and ``gyro_scale_std`` set to that
 calibration's uncertainty, 5e-4. Without it the heading error of a 0.5-2 % scale error
-dominates everything else.
+dominates everything else; the filter as shipped (its g state's 3 % prior) is checked on the
+raw gyro too.
 """
 
 from __future__ import annotations
@@ -29,9 +30,9 @@ FORMER = EkfNoise(gyro_scale_std=5e-4, slip_accel_psd=EkfNoise().accel_psd, slip
                   speed_ramp_time=0.0, stamp_std=0.0)
 
 
-def _inside(run, noise: EkfNoise) -> float:
+def _inside(run, noise: EkfNoise, calibrated: bool = True) -> float:
     """Fraction of the gyro rows whose pose NEES lies inside its two-sided 95 % bounds."""
-    gyro_z = run.gyro[:, 2] / (1.0 + run.sensors.gyro_scale[2])
+    gyro_z = run.gyro[:, 2] / (1.0 + run.sensors.gyro_scale[2]) if calibrated else run.gyro[:, 2]
     track, _ = fuse(run.robot.chassis, run.imu_t, gyro_z, run.wheel_t, run.ticks, noise=noise,
                     imu_motion=imu_motion_codes(run.imu_t, run.gyro, run.accel))
     rows = track.kind == core.EV_GYRO
@@ -43,11 +44,12 @@ def _inside(run, noise: EkfNoise) -> float:
 
 @pytest.fixture(scope="module")
 def fractions():
-    out = {"default": [], "former": []}
+    out = {"default": [], "former": [], "raw": []}
     for seed in SEEDS:
         run = physics_scenario("all", seed=seed)
         out["default"].append(_inside(run, CALIBRATED))
         out["former"].append(_inside(run, FORMER))
+        out["raw"].append(_inside(run, EkfNoise(), calibrated=False))
     return {k: np.array(v) for k, v in out.items()}
 
 
@@ -63,6 +65,20 @@ def test_the_speed_walks_and_stamp_noise_make_the_covariance_more_honest(fractio
     assert np.all(new >= old - 0.01), (new, old)
     assert new.mean() >= 0.83, new
     assert np.sum(new >= 0.85) >= 6, new
+
+
+def test_with_the_gyro_uncalibrated_seven_of_eight_runs_are_inside_on_85_percent(fractions):
+    # The filter as shipped (gyro_scale_std 3 %, the datasheet's) on the raw gyro, whose scale
+    # error (0.5-2 %) its g state covers: measured 98.9 68.3 91.5 92.3 95.4 91.1 91.8 95.1 %.
+    # Seed 1 is overconfident at 60-80 s and from 240 s on, with errors well inside each
+    # standard deviation: the pose covariance is nearly rank one there (the g state's heading
+    # error and the position it drives), and the heading errors the model has no state for
+    # (cross-axis, g-sensitivity, the speed lagging ramps) fall across its thin directions.
+    # Tried on 2026-11-28 and not kept: a heading noise per radian turned, 1e-5 rad^2/rad,
+    # lifts seed 1 to 81 % but drops the calibrated runs to 4 of 8 (seeds 3 and 6: 53, 57 %).
+    raw = fractions["raw"]
+    assert np.sum(raw >= 0.85) >= 7, raw
+    assert raw.mean() >= 0.88, raw
 
 
 @pytest.mark.xfail(strict=True, reason=(
