@@ -59,7 +59,7 @@ def test_encoder_fault_check_is_about_a_tenth_of_the_frames() -> None:
     (w,) = trust_warnings({**base, "encoder_faults": 101}, None)
     assert w.name == "encoder_fault"
     assert w.figures["encoder_fault_fraction"] == pytest.approx(0.101)
-    assert "10 % of the 1000 odometry frames read zero speed" in w.message
+    assert "10.1 % of the 1000 odometry frames read zero speed" in w.message
     (w,) = trust_warnings({"twist_messages": 300, "encoder_faults": 150}, None)
     assert w.name == "encoder_fault" and w.figures["frames"] == 300
 

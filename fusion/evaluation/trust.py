@@ -158,7 +158,7 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
     if frames and faults / frames > ENCODER_FAULT_LIMIT:
         out.append(TrustWarning(
             "encoder_fault",
-            f"{100 * faults / frames:.0f} % of the {frames} odometry frames read zero speed "
+            f"{100 * faults / frames:.1f} % of the {frames} odometry frames read zero speed "
             "while the IMU showed motion (not fused: the pose coasted on the motion model); "
             f"more than {100 * ENCODER_FAULT_LIMIT:.0f} % means the odometry is missing, not "
             "faulty: check the wheel encoders and their wiring, or the odometry topic (a "

@@ -153,8 +153,9 @@ def motion_between(x: ArrayLike, y: ArrayLike, theta: ArrayLike
     The inverse of the ``"arc"`` rule (:func:`integrate` of its output gives the poses back):
     the displacement's component along ``phi = theta + dtheta/2`` is the chord ``d*sin(a)/a``
     (``a = dtheta/2``). A differential drive never moves across its heading, so ``lateral``
-    is 0 for poses it integrated with that rule (``d*dtheta**2/24`` with ``"midpoint"``); more
-    is motion it cannot make (a pose that jumped, a holonomic base).
+    is 0 for poses it integrated with that rule or ``"midpoint"`` (whose chord error shows in
+    ``d`` instead, about ``d*dtheta**2/24`` too long); more is motion it cannot make (a pose
+    that jumped, a holonomic base).
     """
     x, y, theta = (np.asarray(a, dtype=float).reshape(-1) for a in (x, y, theta))
     if not x.shape == y.shape == theta.shape:

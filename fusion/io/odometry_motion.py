@@ -14,13 +14,17 @@ in drivers are recognised from the data, and said (:attr:`OdometryMotion.note`):
   (:func:`fusion.geometry.dead_reckoning.motion_between`, the exact inverse of an arc),
   over each interval's duration, stamped at its middle; intervals longer than
   :data:`MAX_GAP_PERIODS` times the median are left out (their mean speed is no rate of
-  any instant), and so are repeated stamps.
+  any instant), and so are repeated stamps, non-finite poses and pose jumps (an interval that
+  moves across the heading, :data:`JUMP_LATERAL_SHARE`). The differences are over single
+  intervals: stamps with jitter comparable to the period (record times, ``--stamps bag``)
+  make those speeds noisy.
 - **The twist's linear velocity is in ``frame_id``** (the odometry frame) instead of the
   robot's: then a differential drive seems to move sideways, by about as much as forward,
   and turning it by the pose's heading makes the sideways part vanish. Recognised when over
   the moving messages the sideways speed's RMS is above :data:`LATERAL_SHARE` of the speed's
   and, turned by the heading, below :data:`ROTATED_LATERAL_SHARE` of it; the forward speed
-  is then the turned one. A holonomic base moving sideways does not pass the second test.
+  is then the turned one, once the heading has ranged over :data:`MIN_HEADING_RANGE` (a
+  holonomic base strafing at a constant heading would pass both tests).
 
 Anything else is taken as the driver wrote it (``source`` ``"twist"``).
 """
@@ -39,8 +43,12 @@ if TYPE_CHECKING:
     from fusion.io.bags import OdometryLog
 
 __all__ = [
+    "JUMP_LATERAL_FLOOR",
+    "JUMP_LATERAL_SHARE",
     "LATERAL_SHARE",
     "MAX_GAP_PERIODS",
+    "MIN_HEADING_RANGE",
+    "MIN_MOVING",
     "MIN_POSE_PATH",
     "MIN_POSE_TURN",
     "MOVING_SPEED",
@@ -57,6 +65,16 @@ MIN_POSE_PATH = 0.5
 MIN_POSE_TURN = 0.5
 #: Pose intervals longer than this many times the median interval are left out.
 MAX_GAP_PERIODS = 3.0
+#: A pose interval whose displacement across the heading exceeds this share of its travel
+#: (plus :data:`JUMP_LATERAL_FLOOR`) is a jump of the pose (a reset, a correction), not motion
+#: of a wheeled base: left out.
+JUMP_LATERAL_SHARE = 0.2
+#: m: the same, an absolute allowance (pose rounding).
+JUMP_LATERAL_FLOOR = 0.01
+#: rad: the heading must range over at least this on the moving messages before a sideways
+#: velocity can be told to be written in frame_id (with a constant heading a holonomic base's
+#: strafe looks the same).
+MIN_HEADING_RANGE = 0.5
 #: m/s: a message moves when its planar speed (linear.x, linear.y) exceeds this.
 MOVING_SPEED = 0.05
 #: Sideways speed RMS over the speed's, above which the twist may be in frame_id.
@@ -97,11 +115,12 @@ def odometry_motion(odom: OdometryLog) -> OdometryMotion:
 
 def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     """The twist between consecutive poses, or None when the poses hardly move."""
-    _, first = np.unique(odom.t, return_index=True)  # sorted stamps: drop repeats
-    t, x, y, yaw = odom.t[first], odom.x[first], odom.y[first], odom.yaw[first]
+    finite = np.isfinite(odom.x) & np.isfinite(odom.y) & np.isfinite(odom.yaw)
+    _, first = np.unique(odom.t[finite], return_index=True)  # sorted stamps: drop repeats
+    t, x, y, yaw = (a[finite][first] for a in (odom.t, odom.x, odom.y, odom.yaw))
     if len(t) < 2:
         return None
-    d, dtheta, _ = motion_between(x, y, yaw)
+    d, dtheta, lateral = motion_between(x, y, yaw)
     reach = float(np.max(np.hypot(x - x[0], y - y[0])))
     swing = float(np.max(np.abs(np.cumsum(dtheta))))
     if reach < MIN_POSE_PATH and swing < MIN_POSE_TURN:
@@ -109,19 +128,26 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     path, turn = float(np.sum(np.abs(d))), float(np.sum(np.abs(dtheta)))
     dt = np.diff(t)
     keep = dt <= MAX_GAP_PERIODS * float(np.median(dt))
+    jumped = np.abs(lateral) > JUMP_LATERAL_SHARE * np.abs(d) + JUMP_LATERAL_FLOOR
     mid = t[:-1] + 0.5 * dt
     gaps = int(np.count_nonzero(~keep))
-    repeats = len(odom) - len(t)
+    jumps = int(np.count_nonzero(jumped & keep))
+    keep &= ~jumped
+    repeats = int(np.count_nonzero(finite)) - len(t)
     left_out = []
     if repeats:
         left_out.append(f"{repeats} repeated stamps")
+    if not np.all(finite):
+        left_out.append(f"{int(np.count_nonzero(~finite))} poses not finite")
+    if jumps:
+        left_out.append(f"{jumps} pose jumps (sideways, which the base cannot move)")
     if gaps:
         left_out.append(f"{gaps} intervals longer than {MAX_GAP_PERIODS:g} times the median "
                         f"{1e3 * float(np.median(dt)):.0f} ms")
     note = (f"{name}: every twist is zero while its pose moves (a path of {path:.1f} m, "
             f"turns adding up to {np.degrees(turn):.0f} deg; a driver that publishes the pose "
             f"only): the speed and yaw rate are taken from consecutive poses "
-            f"({len(t) - 1 - gaps} intervals"
+            f"({int(np.count_nonzero(keep))} intervals"
             + (f"; left out: {', '.join(left_out)}" if left_out else "") + ")")
     return OdometryMotion(mid[keep], d[keep] / dt[keep], dtheta[keep] / dt[keep], "pose", note)
 
@@ -130,6 +156,9 @@ def _turned_to_robot(odom: OdometryLog, name: str) -> OdometryMotion | None:
     """The forward speed of a linear velocity written in frame_id, or None when it is not."""
     moving = np.hypot(odom.v, odom.vy) > MOVING_SPEED
     if np.count_nonzero(moving) < MIN_MOVING:
+        return None
+    heading = np.unwrap(odom.yaw[moving])
+    if not np.ptp(heading) >= MIN_HEADING_RANGE:
         return None
     speed = float(np.sqrt(np.mean(odom.v[moving] ** 2 + odom.vy[moving] ** 2)))
     lateral = float(np.sqrt(np.mean(odom.vy[moving] ** 2)))
