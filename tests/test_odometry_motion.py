@@ -248,6 +248,8 @@ def test_pose_jumps_and_non_finite_poses_are_left_out_and_said():
     m = odometry_motion(_log(t, x, y, yaw))
     assert m.source == "pose"
     assert "1 pose jumps" in m.note and "1 poses not finite" in m.note, m.note
+    # the path said is the base's: 0.6 m/s over 19.9 s less the jump's 0.1 s
+    assert "a path of 11.9 m" in m.note, m.note
     np.testing.assert_allclose(m.v, 0.6, atol=1e-9)
     np.testing.assert_allclose(m.w, 0.1, atol=1e-9)
     # 199 finite poses, 198 intervals (one of 0.2 s across the NaN), less the jump

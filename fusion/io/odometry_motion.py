@@ -147,11 +147,13 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     swing = float(np.max(np.abs(np.cumsum(dtheta))))
     if reach < MIN_POSE_PATH and swing < MIN_POSE_TURN:
         return None
-    path, turn = float(np.sum(np.abs(d))), float(np.sum(np.abs(dtheta)))
     dt = np.diff(t)
     period = float(np.median(dt))
     keep = dt <= MAX_GAP_PERIODS * period
     jumped = np.abs(lateral) > JUMP_LATERAL_SHARE * np.abs(d) + JUMP_LATERAL_FLOOR
+    # the path and turns the base made: a jump is none of its motion
+    path = float(np.sum(np.abs(d[~jumped])))
+    turn = float(np.sum(np.abs(dtheta[~jumped])))
     gaps = int(np.count_nonzero(~keep))
     jumps = int(np.count_nonzero(jumped & keep))
     keep &= ~jumped
