@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 from contextlib import redirect_stdout
 
 import numpy as np
@@ -153,6 +154,10 @@ def test_stamp_jitter_is_the_scatter_about_a_steady_rate(sigma):
     t = np.sort(grid + rng.normal(0.0, sigma, grid.size))
     assert stamp_jitter(t) == pytest.approx(sigma, rel=0.05)
     assert stamp_jitter(grid) < 1e-9
+    # dropped messages (an interval of two periods) are no scatter, alone or among scatter
+    dropped = np.delete(np.arange(grid.size), [100, 101, 400, 900, 5000])
+    assert stamp_jitter(grid[dropped]) < 1e-9
+    assert stamp_jitter(t[dropped]) == pytest.approx(sigma, rel=0.05)
     assert stamp_jitter(grid[:2]) == 0.0
 
 
@@ -162,7 +167,7 @@ def test_the_slope_window_gives_the_speed_error_it_is_sized_for():
     # 2 % the window is sized for (the formula assumes the scatter independent, as here)
     rng = np.random.default_rng(2)
     period, sigma = 0.02, 0.008
-    half = slope_half_width(sigma, period)
+    half = slope_half_width(sigma, period, SLOPE_RELATIVE_ERROR)
     assert period < half < MAX_SLOPE_HALF_WIDTH
     t_true = np.arange(0.0, 120.0, period)
     x, y, yaw = _circle(t_true, 0.8, 0.25)
@@ -201,6 +206,38 @@ def test_record_stamped_poses_give_the_speed_single_intervals_miss():
     naive = np.hypot(np.diff(x), np.diff(y))[moving] / dt[moving]
     truth = np.interp(0.5 * (stamps[1:] + stamps[:-1])[moving], t_true, speed)
     assert np.sqrt(np.mean((naive - truth) ** 2)) > 0.2
+
+
+@pytest.mark.parametrize("position_noise, heading_noise", [(0.005, 0.0), (0.0, 0.005)])
+def test_noisy_poses_give_the_speed_and_a_jump_is_still_found(position_noise, heading_noise):
+    # a driver whose pose is noisy (a fused or visual odometry): 50 Hz on a circle, with
+    # independent noise on x, y (m) or the heading (rad), and one real jump of 0.5 m sideways
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 60.0, 0.02)
+    x, y, yaw = _circle(t, 0.7, 0.2)
+    x = x + rng.normal(0.0, position_noise, t.size)
+    y = y + rng.normal(0.0, position_noise, t.size) + np.where(t >= 30.0, 0.5, 0.0)
+    yaw = np.angle(np.exp(1j * (yaw + rng.normal(0.0, heading_noise, t.size))))
+    m = odometry_motion(_log(t, x, y, yaw))
+    assert m.source == "pose" and "least-squares slopes" in m.note, m.note
+    said = re.search(r"the positions by ([0-9.]+) mm", m.note)
+    assert (said is not None) == (position_noise > 0), m.note
+    if said:
+        assert float(said.group(1)) == pytest.approx(1e3 * position_noise, rel=0.1)
+    said = re.search(r"the headings by ([0-9.]+) deg", m.note)
+    assert (said is not None) == (heading_noise > 0), m.note
+    if said:
+        assert float(said.group(1)) == pytest.approx(math.degrees(heading_noise), rel=0.1)
+    assert "1 pose jumps" in m.note, m.note
+    # the windows are sized for 0.02 m/s and 0.01 rad/s; away from the jump and the ends
+    inner = (m.t > 1.0) & (m.t < 59.0) & (np.abs(m.t - 30.0) > 1.0)
+    assert np.sqrt(np.mean((m.v[inner] - 0.7) ** 2)) < 0.025
+    assert np.sqrt(np.mean((m.w[inner] - 0.2) ** 2)) < 0.0125
+    assert abs(np.mean(m.v[inner]) - 0.7) < 0.003 and abs(np.mean(m.w[inner]) - 0.2) < 0.002
+    # differenced over single intervals, the same poses' speeds are off by far more
+    d, dtheta, _ = motion_between(x, y, yaw)
+    assert np.sqrt(np.mean((d / 0.02 - 0.7) ** 2)) > 0.3 or np.sqrt(
+        np.mean((dtheta / 0.02 - 0.2) ** 2)) > 0.3
 
 
 def test_a_turn_near_half_a_revolution_between_poses_is_said():

@@ -15,12 +15,16 @@ in drivers are recognised from the data, and said (:attr:`OdometryMotion.note`):
   over each interval's duration, stamped at its middle; intervals longer than
   :data:`MAX_GAP_PERIODS` times the median are left out (their mean speed is no rate of
   any instant), and so are repeated stamps, non-finite poses and pose jumps (an interval that
-  moves across the heading, :data:`JUMP_LATERAL_SHARE`). Stamps that scatter by more than
-  :data:`JITTER_SHARE` of the period (record times, ``--stamps bag``: on the bundled Jackal
-  bag 6 ms RMS on a 20 ms period, with repeats) would make single-interval speeds wrong by
-  tens of percent (there the fused path came out 54.7 m of 83.8). The twist is then the
-  least-squares slope of travel and heading against time over a window sized for a 2 %
-  speed error (:func:`slope_half_width`), stamped at each pose: 83.8 m.
+  moves across the heading, :data:`JUMP_LATERAL_SHARE`, by more than the poses' own
+  sideways noise). Poses that scatter make single-interval speeds wrong by tens of percent:
+  stamps (record times, ``--stamps bag``: on the bundled Jackal bag 6 ms RMS on a 20 ms
+  period, with repeats; the fused path came out 54.7 m of 83.8), positions (a driver whose
+  pose is noisy: the Jackal bag's with 1 cm of noise added, 839 intervals taken for jumps
+  and a path of 90.3 m) or headings. The scatter is measured (:func:`stamp_jitter`; the
+  sideways steps a differential drive cannot make; the heading's second differences), and
+  the twist is then the least-squares slope of travel and heading against time over a
+  window sized for errors of 2 % of the speed, 0.02 m/s and 0.01 rad/s
+  (:func:`slope_half_width`), stamped at each pose: 83.8 m in both cases.
   A turn of more than pi between two poses cannot be told from one the other way; turns
   above :data:`ALIAS_TURN` are said.
 - **The twist's linear velocity is in ``frame_id``** (the odometry frame) instead of the
@@ -49,7 +53,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ALIAS_TURN",
-    "JITTER_SHARE",
     "JUMP_LATERAL_FLOOR",
     "JUMP_LATERAL_SHARE",
     "LATERAL_SHARE",
@@ -59,9 +62,13 @@ __all__ = [
     "MIN_MOVING",
     "MIN_POSE_PATH",
     "MIN_POSE_TURN",
+    "MIN_SLOPE_PERIODS",
     "MOVING_SPEED",
+    "OUTLIER_SIGMAS",
     "ROTATED_LATERAL_SHARE",
+    "SLOPE_RATE_ERROR",
     "SLOPE_RELATIVE_ERROR",
+    "SLOPE_SPEED_ERROR",
     "OdometryMotion",
     "odometry_motion",
     "slope_half_width",
@@ -94,12 +101,21 @@ LATERAL_SHARE = 0.3
 ROTATED_LATERAL_SHARE = 0.1
 #: Moving messages needed before the frame test says anything.
 MIN_MOVING = 10
-#: Pose stamps whose scatter (:func:`stamp_jitter`) is at most this share of the period are
-#: differenced over single intervals (the exact inverse of the driver's integration);
-#: above it the twist is a least-squares slope over a window (:func:`slope_half_width`).
-JITTER_SHARE = 0.05
-#: The relative error of a speed the slope window is sized for.
+#: Poses are differenced over single intervals (the exact inverse of the driver's
+#: integration) unless their scatter needs a slope over more than this many periods either
+#: side to meet the errors below (:func:`slope_half_width`).
+MIN_SLOPE_PERIODS = 1.5
+#: The relative error of a speed the slope window is sized for (against the stamps' scatter).
 SLOPE_RELATIVE_ERROR = 0.02
+#: m/s: the speed error the slope window is sized for against the positions' noise.
+SLOPE_SPEED_ERROR = 0.02
+#: rad/s: the yaw-rate error the slope window is sized for against the headings' noise.
+SLOPE_RATE_ERROR = 0.01
+#: Standard deviations (robust, from the median absolute deviation) beyond which a value is
+#: an outlier of its noise: a pose interval whose sideways step exceeds this many of the
+#: poses' sideways noise can be a jump; a stamp's second difference this far out is a
+#: dropped message, not scatter.
+OUTLIER_SIGMAS = 5.0
 #: s: the slope window's largest half-width (longer smooths away the robot's own changes).
 MAX_SLOPE_HALF_WIDTH = 0.5
 #: rad: a turn between consecutive poses above this is said (past pi it aliases).
@@ -137,9 +153,9 @@ def odometry_motion(odom: OdometryLog) -> OdometryMotion:
 def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     """The twist between consecutive poses, or None when the poses hardly move."""
     finite = np.isfinite(odom.x) & np.isfinite(odom.y) & np.isfinite(odom.yaw)
-    jitter = stamp_jitter(odom.t[finite])
     _, first = np.unique(odom.t[finite], return_index=True)  # sorted stamps: drop repeats
     t, x, y, yaw = (a[finite][first] for a in (odom.t, odom.x, odom.y, odom.yaw))
+    jitter = stamp_jitter(t)
     if len(t) < 2:
         return None
     d, dtheta, lateral = motion_between(x, y, yaw)
@@ -150,13 +166,20 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     dt = np.diff(t)
     period = float(np.median(dt))
     keep = dt <= MAX_GAP_PERIODS * period
-    jumped = np.abs(lateral) > JUMP_LATERAL_SHARE * np.abs(d) + JUMP_LATERAL_FLOOR
+    # a differential drive never moves sideways: what its poses do is their noise (robust
+    # to the jumps it also finds); each lateral step holds two poses' noise
+    sideways = _robust_std(lateral[keep])
+    position_noise = sideways / np.sqrt(2.0)
+    jumped = np.abs(lateral) > (JUMP_LATERAL_SHARE * np.abs(d) + JUMP_LATERAL_FLOOR
+                                + OUTLIER_SIGMAS * sideways)
     # the path and turns the base made: a jump is none of its motion
     path = float(np.sum(np.abs(d[~jumped])))
     turn = float(np.sum(np.abs(dtheta[~jumped])))
     gaps = int(np.count_nonzero(~keep))
     jumps = int(np.count_nonzero(jumped & keep))
     keep &= ~jumped
+    consecutive = keep[:-1] & keep[1:]
+    heading_noise = _robust_std(np.diff(dtheta)[consecutive]) / np.sqrt(6.0)
     repeats = int(np.count_nonzero(finite)) - len(t)
     left_out = []
     if repeats:
@@ -168,16 +191,25 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     if gaps:
         left_out.append(f"{gaps} intervals longer than {MAX_GAP_PERIODS:g} times the median "
                         f"{1e3 * period:.0f} ms")
-    if jitter <= JITTER_SHARE * period:
+    halves = {"stamps": slope_half_width(jitter, period, SLOPE_RELATIVE_ERROR),
+              "positions": slope_half_width(position_noise, period, SLOPE_SPEED_ERROR),
+              "headings": slope_half_width(heading_noise, period, SLOPE_RATE_ERROR)}
+    scattered = {k: h > MIN_SLOPE_PERIODS * period for k, h in halves.items()}
+    if not any(scattered.values()):
         how = f"consecutive poses ({int(np.count_nonzero(keep))} intervals"
         mid = t[:-1] + 0.5 * dt
         t_out, v, w = mid[keep], d[keep] / dt[keep], dtheta[keep] / dt[keep]
     else:
-        half = slope_half_width(jitter, period)
+        half = max(halves[k] for k, on in scattered.items() if on)
         t_out, v, w = _sloped_motion(t, d, dtheta, keep, half)
-        how = (f"the poses' least-squares slopes over +-{1e3 * half:.0f} ms, as their stamps "
-               f"scatter about a steady {1e3 * period:.0f} ms period by {1e3 * jitter:.1f} ms "
-               f"RMS (record times, dropped messages) ({t_out.size} poses")
+        said = {"stamps": f"the stamps by {1e3 * jitter:.1f} ms RMS about a steady "
+                          f"{1e3 * period:.0f} ms period (record times, dropped messages)",
+                "positions": f"the positions by {1e3 * position_noise:.1f} mm (sideways "
+                             "steps a differential drive cannot make)",
+                "headings": f"the headings by {np.degrees(heading_noise):.2f} deg"}
+        why = "; ".join(said[k] for k, on in scattered.items() if on)
+        how = (f"the poses' least-squares slopes over +-{1e3 * half:.0f} ms, as they scatter "
+               f"({why}) ({t_out.size} poses")
     fastest = float(np.max(np.abs(dtheta[keep]), initial=0.0))
     aliasing = (f"; it turns by up to {np.degrees(fastest):.0f} deg between consecutive poses: "
                 "a faster turn would read as one the other way" if fastest > ALIAS_TURN else "")
@@ -191,8 +223,10 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
 def stamp_jitter(t: NDArray[np.float64]) -> float:
     """s: the RMS scatter of the stamps ``t`` (s) about a steady rate, from their second
     differences (``t[k+1] - 2 t[k] + t[k-1]`` has 6 times the variance of independent
-    scatter; a steady rate, and any gap, leave them 0 except at its two ends, which are left
-    out). 0 for fewer than 3 stamps."""
+    scatter; a steady rate leaves them 0). Those further than :data:`OUTLIER_SIGMAS` robust
+    standard deviations (:func:`_robust_std`) from the bulk are left out: a dropped message
+    makes two of one period each, which on a clean grid would read as scatter; so are gaps
+    longer than :data:`MAX_GAP_PERIODS` median intervals. 0 for fewer than 3 stamps."""
     if t.size < 3:
         return 0.0
     dt = np.diff(np.sort(t))
@@ -201,17 +235,27 @@ def stamp_jitter(t: NDArray[np.float64]) -> float:
         return 0.0
     normal = dt <= MAX_GAP_PERIODS * float(np.median(positive))
     second = np.diff(dt)[normal[:-1] & normal[1:]]
-    return float(np.sqrt(np.mean(second ** 2) / 6.0)) if second.size else 0.0
+    bulk = second[np.abs(second) <= OUTLIER_SIGMAS * _robust_std(second)]
+    return float(np.sqrt(np.mean(bulk ** 2) / 6.0)) if bulk.size else 0.0
 
 
-def slope_half_width(jitter: float, period: float) -> float:
-    """s: the half-width h of the window over which a least-squares slope of poses ``period``
-    s apart, whose stamps scatter by ``jitter`` s (RMS), has a relative error of
-    :data:`SLOPE_RELATIVE_ERROR`: over n = 2h/period poses spread evenly across +-h the
-    slope's error is ``jitter * sqrt(3) / (h sqrt(n))`` of the speed. Clipped to
+def slope_half_width(scatter: float, period: float, allowed: float) -> float:
+    """s: the half-width h of the window over which a least-squares slope of values sampled
+    every ``period`` s, each off by ``scatter`` (RMS), errs by ``allowed``: over n = 2h/period
+    samples spread evenly across +-h the slope errs by ``scatter * sqrt(3) / (h sqrt(n))``.
+    The units pair up: a stamp's scatter (s) with a relative error, a position's (m) with a
+    speed error (m/s), a heading's (rad) with a yaw-rate error (rad/s). Clipped to
     [``period``, :data:`MAX_SLOPE_HALF_WIDTH`]."""
-    h = (jitter * np.sqrt(3.0 * period / 2.0) / SLOPE_RELATIVE_ERROR) ** (2.0 / 3.0)
+    h = (scatter / allowed * np.sqrt(1.5 * period)) ** (2.0 / 3.0)
     return float(np.clip(h, period, MAX_SLOPE_HALF_WIDTH))
+
+
+def _robust_std(values: NDArray[np.float64]) -> float:
+    """The standard deviation of the bulk of ``values``, from their median absolute deviation
+    (a few outliers, jumps or turn onsets, leave it as it is); 0 when empty."""
+    if values.size == 0:
+        return 0.0
+    return float(1.4826 * np.median(np.abs(values - np.median(values))))
 
 
 def _sloped_motion(t: NDArray[np.float64], d: NDArray[np.float64],
