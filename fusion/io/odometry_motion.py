@@ -17,14 +17,20 @@ in drivers are recognised from the data, and said (:attr:`OdometryMotion.note`):
   any instant), and so are repeated stamps, non-finite poses and pose jumps (an interval that
   moves across the heading, :data:`JUMP_LATERAL_SHARE`, by more than the poses' own
   sideways noise). Poses that scatter make single-interval speeds wrong by tens of percent:
-  stamps (record times, ``--stamps bag``: on the bundled Jackal bag 6 ms RMS on a 20 ms
-  period, with repeats; the fused path came out 54.7 m of 83.8), positions (a driver whose
-  pose is noisy: the Jackal bag's with 1 cm of noise added, 839 intervals taken for jumps
-  and a path of 90.3 m) or headings. The scatter is measured (:func:`stamp_jitter`; the
-  sideways steps a differential drive cannot make; the heading's second differences), and
-  the twist is then the least-squares slope of travel and heading against time over a
-  window sized for errors of 2 % of the speed, 0.02 m/s and 0.01 rad/s
-  (:func:`slope_half_width`), stamped at each pose: 83.8 m in both cases.
+  stamps (record times, ``--stamps bag``: on the bundled Jackal bag they lag the header
+  stamps by 8 ms RMS on a 20 ms period, with repeats; the fused path came out 54.7 m of
+  83.8), positions (a driver whose pose is noisy: the Jackal bag's with 1 cm of noise
+  added, 839 intervals taken for jumps and a path of 90.3 m) or headings. The scatter is
+  measured (:func:`stamp_jitter`; the sideways steps a differential drive cannot make, less
+  what a driver's integration rule leaves in turns; the heading's second differences over
+  one and two intervals, in which turning cancels), and the twist is then the least-squares
+  slope of travel and heading against time over a window sized for errors of 2 % of the
+  speed, 0.02 m/s and 0.01 rad/s (:func:`slope_half_width`), stamped at each pose (at the
+  window's mean time where a run's end cuts it short): 83.7 and 83.8 m. Limits: the sizing
+  takes the scatter as independent from pose to pose (the Jackal's record times wander, and
+  their second differences read 3.5 ms: the speeds there err by about 5 % RMS, the path by
+  0.1 %) and leaves out the smoothing of the robot's own changes; position noise along the
+  track alone does not show in the sideways steps.
   A turn of more than pi between two poses cannot be told from one the other way; turns
   above :data:`ALIAS_TURN` are said.
 - **The twist's linear velocity is in ``frame_id``** (the odometry frame) instead of the
@@ -53,6 +59,7 @@ if TYPE_CHECKING:
 
 __all__ = [
     "ALIAS_TURN",
+    "BURST_SHARE",
     "JUMP_LATERAL_FLOOR",
     "JUMP_LATERAL_SHARE",
     "LATERAL_SHARE",
@@ -70,6 +77,7 @@ __all__ = [
     "SLOPE_RELATIVE_ERROR",
     "SLOPE_SPEED_ERROR",
     "OdometryMotion",
+    "message_period",
     "odometry_motion",
     "slope_half_width",
     "stamp_jitter",
@@ -111,6 +119,9 @@ SLOPE_RELATIVE_ERROR = 0.02
 SLOPE_SPEED_ERROR = 0.02
 #: rad/s: the yaw-rate error the slope window is sized for against the headings' noise.
 SLOPE_RATE_ERROR = 0.01
+#: A median interval below this share of the mean one means stamps in bursts
+#: (:func:`message_period`).
+BURST_SHARE = 0.5
 #: Standard deviations (robust, from the median absolute deviation) beyond which a value is
 #: an outlier of its noise: a pose interval whose sideways step exceeds this many of the
 #: poses' sideways noise can be a jump; a stamp's second difference this far out is a
@@ -152,10 +163,10 @@ def odometry_motion(odom: OdometryLog) -> OdometryMotion:
 
 def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     """The twist between consecutive poses, or None when the poses hardly move."""
-    finite = np.isfinite(odom.x) & np.isfinite(odom.y) & np.isfinite(odom.yaw)
+    finite = (np.isfinite(odom.t) & np.isfinite(odom.x) & np.isfinite(odom.y)
+              & np.isfinite(odom.yaw))
     _, first = np.unique(odom.t[finite], return_index=True)  # sorted stamps: drop repeats
     t, x, y, yaw = (a[finite][first] for a in (odom.t, odom.x, odom.y, odom.yaw))
-    jitter = stamp_jitter(t)
     if len(t) < 2:
         return None
     d, dtheta, lateral = motion_between(x, y, yaw)
@@ -164,33 +175,33 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     if reach < MIN_POSE_PATH and swing < MIN_POSE_TURN:
         return None
     dt = np.diff(t)
-    period = float(np.median(dt))
+    # the message rate, repeated stamps included (they are messages recorded at once)
+    period = message_period(odom.t[finite])
+    jitter = stamp_jitter(t, period)
     keep = dt <= MAX_GAP_PERIODS * period
-    # a differential drive never moves sideways: what its poses do is their noise (robust
-    # to the jumps it also finds); each lateral step holds two poses' noise
-    sideways = _robust_std(lateral[keep])
+    # a differential drive never moves sideways: what its poses do is their noise, less the
+    # step a driver's integration rule leaves in turns (Euler's: -d dtheta/2), robust to the
+    # jumps it also finds; each sideways step holds two poses' noise
+    plausible = keep & (np.abs(lateral) <= JUMP_LATERAL_SHARE * np.abs(d) + JUMP_LATERAL_FLOOR)
+    sideways = _robust_std(_less_rule(lateral, d * dtheta, plausible)[keep])
     position_noise = sideways / np.sqrt(2.0)
     jumped = np.abs(lateral) > (JUMP_LATERAL_SHARE * np.abs(d) + JUMP_LATERAL_FLOOR
                                 + OUTLIER_SIGMAS * sideways)
-    # the path and turns the base made: a jump is none of its motion
-    path = float(np.sum(np.abs(d[~jumped])))
-    turn = float(np.sum(np.abs(dtheta[~jumped])))
     gaps = int(np.count_nonzero(~keep))
     jumps = int(np.count_nonzero(jumped & keep))
     keep &= ~jumped
-    consecutive = keep[:-1] & keep[1:]
-    heading_noise = _robust_std(np.diff(dtheta)[consecutive]) / np.sqrt(6.0)
+    heading_noise = _heading_noise(dtheta, keep)
     repeats = int(np.count_nonzero(finite)) - len(t)
     left_out = []
     if repeats:
         left_out.append(f"{repeats} repeated stamps")
     if not np.all(finite):
-        left_out.append(f"{int(np.count_nonzero(~finite))} poses not finite")
+        left_out.append(f"{int(np.count_nonzero(~finite))} poses or stamps not finite")
     if jumps:
         left_out.append(f"{jumps} pose jumps (sideways, which the base cannot move)")
     if gaps:
-        left_out.append(f"{gaps} intervals longer than {MAX_GAP_PERIODS:g} times the median "
-                        f"{1e3 * period:.0f} ms")
+        left_out.append(f"{gaps} intervals longer than {MAX_GAP_PERIODS:g} times the "
+                        f"{1e3 * period:.0f} ms period")
     halves = {"stamps": slope_half_width(jitter, period, SLOPE_RELATIVE_ERROR),
               "positions": slope_half_width(position_noise, period, SLOPE_SPEED_ERROR),
               "headings": slope_half_width(heading_noise, period, SLOPE_RATE_ERROR)}
@@ -201,7 +212,7 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
         t_out, v, w = mid[keep], d[keep] / dt[keep], dtheta[keep] / dt[keep]
     else:
         half = max(halves[k] for k, on in scattered.items() if on)
-        t_out, v, w = _sloped_motion(t, d, dtheta, keep, half)
+        t_out, v, w = _sloped_motion(t, d, dtheta, keep, half, period)
         said = {"stamps": f"the stamps by {1e3 * jitter:.1f} ms RMS about a steady "
                           f"{1e3 * period:.0f} ms period (record times, dropped messages)",
                 "positions": f"the positions by {1e3 * position_noise:.1f} mm (sideways "
@@ -210,6 +221,9 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
         why = "; ".join(said[k] for k, on in scattered.items() if on)
         how = (f"the poses' least-squares slopes over +-{1e3 * half:.0f} ms, as they scatter "
                f"({why}) ({t_out.size} poses")
+    # the path and turns the base made, from the twist taken (noise and jumps are none)
+    path = _integrated(t_out, np.abs(v), period)
+    turn = _integrated(t_out, np.abs(w), period)
     fastest = float(np.max(np.abs(dtheta[keep]), initial=0.0))
     aliasing = (f"; it turns by up to {np.degrees(fastest):.0f} deg between consecutive poses: "
                 "a faster turn would read as one the other way" if fastest > ALIAS_TURN else "")
@@ -220,23 +234,83 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     return OdometryMotion(t_out, v, w, "pose", note)
 
 
-def stamp_jitter(t: NDArray[np.float64]) -> float:
-    """s: the RMS scatter of the stamps ``t`` (s) about a steady rate, from their second
-    differences (``t[k+1] - 2 t[k] + t[k-1]`` has 6 times the variance of independent
-    scatter; a steady rate leaves them 0). Those further than :data:`OUTLIER_SIGMAS` robust
-    standard deviations (:func:`_robust_std`) from the bulk are left out: a dropped message
-    makes two of one period each, which on a clean grid would read as scatter; so are gaps
-    longer than :data:`MAX_GAP_PERIODS` median intervals. 0 for fewer than 3 stamps."""
+def message_period(t: NDArray[np.float64]) -> float:
+    """s: the period of messages stamped ``t`` (s, sorted or not, repeats counted as
+    messages): the median interval, unless the stamps come in bursts (record times of
+    messages delivered together), where the median is far shorter than the mean interval
+    ``span / (N - 1)``, which is then taken. 0 for fewer than 2 stamps."""
+    if t.size < 2:
+        return 0.0
+    t = np.sort(t)
+    dt = np.diff(t)
+    positive = dt[dt > 0.0]
+    mean = float((t[-1] - t[0]) / (t.size - 1))
+    median = float(np.median(positive)) if positive.size else 0.0
+    return median if median >= BURST_SHARE * mean else mean
+
+
+def stamp_jitter(t: NDArray[np.float64], period: float | None = None) -> float:
+    """s: the RMS scatter of the stamps ``t`` (s) about a steady rate of one message every
+    ``period`` s (default :func:`message_period`), from their second differences
+    (``t[k+1] - 2 t[k] + t[k-1]`` has 6 times the variance of independent scatter; a steady
+    rate leaves them 0). Those further than :data:`OUTLIER_SIGMAS` robust standard
+    deviations (:func:`_robust_std`) from the bulk are left out: a dropped message makes two
+    of one period each, which on a clean grid would read as scatter; so are gaps longer than
+    :data:`MAX_GAP_PERIODS` periods. Scatter that is correlated from stamp to stamp (a
+    transport delay that wanders) reads low. 0 for fewer than 3 distinct stamps."""
+    t = np.unique(t)
     if t.size < 3:
         return 0.0
-    dt = np.diff(np.sort(t))
-    positive = dt[dt > 0.0]
-    if positive.size == 0:
-        return 0.0
-    normal = dt <= MAX_GAP_PERIODS * float(np.median(positive))
+    if period is None:
+        period = message_period(t)
+    dt = np.diff(t)
+    normal = dt <= MAX_GAP_PERIODS * period
     second = np.diff(dt)[normal[:-1] & normal[1:]]
     bulk = second[np.abs(second) <= OUTLIER_SIGMAS * _robust_std(second)]
     return float(np.sqrt(np.mean(bulk ** 2) / 6.0)) if bulk.size else 0.0
+
+
+def _less_rule(lateral: NDArray[np.float64], turned: NDArray[np.float64],
+               use: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """``lateral`` less its least-squares fit (over ``use``) on ``turned`` (d dtheta, m rad):
+    the sideways step an integration rule leaves in turns, which is no noise."""
+    u = turned[use]
+    scale = float(np.sum(u * u))
+    return lateral - (float(np.sum(u * lateral[use])) / scale * turned if scale > 0 else 0.0)
+
+
+def _heading_noise(dtheta: NDArray[np.float64], keep: NDArray[np.bool_]) -> float:
+    """rad: the scatter of the headings, from the second differences of the heading over one
+    and over two intervals (kept ones only): with noise s and a steady angular acceleration a
+    their mean squares are 6 s^2 + a^2 T^4 and 6 s^2 + 16 a^2 T^4, so turning, which the
+    second alone would read as noise, cancels: s^2 = (16 D1 - D2) / 90. Outliers, which
+    the median absolute deviation (turn onsets, resets, a message left out for its repeated
+    stamp) leave it as it is."""
+    heading = np.concatenate([[0.0], np.cumsum(dtheta)])
+    ok = np.concatenate([[False], keep]) & np.concatenate([keep, [False]])  # pose k: both
+    k = np.flatnonzero(ok[1:-1]) + 1
+    one = heading[k + 1] - 2.0 * heading[k] + heading[k - 1]
+    inner = k[(k >= 2) & (k + 2 < heading.size)]
+    inner = inner[ok[inner - 1] & ok[inner + 1]]
+    two = heading[inner + 2] - 2.0 * heading[inner] + heading[inner - 2]
+    d1, d2 = _robust_mean_square(one), _robust_mean_square(two)
+    return float(np.sqrt(max(16.0 * d1 - d2, 0.0) / 90.0))
+
+
+def _robust_mean_square(values: NDArray[np.float64]) -> float:
+    """The mean square of ``values`` about 0 as the median absolute deviation tells it (a
+    normal spread's variance): outliers up to nearly half of them leave it as it is."""
+    return (1.4826 * float(np.median(np.abs(values)))) ** 2 if values.size else 0.0
+
+
+def _integrated(t: NDArray[np.float64], rate: NDArray[np.float64], period: float) -> float:
+    """The integral of ``rate`` sampled at ``t`` (s) by the trapezoid rule, over intervals of
+    at most :data:`MAX_GAP_PERIODS` ``period`` s (a gap is none of the motion)."""
+    if t.size < 2:
+        return 0.0
+    dt = np.diff(t)
+    step = 0.5 * (rate[1:] + rate[:-1]) * dt
+    return float(np.sum(step[dt <= MAX_GAP_PERIODS * period]))
 
 
 def slope_half_width(scatter: float, period: float, allowed: float) -> float:
@@ -251,19 +325,27 @@ def slope_half_width(scatter: float, period: float, allowed: float) -> float:
 
 
 def _robust_std(values: NDArray[np.float64]) -> float:
-    """The standard deviation of the bulk of ``values``, from their median absolute deviation
-    (a few outliers, jumps or turn onsets, leave it as it is); 0 when empty."""
+    """The standard deviation of the bulk of ``values`` about their median, from the 90th
+    percentile of the absolute deviations (1.645 standard deviations for normal values): up
+    to a tenth of outliers (jumps, dropped messages, turn onsets) leave it as it is, and,
+    unlike the median absolute deviation, it stays above 0 when most values are exactly
+    equal but some scatter (stamps rounded to the millisecond, a few of them late). 0 when
+    empty."""
     if values.size == 0:
         return 0.0
-    return float(1.4826 * np.median(np.abs(values - np.median(values))))
+    return float(np.quantile(np.abs(values - np.median(values)), 0.9) / 1.6449)
 
 
 def _sloped_motion(t: NDArray[np.float64], d: NDArray[np.float64],
-                   dtheta: NDArray[np.float64], keep: NDArray[np.bool_], half: float
+                   dtheta: NDArray[np.float64], keep: NDArray[np.bool_], half: float,
+                   period: float
                    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """At each pose stamp, the least-squares slopes (m/s, rad/s) of travel and heading over
-    the poses within ``half`` s joined to it by kept intervals; poses with fewer than 3 such
-    are left out."""
+    """For each pose, the least-squares slopes (m/s, rad/s) of travel and heading over the
+    poses within ``half`` s joined to it by kept intervals, stamped at their mean time (where
+    a slope is the derivative of a steadily accelerating motion, also in a window cut short
+    by the end of a run). Windows with fewer than half the poses of a whole one (``2 half /
+    period + 1``, at least 3) are left out: near a run's ends the slope would be noisier than
+    it was sized for."""
     run = np.concatenate([[0], np.cumsum(~keep)])      # poses of one run share a number
     travel = np.concatenate([[0.0], np.cumsum(np.where(keep, d, 0.0))])
     heading = np.concatenate([[0.0], np.cumsum(np.where(keep, dtheta, 0.0))])
@@ -291,11 +373,21 @@ def _sloped_motion(t: NDArray[np.float64], d: NDArray[np.float64],
         sh += np.where(inside, heading[j] - heading, 0.0)
         sth += u * (heading[j] - heading)
     spread = n * stt - st * st
-    ok = (n >= 3) & (spread > 0.0)
+    ok = (n >= max(3.0, 0.5 * (2.0 * half / period + 1.0))) & (spread > 0.0)
     spread = np.where(ok, spread, 1.0)
     v = (n * sts - st * ss) / spread
     w = (n * sth - st * sh) / spread
-    return t[ok], v[ok], w[ok]
+    # a window cut short by its run's (or the log's) end: the slope is the derivative at
+    # the window's mean time, not at its pose
+    starts = np.flatnonzero(np.concatenate([[True], run[1:] != run[:-1]]))
+    ends = np.concatenate([starts[1:], [t.size]]) - 1
+    cut = (t - half < t[starts][run - run[0]]) | (t + half > t[ends][run - run[0]])
+    stamp = (t + np.where(cut, st / np.maximum(n, 1.0), 0.0))[ok]
+    # scattered stamps can put the mean times of neighbouring windows out of order
+    order = np.argsort(stamp, kind="stable")
+    stamp, v, w = stamp[order], v[ok][order], w[ok][order]
+    first = np.concatenate([[True], np.diff(stamp) > 0.0])
+    return stamp[first], v[first], w[first]
 
 
 def _turned_to_robot(odom: OdometryLog, name: str) -> OdometryMotion | None:
