@@ -92,7 +92,8 @@ BASE = {
                "capture": ["replay", "wheels.uart2", "-o", "f.csv", "--robot",
                            "run1/robot.toml"],
                "bag": ["replay", "first8s.bag", *BAG_TOPICS, "-o", "f.csv"],
-               "folder": ["replay", "logs", "-o", "out", "--jobs", "1"]},
+               "folder": ["replay", "logs", "-o", "out", "--jobs", "1"],
+               "moving": ["replay", "moving", "-o", "f.csv"]},
     "demo": {"demo": ["demo", "--out", "d", "--speed", "20"]},
     # the simulated board (fixture ``board``) at inputs/data and inputs/debug, its wheels at
     # 400 and 0 ticks per 0.04 s period while the monitor runs (a tight left turn)
@@ -278,6 +279,11 @@ TABLE: dict[str, dict[str, list[Row]]] = {
                                                                "folder")),
                           *(changes(k, "--no-progress", both=("--progress",))
                             for k in ("logdir", "capture", "bag", "folder"))],
+        # "moving": run1 from 10 s on, driving from its first row (first stop at 45 s);
+        # where the robot starts at rest there is no second pass to leave out
+        "--one-pass": [changes("moving", "--one-pass"),
+                       refused("capture", "--one-pass does not apply to a DATA-uart2 capture",
+                               "--one-pass")],
         # the folder's base runs with --jobs 1: two worker processes say so in the table
         "--jobs": [changes("folder", "--jobs", "2"),
                    *(refused(k, "--jobs applies to a folder of logs only", "--jobs", "2")
@@ -426,6 +432,12 @@ def inputs(tmp_path_factory) -> Path:
                        dtype=np.int64)
     (d / "wheels.uart2").write_bytes(b"".join(encode_wheel_frame(int(a), int(b))
                                                for a, b in ticks))
+    (d / "moving").mkdir()
+    shutil.copy(d / "run1" / "robot.toml", d / "moving")
+    for name in ("imu.csv", "wheels.csv"):  # the rows from 10 s on (no truth)
+        head, *rows = (d / "run1" / name).read_text().splitlines()
+        kept = [r for r in rows if float(r.split(",")[0]) >= 10.0]
+        (d / "moving" / name).write_text("\n".join([head, *kept]) + "\n")
     (d / "logs").mkdir()
     for name in ("cw", "ccw"):
         (d / "logs" / name).symlink_to(d / name)

@@ -60,6 +60,10 @@ def register(subparsers) -> None:
     p.add_argument("--format", choices=sorted(set(OUTPUT_FORMATS.values())), default=None,
                    help="output format of each log of a folder of logs (default csv; a single "
                         "output's format comes from its suffix)")
+    p.add_argument("--one-pass", action="store_true",
+                   help="fuse as a live run would: where the robot drives off at once, do not "
+                        "fuse the log a second time from the gyro bias its first stop taught "
+                        "(default: that second pass, said in a 'note: moving start' line)")
     p.add_argument("--level", action="store_true",
                    help="take the robot as level: use the gyro's z axis as the yaw rate "
                         "(default: tilt-compensate with the attitude filter's attitude)")
@@ -210,6 +214,8 @@ def _print_result(r, level_note: bool = True) -> None:
           f"speeds forgotten after a gap {s['speed_resets']}")
     for note in r.notes:
         print(f"warning: {note}")
+    if r.moving_start is not None:
+        print(f"note: {r.moving_start.note}")
     _print_warnings(r.warnings)
     if r.n_imu:
         print(f"wheel yaw-rate calibration seen by the gyro: k {r.k:+.4f} "
@@ -363,7 +369,8 @@ def _run(args: argparse.Namespace) -> int:
         return run_bag(args)
     if path.is_file():
         for given, option in ((args.level, "--level"),
-                              (args.imu_mount_rpy is not None, "--imu-mount-rpy")):
+                              (args.imu_mount_rpy is not None, "--imu-mount-rpy"),
+                              (args.one_pass, "--one-pass")):
             if given:
                 raise CommandError(f"{option} does not apply to a DATA-uart2 capture (it has "
                                    "no IMU); it applies to log directories and bags")
@@ -386,7 +393,8 @@ def _run(args: argparse.Namespace) -> int:
         logs = job.find_log_dirs(path)
         if logs:
             for given, option in ((args.robot is not None, "--robot"),
-                                  (args.imu_mount_rpy is not None, "--imu-mount-rpy")):
+                                  (args.imu_mount_rpy is not None, "--imu-mount-rpy"),
+                              (args.one_pass, "--one-pass")):
                 if given:
                     raise CommandError(f"{option} applies to one log directory, a capture "
                                        "or a bag; each log of a folder uses its own robot.toml")
@@ -404,7 +412,8 @@ def _run(args: argparse.Namespace) -> int:
     with _BarContext(args.progress, path.name) as bar:
         r = job.replay_logdir(path, args.output, tilt=not args.level, plot=args.plot,
                               robot=robot, imu_mount_rpy=args.imu_mount_rpy,
-                              progress=bar.callback, load_progress=bar.loading)
+                              progress=bar.callback, load_progress=bar.loading,
+                              one_pass=args.one_pass)
     _print_result(r)
     return _exit_status(args, r.warnings)
 
@@ -480,7 +489,8 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
         args.plot.mkdir(parents=True, exist_ok=True)
     ext = {"csv": ".csv", "mcap": ".mcap", "jsonl": ".jsonl"}[args.format or "csv"]
     work = [job.LogJob(str(p), str(out_dir / (p.name + ext)), not args.level,
-                       None if args.plot is None else str(args.plot / (p.name + ".png")))
+                       None if args.plot is None else str(args.plot / (p.name + ".png")),
+                       one_pass=args.one_pass)
             for p in logs]
     bar = _Progress(len(work), f"replay {len(work)} logs", "logs",
                     _stderr_is_tty() if args.progress is None else args.progress,
@@ -564,7 +574,7 @@ def run_bag(args: argparse.Namespace) -> int:
                            odom_topic=args.odom_topic, fix_topic=args.gps_topic,
                            stamps=args.stamps or "header", robot=robot,
                            imu_mount_rpy=args.imu_mount_rpy, tilt=not args.level,
-                           plot=args.plot, progress=bar.callback)
+                           plot=args.plot, progress=bar.callback, one_pass=args.one_pass)
     imu, odom, table, stats, own = r.imu, r.odom, r.table, r.stats, r.own
     written = (f"{table.shape[0]} rows" if args.output.suffix.lower() == ".csv"
                else f"{stats.records} records")
@@ -573,6 +583,8 @@ def run_bag(args: argparse.Namespace) -> int:
           f"({written})")
     if r.motion is not None and r.motion.note:
         print(f"note: {r.motion.note}")
+    if r.moving_start is not None:
+        print(f"note: {r.moving_start.note}")
     if imu.out_of_order or odom.out_of_order:
         print(f"warning: messages out of order in the bag (sorted): IMU {imu.out_of_order}, "
               f"odometry {odom.out_of_order}")

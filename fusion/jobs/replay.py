@@ -38,6 +38,7 @@ from fusion.io.odometry_motion import OdometryMotion, odometry_motion
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
 from fusion.jobs.engine import run_tasks
+from fusion.jobs.moving_start import MovingStart, first_stop
 from fusion.jobs.status import pipeline_warnings, status_record, write_status
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.model import NX
@@ -146,6 +147,8 @@ class ReplayResult:
             disagree beyond what the model explains).
         gyro_scale: the EKF's final gyro scale error ``g`` (1; robot.toml's
             ``[ekf] gyro_scale`` unless an absolute yaw moved it).
+        moving_start: where the robot drove off at once, the gyro bias its first stop
+            taught, taken as the prior from the start (:mod:`fusion.jobs.moving_start`).
     """
 
     source: str
@@ -166,6 +169,7 @@ class ReplayResult:
     notes: list[str] = field(default_factory=list)
     warnings: list[TrustWarning] = field(default_factory=list)
     gyro_scale: float = 0.0
+    moving_start: MovingStart | None = None
 
 
 def output_format(path: Path) -> str:
@@ -198,27 +202,60 @@ def find_log_dirs(path: Path) -> list[Path]:
 
 
 def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
-                 tilt: bool = True, progress: Progress | None = None
+                 tilt: bool = True, progress: Progress | None = None,
+                 one_pass: bool = False
                  ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats,
-                            list[TrustWarning]]:
+                            list[TrustWarning], MovingStart | None]:
     """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl;
     None: no file, the table only).
 
-    Returns ``(table, pipeline, stats, warnings)``: ``table`` (N, 22) in the fused CSV's
-    columns (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state after every IMU sample
-    (after every wheel frame or twist without an IMU); the trust warnings
+    Returns ``(table, pipeline, stats, warnings, moving_start)``: ``table`` (N, 22) in the
+    fused CSV's columns (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state after every
+    IMU sample (after every wheel frame or twist without an IMU); the trust warnings
     (:func:`fusion.jobs.status.pipeline_warnings`), also in a .jsonl output's last line, the
-    status record (:func:`fusion.jobs.status.status_record`).
+    status record (:func:`fusion.jobs.status.status_record`); where the robot drove off at
+    once, the gyro bias its first stop taught (:mod:`fusion.jobs.moving_start`), which a
+    second pass took as the prior from the start (not with ``one_pass``: as a live run),
+    else None. ``progress`` sees the first pass as the first half of the work.
     """
+    first = _fuse_once(robot, streams, output, tilt, progress, 0.0 if one_pass else 0.5)
+    table, pipe = first[0], first[1]
+    start = None
+    if not one_pass:
+        var = pipe.state_rows[:, 1 + NX + 5]  # diag(P) of the bias
+        start = first_stop(table[:, 0], table[:, 5], table[:, 6], var, table[:, 19] > 0,
+                           robot.ekf.bias_psd)
+        if start is not None and start.bias_std < robot.ekf.initial_bias_std:
+            noise = dataclasses.replace(robot.ekf, initial_bias=start.bias,
+                                        initial_bias_std=start.bias_std)
+            second = _fuse_once(dataclasses.replace(robot, ekf=noise), streams, output, tilt,
+                                progress, 0.5, 0.5)
+            return (*second, start)
+        start = None
+        if progress is not None:
+            t0, t1 = streams.span()
+            progress(t1 - t0, t1 - t0)
+    return (*first, start)
+
+
+def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: bool,
+               progress: Progress | None, share: float, offset: float = 0.0
+               ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats,
+                          list[TrustWarning]]:
+    """One pass of :func:`fuse_streams`; ``progress`` sees it as ``share`` of the work (all
+    of it for 0) after ``offset`` of it."""
     fmt = None if output is None else output_format(output)
     t0, t1 = streams.span()
+    span = t1 - t0
+    part = share or 1.0
     sources = [name for name, on in (("imu", streams.has_imu), ("wheels", streams.has_wheels),
                                      ("twist", streams.has_twist)) if on]
     sinks = [] if fmt in (None, "csv") else [open_sink(f"{fmt}:{output}")]
     pipe = FusionPipeline(
         robot, sinks, tilt=tilt, sources=sources, imu_rate_hz=streams.nominal_imu_rate(),
         state_rows=("imu",) if streams.has_imu else ("wheels", "twist"),
-        on_progress=None if progress is None else (lambda t: progress(t - t0, t1 - t0)))
+        on_progress=None if progress is None
+        else (lambda t: progress(offset * span + part * (t - t0), span)))
     with pipe:
         pipe.push_arrays(streams.imu_t, streams.gyro, streams.accel, streams.wheel_t,
                          streams.ticks, twist_t=streams.twist_t, twist_v=streams.twist_v,
@@ -229,8 +266,8 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
                          / robot.chassis.encode_sampling_time)
     if fmt == "csv":
         write_fused_csv(output, table)
-    if progress is not None:
-        progress(t1 - t0, t1 - t0)
+    if progress is not None and offset + part >= 1.0:
+        progress(span, span)
     return table, pipe, pipe.finish_stats(), warnings
 
 
@@ -259,15 +296,17 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                   plot: str | Path | None = None, robot: RobotConfig | None = None,
                   imu_mount_rpy: tuple[float, float, float] | None = None,
                   progress: Progress | None = None,
-                  load_progress: Callable[[str, int, int], None] | None = None
-                  ) -> ReplayResult:
+                  load_progress: Callable[[str, int, int], None] | None = None,
+                  one_pass: bool = False) -> ReplayResult:
     """Replay a log directory into ``output``; optionally draw ``plot`` (PNG).
 
     ``progress(done, total)``: s of log time replayed; ``load_progress(file name, done,
     total)``: bytes of imu.csv and wheels.csv parsed (:func:`fusion.io.logdir.read_logdir`).
 
     ``robot`` replaces the directory's own robot.toml (geometry, IMU mount, EKF tuning);
-    ``imu_mount_rpy`` (URDF roll, pitch, yaw, rad) replaces the IMU mount of either.
+    ``imu_mount_rpy`` (URDF roll, pitch, yaw, rad) replaces the IMU mount of either;
+    ``one_pass``: fuse as a live run would, without taking a moving start's bias back from
+    its first stop (:func:`fuse_streams`).
     Raises on bad input, leaving no partial output.
     """
     path, output = Path(path), Path(output)
@@ -282,7 +321,8 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                                                 log.accel)
     streams = Streams(imu_t, gyro, accel, log.wheel_t, log.ticks)
     result = _finish(path, output, robot, streams, log.truth_t, log.truth,
-                     tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats)
+                     tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats,
+                     one_pass=one_pass)
     if note:
         result.notes.append(note)
     return result
@@ -322,15 +362,16 @@ def replay_capture(path: str | Path, output: str | Path, robot: RobotConfig | st
     streams = Streams(wheel_t=np.asarray(cap.frame_times(period), dtype=np.float64),
                       ticks=np.column_stack([cap.left, cap.right]).astype(np.int64))
     return _finish(path, output, robot, streams, None, None, tilt=True, plot=plot,
+                   one_pass=True,
                    progress=progress, capture_stats=cap.stats)
 
 
 def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, truth_t, truth, *,
-            tilt: bool, plot, progress, capture_stats) -> ReplayResult:
+            tilt: bool, plot, progress, capture_stats, one_pass: bool) -> ReplayResult:
     if plot is not None:
         check_plot_output(Path(plot))
-    table, pipe, stats, warnings = fuse_streams(robot, streams, output, tilt=tilt,
-                                                progress=progress)
+    table, pipe, stats, warnings, start = fuse_streams(robot, streams, output, tilt=tilt,
+                                                       progress=progress, one_pass=one_pass)
     chassis = robot.chassis
     ekf = pipe.ekf
     wheel_t, ticks = streams.wheel_t, streams.ticks
@@ -365,7 +406,7 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
         k=float(ekf.x[6]), c=float(ekf.x[7]), gyro_scale=float(ekf.x[8]),
         stats={**stats.as_dict(), "invalid": ekf.stats["invalid"], "ledger": pipe.ledger()},
         wheel_distance=chassis.wheel_distance, truth=truth_res, notes=notes,
-        warnings=warnings)
+        warnings=warnings, moving_start=start)
 
 
 def _truth_errors(t, xy, yaw, wheel_t, wheel, truth_t, truth) -> dict[str, float]:
@@ -409,7 +450,8 @@ class BagReplay:
     (:mod:`fusion.evaluation.gps`; tracks ``"fused"``, ``"bag odometry"``, ``"gyro at
     stops"``), or in ``gps_note`` why they could not be compared; ``motion``: the twists
     fused (:func:`fusion.io.odometry_motion.odometry_motion`: the odometry's own, or its
-    poses' differences where its twist is empty, and why in ``motion.note``)."""
+    poses' differences where its twist is empty, and why in ``motion.note``);
+    ``moving_start``: as :attr:`ReplayResult.moving_start`."""
 
     table: NDArray[np.float64]
     pipeline: FusionPipeline
@@ -423,6 +465,7 @@ class BagReplay:
     gps: GpsComparison | None = None
     gps_note: str = ""
     motion: OdometryMotion | None = None
+    moving_start: MovingStart | None = None
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
@@ -430,7 +473,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                robot: RobotConfig | None = None,
                imu_mount_rpy: tuple[float, float, float] | None = None, tilt: bool = True,
                plot: str | Path | None = None,
-               progress: Progress | None = None) -> BagReplay:
+               progress: Progress | None = None, one_pass: bool = False) -> BagReplay:
     """Replay a ROS bag's IMU messages and odometry twists (the ``ros`` extra).
 
     ``robot``: wheel_distance and [ekf] tuning (default: neutral values; the wheel distance
@@ -441,7 +484,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     topic to score the fused track, the bag's odometry and the gyro-at-stops baseline against
     (position RMSE after one SE(2) alignment each; refused before anything is written when
     fewer than 2 fixes fall inside the span the IMU and the odometry share) and to draw on the
-    plot.
+    plot. ``one_pass``: as in :func:`replay_logdir`.
     """
     from fusion.geometry.kinematics import DiffDriveParams
     from fusion.io.bags import read_bag
@@ -463,8 +506,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     motion = odometry_motion(odom)
     streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=motion.t, twist_v=motion.v,
                       twist_w=motion.w)
-    table, pipe, stats, warnings = fuse_streams(robot, streams, output, tilt=tilt,
-                                                progress=progress)
+    table, pipe, stats, warnings, start = fuse_streams(robot, streams, output, tilt=tilt,
+                                                       progress=progress, one_pass=one_pass)
     x0, y0, th0 = odom.x[0], odom.y[0], odom.yaw[0]
     c, sn = math.cos(th0), math.sin(th0)
     dx, dy = odom.x - x0, odom.y - y0
@@ -500,7 +543,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps,
-                     gps_note, motion)
+                     gps_note, motion, start)
 
 
 def _check_fixes_overlap(path: Path, fixes: Any, imu_t: NDArray[np.float64],
@@ -533,19 +576,22 @@ def _gyro_at_stops_track(robot: RobotConfig, imu, motion: OdometryMotion
 
 @dataclass(frozen=True)
 class LogJob:
-    """One log of a folder replay: input and output paths, tilt compensation, optional PNG."""
+    """One log of a folder replay: input and output paths, tilt compensation, optional PNG,
+    one pass (:func:`replay_logdir`)."""
 
     source: str
     output: str
     tilt: bool = True
     plot: str | None = None
+    one_pass: bool = False
 
 
 def run_log_job(job: LogJob) -> tuple[str, Any]:
     """Replay one log; ``("ok", ReplayResult)`` or ``("error", message)`` (the message names
     the log; a worker process runs this)."""
     try:
-        return "ok", replay_logdir(job.source, job.output, tilt=job.tilt, plot=job.plot)
+        return "ok", replay_logdir(job.source, job.output, tilt=job.tilt, plot=job.plot,
+                                   one_pass=job.one_pass)
     except Exception as exc:  # reported in the summary; the other logs go on
         msg = str(exc) or type(exc).__name__
         if job.source not in msg:

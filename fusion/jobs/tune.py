@@ -138,7 +138,7 @@ def fused_position_rmse(robot: RobotConfig, log: LogDir) -> float:
     """Position RMSE (m) of the fused odometry (the replay's pipeline, no output file)
     against the truth, at the fused rows inside the truth's span."""
     streams = Streams(log.imu_t, log.gyro, log.accel, log.wheel_t, log.ticks)
-    table, _, _, _ = fuse_streams(robot, streams, None)
+    table = fuse_streams(robot, streams, None)[0]
     t = table[:, 0]
     inside = _inside(log, t)
     truth = _truth_at(log, t[inside])

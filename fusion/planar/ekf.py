@@ -344,6 +344,9 @@ class EkfNoise:
             (+-4000 deg/s = 70 rad/s).
         max_speed: inputs with a speed above this (m/s: either wheel of a frame, a twist)
             are corrupt: counted as invalid, never fused.
+        initial_bias: prior mean of the gyro bias about the vertical, rad/s (0: unknown; a
+            bias measured before the log, or the one ``fusion replay`` takes back from a
+            moving start's first stop, :mod:`fusion.jobs.moving_start`).
         initial_bias_std: prior standard deviation of the gyro bias, rad/s.
         gyro_scale: prior mean of the gyro's scale error ``g`` (1; the gyro reads
             ``(1 + g)`` times the true rate): 0 for an uncalibrated gyro, or the result of
@@ -493,6 +496,7 @@ class EkfNoise:
     gyro_limit: float = math.inf
     max_rate: float = 100.0
     max_speed: float = 50.0
+    initial_bias: float = 0.0
     initial_bias_std: float = math.radians(2.0)
     gyro_scale: float = 0.0
     gyro_scale_std: float = 0.03
@@ -516,6 +520,8 @@ class EkfNoise:
                 raise ValueError(f"EkfNoise.{name} must be a number, got {value!r}")
             if name == "gyro_scale":
                 ok, need = math.isfinite(value) and abs(value) < 0.5, "finite, in (-0.5, 0.5)"
+            elif name == "initial_bias":
+                ok, need = math.isfinite(value), "finite (rad/s)"
             elif name in ("gyro_limit", "yaw_fix_rate", "yaw_fix_burst"):
                 ok, need = value > 0, "> 0 (rad/s or rad; or inf)"
             elif name == "zupt_frames":
@@ -781,7 +787,7 @@ class PlanarEKF(ExtendedKalmanFilter):
             ``encode_sampling_time`` s).
         noise: :class:`EkfNoise`.
         x0: initial state ``[x, y, yaw, v, w, b, k, c, g, s]`` (default zeros, except
-            ``g = noise.gyro_scale``).
+            ``b = noise.initial_bias`` and ``g = noise.gyro_scale``).
         P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c/g/s from ``noise``;
             with the default, w counts as unknown at the first gyro sample, which sets it
             alone: see ``EkfNoise.initial_rate_std``; a ``P0`` given here is taken as is).
@@ -830,6 +836,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         n = self.noise
         if x0 is None:
             self.x = np.zeros(NX)
+            self.x[5] = n.initial_bias  # 0 unless known before the log
             self.x[8] = n.gyro_scale  # a calibrated gyro's scale error, 0 if uncalibrated
         else:
             self.x = _state_vector("x0", x0)
