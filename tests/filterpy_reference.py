@@ -64,6 +64,9 @@ class FilterpyReference:
         self.kf.P = np.array(P0, dtype=float)
         self.t: float | None = None
         self.zero_count = 0
+        # w at the first of a stop's ZUPTs with the same unexplained offset, and its time
+        self.steady_w: float | None = None
+        self.steady_t = 0.0
         self.imu_motion = 0
         self.in_fault = False
         self.after_slip = False  # the last wheel frame or twist was a slip
@@ -76,7 +79,8 @@ class FilterpyReference:
                                     "late_dropped", "late_applied", "invalid",
                                     "gyro_saturated", "encoder_faults", "updates",
                                     "speed_resets", "predictions", "accel_slips",
-                                    "straight_frames", "wheel_scale_refits"), 0)
+                                    "straight_frames", "wheel_scale_refits",
+                                    "bias_relearnt"), 0)
         # the wheels' yaw rates are fused only while few turning frames fail the slip gate
         self.slip_share = 0.0
         self.distrust = False  # disproven: most turns disagree
@@ -377,6 +381,7 @@ class FilterpyReference:
                         or (in_fault and self.imu_motion in (UNSURE, MOVING))
                         or (self.imu_motion != STILL and hard)):
                     self.zero_count = 0
+                    self.steady_w = None
                     self.stats["encoder_faults"] += 1
                     self.in_fault = True
                     if self.imu_motion in (UNSURE, MOVING):  # no gap: v stays extrapolated
@@ -386,8 +391,25 @@ class FilterpyReference:
                 self.wheel_t = t
                 if self.zero_count >= n.zupt_frames:  # motion onset: v's freedom back
                     kf.P[3, 3] += n.accel_psd * r.encode_sampling_time
+                self.steady_w = None
             self.zero_count = self.zero_count + 1 if still else 0
             if self.zero_count >= n.zupt_frames and self.imu_motion in (0, STILL):
+                # a bias off by more than it admits: the stop's gyro samples fail the still
+                # gate and w carries the offset; the same w (within 4 sigma of two gyro
+                # samples' difference) at the ZUPTs of 0.5 s, the IMU still, opens the bias's
+                # variance by w^2
+                w = kf.x[4]
+                if (self.imu_motion == STILL
+                        and w ** 2 > n.slip_gate * (kf.P[5, 5] + n.gyro_std ** 2)):
+                    if (self.steady_w is None
+                            or abs(w - self.steady_w) > 4.0 * math.sqrt(2.0) * n.gyro_std):
+                        self.steady_w, self.steady_t = w, self.t
+                    elif self.t - self.steady_t >= 0.5:
+                        kf.P[5, 5] += w * w
+                        self.steady_w = None
+                        self.stats["bias_relearnt"] += 1
+                else:
+                    self.steady_w = None
                 H = model.zupt_jacobian(kf.x)
                 self._rate_update(-model.zupt_h(kf.x), H,
                                   model.zupt_noise(n.zupt_v_std, n.zupt_w_std))

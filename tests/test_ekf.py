@@ -323,6 +323,55 @@ def test_motion_onset_does_not_leak_into_the_bias():
     assert math.remainder(ekf.x[2] - math.pi, 2 * math.pi) == pytest.approx(0, abs=0.01)
 
 
+def _standing(bias, seconds=10.0, imu_code=1, seed=5):
+    """Events of a robot standing still: gyro samples at 100 Hz reading ``bias`` (rad/s) with
+    0.05 deg/s of noise, each with IMU motion code ``imu_code`` (1 still, 0 unknown), and
+    zero-tick wheel frames every 40 ms."""
+    rng = np.random.default_rng(seed)
+    gyro_t = np.arange(0.01, seconds, 0.01)
+    wheel_t = np.arange(0.04, seconds, 0.04)
+    t = np.concatenate([gyro_t, wheel_t])
+    kinds = np.concatenate([np.full(gyro_t.size, core.EV_GYRO), np.full(wheel_t.size, 1)])
+    a = np.concatenate([bias + rng.normal(0.0, math.radians(0.05), gyro_t.size),
+                        np.zeros(wheel_t.size)])
+    b = np.concatenate([np.full(gyro_t.size, float(imu_code)), np.zeros(wheel_t.size)])
+    order = np.argsort(t, kind="stable")
+    return kinds[order].astype(np.int64), t[order], a[order], b[order]
+
+
+@pytest.mark.parametrize("imu_code", [1, 0])
+def test_a_confidently_wrong_bias_is_relearnt_at_a_stop(imu_code):
+    # A bias 1 deg/s off with a standard deviation of 0.01 deg/s (as after a turn's start
+    # leaked in): every gyro sample of the stop fails the still gate, w carries the offset and
+    # the ZUPTs pinned w without moving the bias (0.05 deg/s over 10 s). The same w at three
+    # ZUPTs in a row, the IMU still, opens the bias's variance: the bias is the gyro's mean.
+    # Without the IMU's word (code 0) the wheels alone do not reopen it.
+    true_bias = math.radians(0.5)
+    noise = EkfNoise(initial_bias=math.radians(1.5), initial_bias_std=math.radians(0.01),
+                     bias_psd=0.0)
+    kinds, t, a, b = _standing(true_bias, imu_code=imu_code)
+    fast, _, _ = _core_and_reference(noise, kinds, t, a, b)
+    error = math.degrees(fast.gyro_bias - true_bias)
+    if imu_code == 1:
+        assert fast.stats["bias_relearnt"] >= 1
+        assert abs(error) < 0.01, error
+    else:  # the ZUPTs' slow pull alone: 0.11 deg/s off after 10 s
+        assert fast.stats["bias_relearnt"] == 0
+        assert error > 0.05
+
+
+def test_a_turn_starting_during_a_stop_reopens_no_bias():
+    # the gyro ramps up (a turn starting, slowly: 0.05 rad/s^2) while the wheels still read
+    # zero and the IMU's classifier still says "still" (its window lags): w grows from one
+    # ZUPT to the next, so it is no steady offset
+    noise = EkfNoise(bias_psd=0.0)
+    kinds, t, a, b = _standing(0.0, seconds=6.0)
+    ramp = (kinds == core.EV_GYRO) & (t > 5.0)
+    a[ramp] += 0.05 * (t[ramp] - 5.0)
+    fast, _, _ = _core_and_reference(noise, kinds, t, a, b)
+    assert fast.stats["bias_relearnt"] == 0
+
+
 @pytest.mark.parametrize("slip_window", [0.0, EkfNoise().slip_window, 0.5])
 def test_slip_frames_are_flagged_and_only_those(slip_window):
     patch = SlipPatch(6.0, 7.0, wheel="right", ratio=0.3)

@@ -12,11 +12,12 @@ first row, :func:`first_stop` takes the bias over the first stop of at least
 over the time back to the start, and the log is fused again from a prior of that mean and
 standard deviation (``EkfNoise.initial_bias``, ``initial_bias_std``;
 :func:`fusion.jobs.replay.fuse_streams`). The bias is the gyro's reading over the stop (the
-filter's rate plus bias), not the filter's bias state, which can be off there: on a terrain
+filter's rate plus bias), not the filter's bias state, which can lag there: on a terrain
 bag with the twist stamped 0.2 s late, a 0.2 s pause before a turn in place let the turn's
-start into the bias state (1 deg/s off) and the filter then took every later stop's
-readings for motion and kept it; the readings over those stops were within 0.01 deg/s of
-the on-time bag's. :data:`MIN_STOP` and :data:`STOP_EDGE` keep pauses and stop edges out.
+start into the bias state (1 deg/s off), which the filter relearns only after a few of the
+stop's ZUPTs (:func:`fusion.planar._ekf_core._relearn_bias_at_stop`); the readings over the
+stop were within 0.01 deg/s of the on-time bag's throughout. :data:`MIN_STOP` and
+:data:`STOP_EDGE` keep pauses and stop edges out.
 
 Measured on data none of this was chosen on (2026-11-28; yaw RMSE, deg, one pass -> two):
 the independent black-box simulator's moving starts (benchmarks/blackbox), seeds 201-204,

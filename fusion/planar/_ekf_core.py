@@ -183,7 +183,13 @@ A_REFITS = 59  # times k was set from the wheels' fitted yaw-rate slope (_refit_
 A_TICK_N = 60
 A_TICK_SYY = 65
 A_TICK_TURNING = 66
-AUX_SIZE = 67
+# a stop whose ZUPTs keep finding the gyro offset by the same rate the bias does not explain
+# (_relearn_bias_at_stop): w at the first of them and its filter time (NaN: none), and the
+# times the bias's variance was opened for it
+A_STEADY_W = 67
+A_STEADY_T = 68
+A_BIAS_RELEARNT = 69
+AUX_SIZE = 70
 #: s: a forward specific force older than this drives v no more (the IMU feed stopped)
 ACCEL_HOLD = 0.1
 #: (rad/s)^2 added to w's variance before the first gyro sample (A_FIRST_GYRO): w is then
@@ -984,6 +990,45 @@ def _straight_update(x, P, aux, par, z, R, interval):
     _rate_update(x, P, aux, y, H1, R1)
 
 
+#: s: how long the ZUPTs of a stop must keep finding the same unexplained yaw rate before
+#: the bias is relearnt (a twist would have to be this late to hide a turn's start)
+STEADY_TIME = 0.5
+#: "the same": within this many standard deviations of the difference of two gyro samples
+STEADY_SIGMAS = 4.0
+
+
+@njit
+def _no_steady_offset(aux):
+    """Forget the run of ZUPTs with an unexplained offset (the wheels moved, or a fault)."""
+    aux[A_STEADY_W] = math.nan
+    aux[A_STEADY_T] = math.nan
+
+
+@njit
+def _relearn_bias_at_stop(x, P, aux, par, imu_still):
+    """Before a ZUPT: a bias that is off by more than its variance admits makes every gyro
+    sample of the stop fail the still model's gate (read as motion onset), which frees ``w``
+    to carry the offset, so the ZUPT pins ``w`` and hardly moves the bias: a bias that went
+    wrong once (a late twist's zero rates over a turn's start: 1 deg/s) stayed wrong at every
+    later stop. A turn starting grows ``w``; a wrong bias gives the same ``w`` at every ZUPT.
+    So when the ZUPTs of :data:`STEADY_TIME` s, with the IMU still, all find ``w`` beyond
+    the gate (against the bias's variance and one gyro sample's noise: the freed ``w``'s own
+    variance admits anything) and within :data:`STEADY_SIGMAS` of the first of them, the
+    bias's variance is opened by ``w^2``: the next gyro sample puts the offset into it."""
+    w = x[4]
+    if not imu_still or w * w <= par[P_GATE] * (P[5, 5] + par[P_GYRO_VAR]):
+        _no_steady_offset(aux)
+        return
+    first = aux[A_STEADY_W]
+    if math.isnan(first) or abs(w - first) > STEADY_SIGMAS * math.sqrt(2.0 * par[P_GYRO_VAR]):
+        aux[A_STEADY_W] = w  # a new run starts here
+        aux[A_STEADY_T] = aux[A_T]
+    elif aux[A_T] - aux[A_STEADY_T] >= STEADY_TIME:
+        P[5, 5] += w * w
+        aux[A_BIAS_RELEARNT] += 1.0
+        _no_steady_offset(aux)
+
+
 @njit
 def _impossible_stop(x, P, aux, par, t):
     """True when zero wheel speed at ``t`` needs a harder braking than ``stop_decel`` since
@@ -1073,6 +1118,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
                  or (imu != MOTION_STILL and _impossible_stop(x, P, aux, par, t)))
         aux[A_WHEEL_T] = t
         if fault:
+            _no_steady_offset(aux)
             aux[A_FAULTS] += 1.0
             aux[A_FLAGS] = FLAG_FAULT
             aux[A_ZERO_COUNT] = 0.0
@@ -1080,6 +1126,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         aux[A_ZERO_COUNT] += 1.0
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES] and (imu == MOTION_STILL
                                                         or imu == MOTION_UNKNOWN):
+            _relearn_bias_at_stop(x, P, aux, par, imu == MOTION_STILL)
             y = -zupt_h(x)  # z = [0, 0]
             d2, status = _rate_update(x, P, aux, y, zupt_jacobian(x),
                                       zupt_noise(par[P_ZUPT_V_STD], par[P_ZUPT_W_STD]))
@@ -1097,6 +1144,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
             P[3, 3] += par[P_Q_V] * par[P_PERIOD]
         aux[A_ZERO_COUNT] = 0.0
         aux[A_WHEEL_T] = t
+        _no_steady_offset(aux)
     L = par[P_WHEEL_DISTANCE]
     if kind == 1:
         z, R = ticks_measurement(a, b, par[P_SPEED_RATIO], par[P_PERIOD], L,

@@ -809,7 +809,10 @@ class PlanarEKF(ExtendedKalmanFilter):
             driving straight, ``straight_rate``), ``wheel_scale_refits`` (times the wheels'
             yaw-rate scale ``k`` restarted at the slope fitted against the gyro, because it was
             more than ``wheel_scale_refit`` times ``calib_k_std`` off it: a skid-steer base, a
-            wrong wheel_distance; off by default),
+            wrong wheel_distance; off by default), ``bias_relearnt`` (stops whose ZUPTs kept
+            finding the same gyro offset the bias did not explain, so the bias's variance was
+            opened for it: a bias gone wrong before, :func:`fusion.planar._ekf_core.
+            _relearn_bias_at_stop`),
             ``zupts``, ``late_dropped``, ``late_applied``,
             ``invalid`` (non-finite or implausible inputs), ``gyro_saturated``,
             ``encoder_faults``, ``updates``, ``speed_resets`` (v or w forgotten by the gap
@@ -921,6 +924,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         # the persistent-disagreement test: no frame yet, no disagreement under way
         self._aux[core.A_WIN_T] = math.nan
         self._aux[core.A_WIN_SINCE] = math.nan
+        self._aux[core.A_STEADY_W] = math.nan
+        self._aux[core.A_STEADY_T] = math.nan
 
     # -- state -------------------------------------------------------------------------------
     @property
@@ -946,6 +951,7 @@ class PlanarEKF(ExtendedKalmanFilter):
             "predictions": int(a[core.A_PREDICTIONS]),
             "straight_frames": int(a[core.A_STRAIGHTS]),
             "wheel_scale_refits": int(a[core.A_REFITS]),
+            "bias_relearnt": int(a[core.A_BIAS_RELEARNT]),
         }
 
     @property
