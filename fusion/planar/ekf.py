@@ -104,6 +104,10 @@ Model:
   by ``still_scale`` so every gyro sample informs the bias; a gyro reading that the still model
   cannot explain (chi-square above ``slip_gate``) ends the stationary phase at once, so the
   start of a turn does not leak into the bias before the first moving wheel frame arrives.
+  Where the bias itself is what the still model cannot explain (it went wrong before, e.g. a
+  late twist's zeros over a turn's start), the stop's ZUPTs keep finding the same offset in
+  ``w``: after 0.5 s of that with the IMU still, the bias's variance is opened for it
+  (``stats["bias_relearnt"]``, :func:`fusion.planar._ekf_core._relearn_bias_at_stop`).
 - External twist (kind 3, e.g. a nav_msgs/Odometry from a ROS bag): forward speed and yaw
   rate through the same wheel model, gate and ZUPT logic, noise ``twist_v_std``/``twist_w_std``;
   its yaw rate is fused only once proven in turns (``wheel_rate_proof_time``), and until then
