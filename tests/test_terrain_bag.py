@@ -162,33 +162,20 @@ def test_odometry_stamped_late_still_teaches_the_bias(replayed, tmp_path):
     at = np.searchsorted(again["t"], table["t"][first - 1])
     assert abs(np.degrees(again["gyro_bias_z"][at]) - on_time) < 0.1, (
         np.degrees(again["gyro_bias_z"][at]), on_time)
-    # Then a 0.2 s pause before a turn in place lets the turn's start into the bias
-    # (test_one_pass_relearns_the_bias_at_stops_after_a_late_twist below). The second
-    # pass (the default) takes the first full stop's gyro readings as the prior (+0.38) and
-    # ends within 0.01 deg/s of the on-time replay.
+    # Then a 0.2 s pause before a turn in place fuses zero rates while the gyro already turns
+    # (bias +0.38 -> -0.65 deg/s in one step). Before _ekf_core._relearn_bias_at_stop, at
+    # every later stop the still model's gate read the gyro's offset from that wrong bias as
+    # motion (ZUPT on 49 % of the stop's rows against 94 % on time) and the bias was never
+    # relearnt: -0.45 deg/s at the end against +0.39 on time. Now +0.388 against +0.389.
+    assert abs(np.degrees(r.table[-1, 6] - table["gyro_bias_z"][-1])) < 0.1
+    assert r.pipeline.ekf.stats["bias_relearnt"] >= 1
+    # The second pass (the default) takes the first full stop's gyro readings as the prior
+    # (+0.38) and ends within 0.01 deg/s of the on-time replay.
     two = replay_bag(late, tmp_path / "two.csv", imu_topic="/imu/data", odom_topic="/odom",
                      imu_mount_rpy=tuple(float(v) for v in MOUNT))
     assert two.moving_start is not None
     assert abs(np.degrees(two.moving_start.bias - table["gyro_bias_z"][-1])) < 0.05
     assert abs(np.degrees(two.table[-1, 6] - table["gyro_bias_z"][-1])) < 0.05
-
-
-def test_one_pass_relearns_the_bias_at_stops_after_a_late_twist(replayed, tmp_path):
-    # With the twist stamped 0.2 s late, a 0.2 s pause before a turn in place fuses zero
-    # rates while the gyro already turns (bias +0.38 -> -0.65 deg/s in one step). Before
-    # _ekf_core._relearn_bias_at_stop, at every later stop the still model's gate read the
-    # gyro's offset from that wrong bias as motion (ZUPT on 49 % of the stop's rows against
-    # 94 % on time) and the bias was never relearnt: -0.45 deg/s at the end against +0.39
-    # on time. Now: +0.388 against +0.389, relearnt at the first full stop.
-    from fusion.jobs.replay import replay_bag
-
-    _, _, _, _, table, _, bag = replayed
-    late = tmp_path / "late.bag"
-    _odometry_stamped_late(bag, late, 0.2)
-    r = replay_bag(late, tmp_path / "late.csv", imu_topic="/imu/data", odom_topic="/odom",
-                   imu_mount_rpy=tuple(float(v) for v in MOUNT), one_pass=True)
-    assert abs(np.degrees(r.table[-1, 6] - table["gyro_bias_z"][-1])) < 0.1
-    assert r.pipeline.ekf.stats["bias_relearnt"] >= 1
 
 
 def test_the_cross_validation_replays_the_bag_as_the_command_does(replayed, tmp_path):
