@@ -393,8 +393,7 @@ def _run(args: argparse.Namespace) -> int:
         logs = job.find_log_dirs(path)
         if logs:
             for given, option in ((args.robot is not None, "--robot"),
-                                  (args.imu_mount_rpy is not None, "--imu-mount-rpy"),
-                              (args.one_pass, "--one-pass")):
+                                  (args.imu_mount_rpy is not None, "--imu-mount-rpy")):
                 if given:
                     raise CommandError(f"{option} applies to one log directory, a capture "
                                        "or a bag; each log of a folder uses its own robot.toml")
