@@ -202,6 +202,9 @@ class PipelineStats:
             wheel_scale_refit``: a skid-steer base or a wrong wheel_distance in robot.toml).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
+        bias_relearnt: stops at which the gyro bias was relearnt because every zero-velocity
+            update of 0.5 s with the IMU still found the same yaw rate beyond the bias's
+            variance (the bias had gone wrong while driving; the EKF's ``bias_relearnt``).
         gaps: wheel-frame gaps longer than ``gap_periods`` periods (bounded list, the newest).
         gap_count: gaps seen in total. frames_missing: wheel frames missing in all (every
             interval of at least 1.5 periods counts ``round(interval/period) - 1``: single
@@ -241,6 +244,7 @@ class PipelineStats:
     odometry_rate_correlation: float | None = None
     zupts: int = 0
     encoder_faults: int = 0
+    bias_relearnt: int = 0
     gap_count: int = 0
     frames_missing: int = 0
     gyro_turn: float = 0.0
@@ -1249,6 +1253,7 @@ class FusionPipeline(Lifecycle):
             self.stats.odometry_rate_correlation = None if math.isnan(fit[2]) else fit[2]
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
+        self.stats.bias_relearnt = s["bias_relearnt"]
         self.stats.speed_resets = s["speed_resets"]
         self.stats.invalid = s["invalid"]
         self.stats.attitude_gaps = self.attitude.counters.gaps
