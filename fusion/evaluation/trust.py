@@ -5,7 +5,8 @@ because its inputs disagree beyond the model (wheel/twist odometry and the gyro 
 different motions, or the gyro's bias estimate left the sensor's physical range). They look
 only at a run's counters (:meth:`fusion.pipeline.core.PipelineStats.as_dict`: ``wheel_frames``,
 ``twist_messages``, ``slips``, ``encoder_faults``, ``gyro_turn``, ``gyro_time``,
-``wheel_turn``, ``twist_turn``, ``odometry_rate_slope``, ``odometry_rate_correlation``)
+``wheel_turn``, ``twist_turn``, ``odometry_rate_slope``, ``odometry_rate_correlation``,
+``imu_samples``, ``accel_sum``)
 and the EKF's final gyro bias estimate, so ``fusion replay`` and ``fusion run`` use the same
 checks, and a script can run them on a finished pipeline.
 
@@ -53,6 +54,15 @@ Checks (each a :class:`TrustWarning` with its figures):
     the gyro; the warning says so instead of leaving it to the count of distrusted turning
     twists (the terrain benchmark's skid-steer bags, slope 1.49-1.50: 0 of 12 runs warned
     before, heading_divergence only where the turns happen not to cancel).
+``mount``
+    The accelerometer's mean over the run (``accel_sum / imu_samples``, in the base frame
+    after the configured mount) points more than :data:`MOUNT_TILT_LIMIT` from the base's z
+    axis: the IMU does not sit as robot.toml's ``imu_mount_rpy`` (or ``--imu-mount-rpy``)
+    says. The heading rate is then taken about the wrong axis and the accelerometer's slip
+    and stillness checks look along the wrong ones; ``fusion replay`` adds a mount estimated
+    from the log (:mod:`fusion.calibration.mount`). Only with at least
+    :data:`MOUNT_MIN_SAMPLES` samples whose mean is at least half of gravity (an
+    accelerometer that reads in m/s^2).
 ``heading_divergence``
     The odometry's heading change (wheel frames and twists) and the gyro's (its bias
     estimate taken out) differ by more than
@@ -76,7 +86,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from fusion.geometry.mount import angle_from_vertical
 from fusion.planar._ekf_core import LINEAR_SOURCE_CORRELATION
+from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = [
     "ENCODER_FAULT_LIMIT",
@@ -84,6 +96,8 @@ __all__ = [
     "HEADING_FLOOR",
     "HEADING_FRACTION",
     "HEADING_RATE",
+    "MOUNT_MIN_SAMPLES",
+    "MOUNT_TILT_LIMIT",
     "ODOMETRY_CORRELATION",
     "SLIP_FRACTION_LIMIT",
     "WHEEL_SCALE_LIMIT",
@@ -105,6 +119,14 @@ WHEEL_SCALE_LIMIT = 0.15
 #: (below it the rates are no scaled copy of each other and ``slip`` or
 #: ``heading_divergence`` speak): the EKF's own test for straight driving from such rates.
 ODOMETRY_CORRELATION = LINEAR_SOURCE_CORRELATION
+#: rad: the mean specific force further than this from the base's z axis means the configured
+#: mount is wrong. Before the first stop the fusion takes the gyro's z axis as the vertical
+#: one: at 15 deg that costs 1 - cos(15 deg) = 3.4 % of every turn, more than the MPU-6050's
+#: own scale tolerance (3 %); and no route's mean slope comes near it.
+MOUNT_TILT_LIMIT = math.radians(15.0)
+#: IMU samples the ``mount`` check needs (a second at 100 Hz: a live run's first batches say
+#: nothing about the mean).
+MOUNT_MIN_SAMPLES = 100
 #: rad: heading disagreement always allowed (noise, start-up).
 HEADING_FLOOR = math.radians(15.0)
 #: Heading disagreement allowed per radian turned (a wheel_distance error up to 10 %).
@@ -165,6 +187,9 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
             "driver whose twist stays zero)",
             {"encoder_fault_fraction": faults / frames, "encoder_faults": float(faults),
              "frames": float(frames)}))
+    mount = _mount_warning(stats)
+    if mount is not None:
+        out.append(mount)
     gyro_time = float(stats.get("gyro_time", 0.0))
     if gyro_bias is None or not gyro_time > 0:
         return out
@@ -226,3 +251,27 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
             {"odometry_turn": odometry, "gyro_turn": gyro, "divergence": divergence,
              "allowed": allowed, "gyro_time": gyro_time}))
     return out
+
+
+def _mount_warning(stats: Mapping[str, Any]) -> TrustWarning | None:
+    """The ``mount`` check of the module docstring (None: passed or not applicable)."""
+    n = int(stats.get("imu_samples", 0))
+    total = stats.get("accel_sum")
+    if n < MOUNT_MIN_SAMPLES or total is None:
+        return None
+    mean = [float(v) / n for v in total]
+    norm = math.sqrt(sum(v * v for v in mean))
+    tilt = angle_from_vertical(mean)
+    if not (norm >= 0.5 * STANDARD_GRAVITY and tilt > MOUNT_TILT_LIMIT):
+        return None
+    side = "upside down, " if tilt > math.pi / 2 else ""
+    return TrustWarning(
+        "mount",
+        f"the accelerometer's mean over {n} samples, in the base frame after the configured "
+        f"IMU mount, is ({mean[0]:+.2f}, {mean[1]:+.2f}, {mean[2]:+.2f}) m/s^2: "
+        f"{side}{math.degrees(tilt):.0f} deg from the base's z axis (more than "
+        f"{math.degrees(MOUNT_TILT_LIMIT):.0f} deg): the IMU does not sit as imu_mount_rpy "
+        "(robot.toml, or --imu-mount-rpy) says, so the heading rate is taken about the wrong "
+        "axis; set the IMU's mount",
+        {"mount_tilt": tilt, "accel_mean_x": mean[0], "accel_mean_y": mean[1],
+         "accel_mean_z": mean[2]})

@@ -21,6 +21,7 @@ from fusion.geometry import quaternion as quat
 
 __all__ = [
     "MIN_COS2_PITCH",
+    "angle_from_vertical",
     "base_to_imu",
     "heading_coefficients",
     "heading_rate",
@@ -43,6 +44,17 @@ def mount_matrix(rpy: ArrayLike) -> NDArray[np.float64]:
     if r.shape != (3,) or not np.isfinite(r).all():
         raise ValueError(f"rpy must be three finite angles in rad, got {rpy!r}")
     return quat.to_matrix(quat.from_euler(r[0], r[1], r[2]))
+
+
+def angle_from_vertical(v: ArrayLike) -> float:
+    """rad: the angle between a vector (3,), e.g. a mean specific force (at rest it points
+    up), and the +z axis of its frame; NaN for a zero or non-finite vector. Over 90 deg: the
+    frame is upside down."""
+    f = np.asarray(v, dtype=float).reshape(3)
+    n = float(np.linalg.norm(f))
+    if not (np.isfinite(n) and n > 0):
+        return float("nan")
+    return float(np.arccos(np.clip(f[2] / n, -1.0, 1.0)))
 
 
 def _vectors(v: ArrayLike) -> NDArray[np.float64]:

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.integrate import trapezoid
 
+from fusion.calibration.mount import estimate_imu_mount
 from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
 from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
 from fusion.evaluation.trust import TrustWarning
@@ -260,7 +261,7 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
         pipe.push_arrays(streams.imu_t, streams.gyro, streams.accel, streams.wheel_t,
                          streams.ticks, twist_t=streams.twist_t, twist_v=streams.twist_v,
                          twist_w=streams.twist_w)
-        warnings = pipeline_warnings(pipe)
+        warnings = _with_mount_estimate(pipeline_warnings(pipe), robot, streams)
         write_status(pipe, status_record(pipe, warnings))
     table = fused_table(pipe.state_rows, robot.chassis.speed_ratio
                          / robot.chassis.encode_sampling_time)
@@ -269,6 +270,38 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
     if progress is not None and offset + part >= 1.0:
         progress(span, span)
     return table, pipe, pipe.finish_stats(), warnings
+
+
+def _with_mount_estimate(warnings: list[TrustWarning], robot: RobotConfig, streams: Streams
+                         ) -> list[TrustWarning]:
+    """``warnings`` with a ``mount`` warning (:mod:`fusion.evaluation.trust`) completed by the
+    mount estimated from the log (:func:`fusion.calibration.mount.estimate_imu_mount`: roll
+    and pitch from gravity, yaw from the driving accelerations against the odometry's
+    speed): what to set, not only that something is wrong."""
+    out = []
+    for w in warnings:
+        if w.name == "mount" and streams.has_imu:
+            speed_t = speed = None
+            if streams.has_wheels:
+                c = robot.chassis
+                speed_t = streams.wheel_t
+                speed = streams.ticks.mean(axis=1) * c.speed_ratio / c.encode_sampling_time
+            elif streams.has_twist:
+                speed_t, speed = streams.twist_t, streams.twist_v
+            try:
+                est = estimate_imu_mount(streams.imu_t, streams.gyro, streams.accel, speed_t,
+                                         speed)
+            except ValueError:
+                out.append(w)
+                continue
+            figures = {**w.figures, "estimated_roll": est.rpy[0],
+                       "estimated_pitch": est.rpy[1], "estimated_yaw": est.rpy[2],
+                       "estimated_yaw_known": float(est.yaw_known)}
+            if est.yaw_known:  # else NaN, which JSON does not have
+                figures["estimated_yaw_std"] = est.yaw_std
+            w = TrustWarning(w.name, f"{w.message}; {est.describe()}", figures)
+        out.append(w)
+    return out
 
 
 def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.float64]:

@@ -209,6 +209,10 @@ class PipelineStats:
         gap_count: gaps seen in total. frames_missing: wheel frames missing in all (every
             interval of at least 1.5 periods counts ``round(interval/period) - 1``: single
             lost frames too, not only those in gaps).
+        accel_sum: m/s^2, the accelerometer's readings in the base frame (the configured
+            mount applied) summed over the accepted IMU samples (x, y, z): divided by
+            ``imu_samples``, the mean specific force, which points up when the mount is right
+            (:mod:`fusion.evaluation.trust`'s ``mount`` check).
         gyro_turn: rad, the gyro's heading rate (as fused, bias included)
             integrated over the accepted IMU samples; gyro_time: s it spans.
         wheel_turn: rad, the heading change of the wheel frames ((right - left) travel /
@@ -247,6 +251,7 @@ class PipelineStats:
     bias_relearnt: int = 0
     gap_count: int = 0
     frames_missing: int = 0
+    accel_sum: tuple[float, float, float] = (0.0, 0.0, 0.0)
     gyro_turn: float = 0.0
     gyro_time: float = 0.0
     wheel_turn: float = 0.0
@@ -711,6 +716,7 @@ class FusionPipeline(Lifecycle):
                     # the base-frame specific force as measured (see _slip_detector)
                     slip_imu = (imu_t, accel[:, 0], accel[:, 1], rate, imu_codes)
                 dt = _steps(imu_t, self._last_imu_t)
+                stats.accel_sum = _add_up_columns(stats.accel_sum, accel)
                 stats.gyro_turn = _add_up(stats.gyro_turn, rate * dt)
                 stats.gyro_time = _add_up(stats.gyro_time, dt)
                 self._last_imu_t = float(imu_t[-1])
@@ -1352,6 +1358,14 @@ def _add_up(total: float, values: NDArray[np.float64]) -> float:
     """``total`` plus ``values`` added one at a time, left to right (a cumulative sum, not
     numpy's pairwise one): the same bits whether the events come one by one or in a batch."""
     return float(np.cumsum(np.concatenate(([total], values)))[-1])
+
+
+def _add_up_columns(totals: tuple[float, ...], rows: NDArray[np.float64]) -> tuple[float, ...]:
+    """:func:`_add_up` of each column of ``rows`` (N, k) onto ``totals`` (k); one row on
+    Python floats (the same bits, less overhead for a live sample)."""
+    if rows.shape[0] == 1:
+        return tuple(a + b for a, b in zip(totals, rows[0].tolist(), strict=True))
+    return tuple(_add_up(a, rows[:, j]) for j, a in enumerate(totals))
 
 
 def _in_order(t: NDArray[np.float64], last: float, limit: float,
