@@ -165,9 +165,27 @@ def test_the_trust_check_warns_beyond_its_tilt_limit_only():
     upside_down = [w for w in trust_warnings(_stats([0.0, 0.0, -g]), None)
                    if w.name == "mount"]
     assert "upside down, 180 deg" in upside_down[0].message
-    # too few samples, or an accelerometer that does not read m/s^2 (g units): no verdict
+    # too few samples: no verdict
     assert not trust_warnings(_stats([0.0, g, 0.0], n=MOUNT_MIN_SAMPLES - 1), None)
-    assert not trust_warnings(_stats([0.0, 1.0, 0.0]), None)
+
+
+@pytest.mark.parametrize(("ratio", "cause"), [
+    (1 / STANDARD_GRAVITY, "a log in g"), (2.0, "2 times: a driver scaling"),
+    (0.5, "0.5 times: a driver scaling"), (1 / 3, "check the driver's scale factor")])
+def test_an_accelerometer_not_in_si_is_named_instead_of_the_mount(ratio, cause):
+    # sideways as well: a mean that is no gravity says nothing of the mount
+    warned = trust_warnings(_stats([0.0, ratio * STANDARD_GRAVITY, 0.0]), None)
+    assert [w.name for w in warned] == ["accel_scale"]
+    assert cause in warned[0].message
+    assert warned[0].figures["gravity_ratio"] == pytest.approx(ratio)
+
+
+def test_sensor_errors_and_a_gyro_only_source_are_not_a_unit_error():
+    g = STANDARD_GRAVITY
+    # the MPU-6050's zero-g offsets and sensitivity tolerance, on a 10 deg slope: 15 % low
+    assert not trust_warnings(_stats([0.0, 0.0, 0.85 * g]), None)
+    assert not trust_warnings(_stats([0.0, 0.0, 1.15 * g]), None)
+    assert not trust_warnings(_stats([0.0, 0.0, 0.0]), None)  # accelerometer rows all zero
 
 
 def test_the_pipeline_sums_the_accelerometer_in_the_base_frame():
@@ -184,3 +202,27 @@ def test_the_pipeline_sums_the_accelerometer_in_the_base_frame():
             many.push_arrays(t[i:i + 1], g[i:i + 1], a[i:i + 1])
     assert one.stats.accel_sum == many.stats.accel_sum
     np.testing.assert_allclose(one.stats.accel_sum, accel.sum(axis=0), rtol=1e-9, atol=1e-7)
+
+
+def test_a_log_in_g_is_named_by_the_replay(tmp_path, capsys):
+    # a synthetic log whose imu.csv is rewritten in g (what a hobby driver that forgets the
+    # factor writes): the replay says so, with the factor, and does not call it a mount error
+    from fusion.cli import main
+
+    log = tmp_path / "log"
+    assert main(["synth", str(log), "--duration", "30", "--seed", "2"]) == 0
+    lines = (log / "imu.csv").read_text().splitlines()
+    header = lines[0].split(",")
+    cols = [header.index(c) for c in ("ax", "ay", "az")]
+    out = [lines[0]]
+    for line in lines[1:]:
+        values = line.split(",")
+        for c in cols:
+            values[c] = repr(float(values[c]) / STANDARD_GRAVITY)
+        out.append(",".join(values))
+    (log / "imu.csv").write_text("\n".join(out) + "\n")
+    capsys.readouterr()
+    assert main(["replay", str(log), "-o", str(tmp_path / "fused.csv"), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "inputs disagree (accel_scale)" in printed and "a log in g" in printed
+    assert "(mount)" not in printed

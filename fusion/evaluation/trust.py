@@ -63,6 +63,15 @@ Checks (each a :class:`TrustWarning` with its figures):
     from the log (:mod:`fusion.calibration.mount`). Only with at least
     :data:`MOUNT_MIN_SAMPLES` samples whose mean is at least half of gravity (an
     accelerometer that reads in m/s^2).
+``accel_scale``
+    The accelerometer's mean over the run has a magnitude more than
+    :data:`ACCEL_SCALE_TOLERANCE` off standard gravity: not m/s^2 as the inputs take (ROS
+    sensor_msgs/Imu, imu.csv). About 1/9.8 of it is a log in g; a power of two a driver that
+    scales by another full-scale range than the chip's AFS_SEL (2, 4, 8 or 16 g). The
+    stillness, slip and attitude checks read their accelerations at the wrong scale. Same
+    samples as ``mount``; either check, not both (a mean too small to be gravity says
+    nothing of the mount); neither for an accelerometer that reads exactly zero (a
+    gyro-only source).
 ``heading_divergence``
     The odometry's heading change (wheel frames and twists) and the gyro's (its bias
     estimate taken out) differ by more than
@@ -91,6 +100,7 @@ from fusion.planar._ekf_core import LINEAR_SOURCE_CORRELATION
 from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = [
+    "ACCEL_SCALE_TOLERANCE",
     "ENCODER_FAULT_LIMIT",
     "GYRO_BIAS_LIMIT",
     "HEADING_FLOOR",
@@ -124,6 +134,11 @@ ODOMETRY_CORRELATION = LINEAR_SOURCE_CORRELATION
 #: one: at 15 deg that costs 1 - cos(15 deg) = 3.4 % of every turn, more than the MPU-6050's
 #: own scale tolerance (3 %); and no route's mean slope comes near it.
 MOUNT_TILT_LIMIT = math.radians(15.0)
+#: Largest relative difference of the accelerometer's mean magnitude from standard gravity
+#: taken as a sensor's error, not a unit's: the MPU-6050's zero-g offsets (+-50 mg on x, y,
+#: +-80 mg on z; datasheet rev. 3.4, 6.2) and sensitivity tolerance (+-3 %), a mean slope's
+#: cos (15 deg: 3.4 %); a range mix-up is a factor of 2 or more, a log in g one of 9.8.
+ACCEL_SCALE_TOLERANCE = 0.2
 #: IMU samples the ``mount`` check needs (a second at 100 Hz: a live run's first batches say
 #: nothing about the mean).
 MOUNT_MIN_SAMPLES = 100
@@ -254,15 +269,28 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
 
 
 def _mount_warning(stats: Mapping[str, Any]) -> TrustWarning | None:
-    """The ``mount`` check of the module docstring (None: passed or not applicable)."""
+    """The ``accel_scale`` or the ``mount`` check of the module docstring (None: passed or
+    not applicable)."""
     n = int(stats.get("imu_samples", 0))
     total = stats.get("accel_sum")
     if n < MOUNT_MIN_SAMPLES or total is None:
         return None
     mean = [float(v) / n for v in total]
     norm = math.sqrt(sum(v * v for v in mean))
+    ratio = norm / STANDARD_GRAVITY
+    if norm == 0.0:
+        return None  # no accelerometer (a gyro-only source's zero rows): nothing to check
+    if not abs(ratio - 1.0) <= ACCEL_SCALE_TOLERANCE:
+        return TrustWarning(
+            "accel_scale",
+            f"the accelerometer's mean over {n} samples has a magnitude of {norm:.3g}, "
+            f"{ratio:.3g} times standard gravity (more than "
+            f"{100 * ACCEL_SCALE_TOLERANCE:.0f} % off): the accelerations are not in m/s^2 "
+            f"({_accel_scale_cause(ratio)}); the stillness, slip and tilt checks read them at "
+            "the wrong scale",
+            {"accel_mean_norm": norm, "gravity_ratio": ratio})
     tilt = angle_from_vertical(mean)
-    if not (norm >= 0.5 * STANDARD_GRAVITY and tilt > MOUNT_TILT_LIMIT):
+    if not tilt > MOUNT_TILT_LIMIT:
         return None
     side = "upside down, " if tilt > math.pi / 2 else ""
     return TrustWarning(
@@ -275,3 +303,14 @@ def _mount_warning(stats: Mapping[str, Any]) -> TrustWarning | None:
         "axis; set the IMU's mount",
         {"mount_tilt": tilt, "accel_mean_x": mean[0], "accel_mean_y": mean[1],
          "accel_mean_z": mean[2]})
+
+
+def _accel_scale_cause(ratio: float) -> str:
+    """The likely cause of an accelerometer mean ``ratio`` times standard gravity."""
+    if abs(ratio * STANDARD_GRAVITY - 1.0) <= ACCEL_SCALE_TOLERANCE:
+        return f"a log in g: multiply by {STANDARD_GRAVITY}"
+    power = round(math.log2(ratio))
+    if power and abs(ratio / 2.0 ** power - 1.0) <= ACCEL_SCALE_TOLERANCE:
+        return (f"{2.0 ** power:g} times: a driver scaling by another full-scale range than "
+                "the chip's (MPU-6050 AFS_SEL: 2, 4, 8, 16 g)")
+    return "check the driver's scale factor"
