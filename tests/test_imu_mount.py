@@ -203,26 +203,3 @@ def test_the_pipeline_sums_the_accelerometer_in_the_base_frame():
     assert one.stats.accel_sum == many.stats.accel_sum
     np.testing.assert_allclose(one.stats.accel_sum, accel.sum(axis=0), rtol=1e-9, atol=1e-7)
 
-
-def test_a_log_in_g_is_named_by_the_replay(tmp_path, capsys):
-    # a synthetic log whose imu.csv is rewritten in g (what a hobby driver that forgets the
-    # factor writes): the replay says so, with the factor, and does not call it a mount error
-    from fusion.cli import main
-
-    log = tmp_path / "log"
-    assert main(["synth", str(log), "--duration", "30", "--seed", "2"]) == 0
-    lines = (log / "imu.csv").read_text().splitlines()
-    header = lines[0].split(",")
-    cols = [header.index(c) for c in ("ax", "ay", "az")]
-    out = [lines[0]]
-    for line in lines[1:]:
-        values = line.split(",")
-        for c in cols:
-            values[c] = repr(float(values[c]) / STANDARD_GRAVITY)
-        out.append(",".join(values))
-    (log / "imu.csv").write_text("\n".join(out) + "\n")
-    capsys.readouterr()
-    assert main(["replay", str(log), "-o", str(tmp_path / "fused.csv"), "--no-progress"]) == 0
-    printed = capsys.readouterr().out
-    assert "inputs disagree (accel_scale)" in printed and "a log in g" in printed
-    assert "(mount)" not in printed

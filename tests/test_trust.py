@@ -30,6 +30,7 @@ from fusion.evaluation.trust import (
     trust_warnings,
 )
 from fusion.jobs.status import STRICT_EXIT_STATUS
+from fusion.types.constants import STANDARD_GRAVITY
 
 IMU_TOPIC = "/imu/data"
 ODOM_TOPIC = "/jackal_velocity_controller/odom"
@@ -202,28 +203,56 @@ def test_a_simulated_replay_does_not_warn(logdir, tmp_path, capsys) -> None:
     assert math.degrees(abs(gyro - _unwrapped_turn(truth[:, 3]))) < 2
 
 
+def _with_imu_columns(logdir: Path, dest: Path, columns: tuple[str, ...], factor: float) -> Path:
+    """A copy of ``logdir`` at ``dest`` with imu.csv's ``columns`` multiplied by ``factor``
+    (what a driver with a sign or unit slip writes)."""
+    shutil.copytree(logdir, dest)
+    lines = (dest / "imu.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    cols = [head.index(c) for c in columns]
+    rows = [x.split(",") for x in lines[1:]]
+    for r in rows:
+        for c in cols:
+            r[c] = repr(factor * float(r[c]))
+    (dest / "imu.csv").write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    return dest
+
+
 def test_a_gyro_turning_the_other_way_makes_the_headings_diverge(logdir, tmp_path,
                                                                   capsys) -> None:
     # the same log with the gyro's z axis negated (an IMU axis wired the other way: nothing
     # in the model explains it; a wrong wheel_distance would be, by the EKF's k state)
-    bad = tmp_path / "run4"
-    shutil.copytree(logdir, bad)
-    lines = (bad / "imu.csv").read_text().splitlines()
-    head = lines[0].split(",")
-    gz = head.index("gz")
-    rows = [x.split(",") for x in lines[1:]]
-    for r in rows:
-        r[gz] = repr(-float(r[gz]))
-    (bad / "imu.csv").write_text("\n".join([lines[0], *(",".join(r) for r in rows)]) + "\n")
+    bad = _with_imu_columns(logdir, tmp_path / "run4", ("gz",), -1.0)
     argv = ["replay", str(bad), "-o", str(tmp_path / "f.csv"), "--level"]
     assert main(argv) == 0  # without --strict: warned, not failed
     printed = capsys.readouterr().out
     assert "warning: inputs disagree (heading_divergence)" in printed
+    assert "warning: inputs disagree (gyro_axis)" in printed
+    assert "the gyro turns the other way" in printed
     # the wheels' yaw rate was disproven (most turns disagree), so the heading followed the
-    # gyro, which is the wrong one here: the verdict must leave that open
-    assert ("warning: the fused odometry above should not be trusted unless the gyro is right"
-            in printed)
+    # gyro, which is the wrong one here: the verdict must say so
+    assert ("warning: the fused odometry above should not be trusted: the gyro's rates are "
+            "wrong" in printed)
     assert main([*argv, "--strict"]) == STRICT_EXIT_STATUS
+
+
+def test_a_gyro_in_degrees_per_second_is_named(logdir, tmp_path, capsys) -> None:
+    bad = _with_imu_columns(logdir, tmp_path / "run4", ("gx", "gy", "gz"), math.degrees(1.0))
+    assert main(["replay", str(bad), "-o", str(tmp_path / "f.csv")]) == 0
+    printed = capsys.readouterr().out
+    assert "warning: inputs disagree (gyro_axis)" in printed
+    assert "its rates look like deg/s" in printed
+    assert "the other way" not in printed
+
+
+def test_a_log_in_g_is_named_and_not_called_a_mount_error(logdir, tmp_path, capsys) -> None:
+    # what a hobby driver that forgets the factor writes; the mean says nothing of the mount
+    bad = _with_imu_columns(logdir, tmp_path / "run4", ("ax", "ay", "az"),
+                            1.0 / STANDARD_GRAVITY)
+    assert main(["replay", str(bad), "-o", str(tmp_path / "f.csv")]) == 0
+    printed = capsys.readouterr().out
+    assert "inputs disagree (accel_scale)" in printed and "a log in g" in printed
+    assert "(mount)" not in printed
 
 
 def test_wheel_scale_check_is_three_prior_sigmas_of_k_and_only_for_wheel_frames() -> None:

@@ -246,7 +246,11 @@ def _print_warnings(warnings) -> None:
                   and ("odometry_scale" in names or (
                       slip is not None
                       and slip.figures["wheel_rate_distrusted"] > slip.figures["slips"])))
-    if gyro_alone:
+    if "gyro_axis" in names:
+        print("warning: the fused odometry above should not be trusted: the gyro's rates are "
+              "wrong (gyro_axis above) and the heading rests on them; fix the IMU's mount or "
+              "its driver and replay")
+    elif gyro_alone:
         # the EKF already stopped fusing the odometry's yaw rate: say what the heading rests on
         print("warning: the fused odometry above should not be trusted unless the gyro is "
               "right: its heading rests on the gyro alone (the odometry's yaw rate was not "

@@ -63,6 +63,15 @@ Checks (each a :class:`TrustWarning` with its figures):
     from the log (:mod:`fusion.calibration.mount`). Only with at least
     :data:`MOUNT_MIN_SAMPLES` samples whose mean is at least half of gravity (an
     accelerometer that reads in m/s^2).
+``gyro_axis``
+    The odometry's yaw rate, fitted against the gyro's over the moving frames
+    (``odometry_rate_slope``, wheel frames or twists), is a close copy of it
+    (``|odometry_rate_correlation|`` >= :data:`ODOMETRY_CORRELATION`) at a slope within
+    :data:`ACCEL_SCALE_TOLERANCE` of -1 (the gyro's vertical axis points down: an IMU
+    upside down against imu_mount_rpy, or an axis sign flipped in the driver) or of pi/180
+    (gyro rates in deg/s where rad/s are taken). No model state explains either; the
+    warning names the cause that ``slip`` and ``heading_divergence`` only show. Takes the
+    place of ``odometry_scale``.
 ``accel_scale``
     The accelerometer's mean over the run has a magnitude more than
     :data:`ACCEL_SCALE_TOLERANCE` off standard gravity: not m/s^2 as the inputs take (ROS
@@ -238,7 +247,10 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
     slope = stats.get("odometry_rate_slope")
     corr = stats.get("odometry_rate_correlation")
     twists = int(stats.get("twist_messages", 0))
-    if (twists and slope is not None and corr is not None and corr >= ODOMETRY_CORRELATION
+    axis = _gyro_axis_warning(slope, corr)
+    if axis is not None:
+        out.append(axis)
+    elif (twists and slope is not None and corr is not None and corr >= ODOMETRY_CORRELATION
             and not abs(slope - 1.0) <= WHEEL_SCALE_LIMIT):
         out.append(TrustWarning(
             "odometry_scale",
@@ -266,6 +278,25 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
             {"odometry_turn": odometry, "gyro_turn": gyro, "divergence": divergence,
              "allowed": allowed, "gyro_time": gyro_time}))
     return out
+
+
+def _gyro_axis_warning(slope: float | None, corr: float | None) -> TrustWarning | None:
+    """The ``gyro_axis`` check of the module docstring (None: passed or not applicable)."""
+    if slope is None or corr is None or not abs(corr) >= ODOMETRY_CORRELATION:
+        return None
+    if abs(slope + 1.0) <= ACCEL_SCALE_TOLERANCE:
+        cause = ("the gyro turns the other way: its vertical axis points down (an IMU mounted "
+                 "upside down against imu_mount_rpy) or an axis sign is flipped in its driver")
+    elif abs(slope * math.degrees(1.0) - 1.0) <= ACCEL_SCALE_TOLERANCE:
+        cause = ("the gyro turns 57.3 times as fast: its rates look like deg/s, the inputs "
+                 "take rad/s")
+    else:
+        return None
+    return TrustWarning(
+        "gyro_axis",
+        f"the odometry's yaw rate is {slope:.3g} times the gyro's (fitted over the moving "
+        f"frames, correlation {corr:.3f}): {cause}",
+        {"odometry_rate_slope": float(slope), "odometry_rate_correlation": float(corr)})
 
 
 def _mount_warning(stats: Mapping[str, Any]) -> TrustWarning | None:
