@@ -585,6 +585,8 @@ def run_bag(args: argparse.Namespace) -> int:
     print(f"{path}: {len(imu)} IMU messages ({imu.frame_id or 'no frame_id'}), {len(odom)} "
           f"odometry messages ({odom.frame_id} -> {odom.child_frame_id}) -> {args.output} "
           f"({written})")
+    for note in r.notes:
+        print(f"note: {note}")
     if r.motion is not None and r.motion.note:
         print(f"note: {r.motion.note}")
     if r.moving_start is not None:
@@ -592,6 +594,11 @@ def run_bag(args: argparse.Namespace) -> int:
     if imu.out_of_order or odom.out_of_order:
         print(f"warning: messages out of order in the bag (sorted): IMU {imu.out_of_order}, "
               f"odometry {odom.out_of_order}")
+    dropped = (stats.imu_out_of_order + stats.imu_invalid_stamp, stats.twist_out_of_order
+               + stats.twist_invalid_stamp)
+    if any(dropped):
+        print(f"warning: not fused for a stamp not after the previous one or not finite: "
+              f"{dropped[0]} IMU messages, {dropped[1]} odometry twists")
     last = table[-1]
     print(f"final pose: x {last[1]:.3f} m, y {last[2]:.3f} m, yaw {math.degrees(last[3]):.2f}"
           f" deg; path {job.distance_travelled(table):.2f} m")

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import ImuLog
+from fusion.io.repeated_stamps import spread_repeated_stamps
 
 __all__ = [
     "BagImuLog",
@@ -190,7 +191,9 @@ class BagLog:
     """What :func:`read_bag` read: one log per requested topic (None if not requested),
     ``topics``, every topic of the file as ``{topic: (type, message count)}``, and ``note``:
     "" or, for an unfinished MCAP recording (a writer killed before it wrote the summary
-    section), what was read of it."""
+    section), what was read of it; ``stamp_notes``: per topic, messages that shared a stamp
+    and were spread or left out as copies
+    (:func:`fusion.io.repeated_stamps.spread_repeated_stamps`)."""
 
     imu: BagImuLog | None
     odometry: OdometryLog | None
@@ -199,6 +202,7 @@ class BagLog:
     source: str
     note: str = ""
     fixes: FixLog | None = None
+    stamp_notes: tuple[str, ...] = ()
 
 
 def _ros1_name(msgtype: str) -> str:
@@ -406,6 +410,7 @@ class _Collector:
         self.bag_t: list[float] = []
         self.rows: list[tuple[float, ...]] = []
         self.frames: dict[str, str] = {}
+        self.note = ""  # what arrays() did to stamps shared by consecutive messages
 
     def _frame(self, key: str, value: str) -> None:
         old = self.frames.setdefault(key, value)
@@ -467,8 +472,19 @@ class _Collector:
         if out_of_order:
             order = np.argsort(t, kind="stable")
             t, bag_t, rows = t[order], bag_t[order], rows[order]
+        if self.kind in _SPREAD_COLUMNS:
+            fix = spread_repeated_stamps(t, rows[:, _SPREAD_COLUMNS[self.kind]], where)
+            if fix.note:
+                t, bag_t, rows = fix.t, bag_t[fix.keep], rows[fix.keep]
+                self.note = fix.note
         return t, bag_t, rows, out_of_order
 
+
+#: The row columns a repeated stamp's messages are compared on (a copy equals in all of
+#: them; :func:`fusion.io.repeated_stamps.spread_repeated_stamps`): the IMU's rates and
+#: specific force, the odometry's pose and twist, the twist. Not GPS fixes (a receiver
+#: repeats its fix at its own rate).
+_SPREAD_COLUMNS = {"imu": slice(0, 6), "odometry": slice(0, 6), "twist": slice(0, 3)}
 
 _KINDS = {"imu": IMU_TYPES, "odometry": ODOMETRY_TYPES, "twist": TWIST_TYPES,
           "fix": FIX_TYPES}
@@ -529,13 +545,15 @@ def read_bag(
             raise LogFormatError(
                 f"{path}: reading {', '.join(collectors)} failed: {exc!r}") from exc
         topics, note = dict(bag.topics), bag.note
-    return BagLog(
+    log = BagLog(
         imu=_imu_log(collectors.get(imu_topic)) if imu_topic else None,
         odometry=_odometry_log(collectors.get(odom_topic)) if odom_topic else None,
         twist=_twist_log(collectors.get(twist_topic)) if twist_topic else None,
         topics=topics, source=str(path), note=note,
         fixes=_fix_log(collectors.get(fix_topic)) if fix_topic else None,
     )
+    log.stamp_notes = tuple(c.note for c in collectors.values() if c.note)
+    return log
 
 
 def _imu_log(c: _Collector) -> BagImuLog:

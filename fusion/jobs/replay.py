@@ -484,7 +484,8 @@ class BagReplay:
     stops"``), or in ``gps_note`` why they could not be compared; ``motion``: the twists
     fused (:func:`fusion.io.odometry_motion.odometry_motion`: the odometry's own, or its
     poses' differences where its twist is empty, and why in ``motion.note``);
-    ``moving_start``: as :attr:`ReplayResult.moving_start`."""
+    ``moving_start``: as :attr:`ReplayResult.moving_start`; ``notes``: what the reader said
+    about the file (an unfinished MCAP recording, messages that shared a stamp)."""
 
     table: NDArray[np.float64]
     pipeline: FusionPipeline
@@ -499,6 +500,7 @@ class BagReplay:
     gps_note: str = ""
     motion: OdometryMotion | None = None
     moving_start: MovingStart | None = None
+    notes: list[str] = field(default_factory=list)
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
@@ -575,8 +577,9 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
+    notes = [n for n in (bag.note, *bag.stamp_notes) if n]
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps,
-                     gps_note, motion, start)
+                     gps_note, motion, start, notes)
 
 
 def _check_fixes_overlap(path: Path, fixes: Any, imu_t: NDArray[np.float64],

@@ -1,0 +1,106 @@
+"""Messages that share a stamp: a driver that reads a sensor's FIFO in bursts and stamps every
+sample of a burst with the read time, or one that published a message twice.
+
+The fusion takes each source's stamps as strictly increasing (a sample not after the previous
+one is dropped and counted), so a bag whose 30 Hz IMU is stamped in bursts of three at 10 Hz
+lost two thirds of its samples without a word (issue 11's outdoor bag rewritten that way: 9000
+messages, 3001 rows). :func:`spread_repeated_stamps` repairs that before the replay:
+
+- a message equal to the previous one in stamp and in every value is a duplicate: left out;
+- a run of ``n`` messages that share a stamp but not their values is a burst: its samples
+  were taken before the read that stamped them, so they are spread back from the stamp,
+  ``stamp - (n - 1 - k) * spacing`` for the k-th, with ``spacing`` the time since the
+  previous stamp over ``n`` (the burst filled that interval), at most the sampling period:
+  the median of that spacing over all runs (a burst after a pause is not stretched over
+  the pause; the first run, with no stamp before it, takes the period).
+
+Stamps in s; what was done is said in :attr:`StampRepair.note` (empty when nothing was).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["StampRepair", "spread_repeated_stamps"]
+
+
+@dataclass(frozen=True)
+class StampRepair:
+    """What :func:`spread_repeated_stamps` did.
+
+    Attributes:
+        t: (M,) s, the stamps of the messages kept, strictly increasing where the input's
+            distinct stamps were.
+        keep: (N,) bool, which input messages were kept (False: a duplicate).
+        duplicates: messages left out as copies of the previous one.
+        spread: messages whose stamp was moved back within a burst.
+        bursts: runs of messages that shared a stamp and were spread.
+        note: one sentence for the user ("" when nothing was done).
+    """
+
+    t: NDArray[np.float64]
+    keep: NDArray[np.bool_]
+    duplicates: int
+    spread: int
+    bursts: int
+    note: str
+
+
+def spread_repeated_stamps(t: NDArray[np.float64], values: NDArray[np.float64],
+                           name: str = "messages") -> StampRepair:
+    """Repair stamps shared by consecutive messages (module docstring).
+
+    Args:
+        t: (N,) s, non-decreasing (a reader's sorted stamps).
+        values: (N, k) each message's values (a duplicate equals the previous in all).
+        name: what the messages are, for the note (e.g. ``"topic /imu/data"``).
+
+    Raises:
+        ValueError: ``t`` not (N,) and non-decreasing, or ``values`` not (N, k).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    values = np.asarray(values, dtype=np.float64)
+    if t.ndim != 1 or values.ndim != 2 or values.shape[0] != t.size:
+        raise ValueError(f"t (N,) and values (N, k) expected, got {t.shape} and {values.shape}")
+    if np.any(np.diff(t) < 0):
+        raise ValueError("t must be non-decreasing (sort the messages first)")
+    same_t = np.concatenate([[False], t[1:] == t[:-1]])
+    if not same_t.any():
+        return StampRepair(t, np.ones(t.size, dtype=bool), 0, 0, 0, "")
+    # equal_nan: a message that repeats a NaN is still a copy
+    same_values = np.concatenate([[False], np.all(
+        (values[1:] == values[:-1]) | (np.isnan(values[1:]) & np.isnan(values[:-1])),
+        axis=1)])
+    keep = ~(same_t & same_values)
+    kept_t = t[keep]
+    duplicates = int(t.size - kept_t.size)
+    out = kept_t.copy()
+    spread = bursts = 0
+    starts = np.flatnonzero(np.concatenate([[True], kept_t[1:] != kept_t[:-1]]))
+    lengths = np.diff(np.concatenate([starts, [kept_t.size]]))
+    # each run's samples filled the time since the previous stamp: that time over the run's
+    # length; the median over the runs is the sampling period (a pause does not move it)
+    filled = np.diff(kept_t[starts]) / lengths[1:]
+    if filled.size:
+        period = float(np.median(filled))
+        for i, (start, n) in enumerate(zip(starts.tolist(), lengths.tolist(), strict=True)):
+            if n < 2:
+                continue
+            spacing = min(filled[i - 1], period) if i > 0 else period
+            out[start:start + n] = kept_t[start] - (n - 1 - np.arange(n)) * spacing
+            spread += n - 1
+            bursts += 1
+    parts = []
+    if bursts:
+        parts.append(f"{spread} messages carried the stamp of a later one ({bursts} runs of "
+                     "equal stamps: a batch stamped at one time, a driver's read or a "
+                     "recorder's receipt): spread back from it over the time since the "
+                     "previous stamp")
+    if duplicates:
+        parts.append(f"{duplicates} copies of the previous message (same stamp and values) "
+                     "left out")
+    note = f"{name}: " + "; ".join(parts) if parts else ""
+    return StampRepair(out, keep, duplicates, spread, bursts, note)

@@ -1,0 +1,58 @@
+"""Messages that share a stamp (fusion.io.repeated_stamps): bursts spread back from their read
+stamp, copies left out. Oracle: streams built here from known sample times."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fusion.io.repeated_stamps import spread_repeated_stamps
+
+
+def _burst_stamped(rate=30.0, burst=3, seconds=10.0, t0=1.7e9):
+    """(true sample times, stamps): samples at ``rate`` Hz read ``burst`` at a time, each read
+    stamping its samples with the time of its last one."""
+    n = int(seconds * rate) // burst * burst
+    true = t0 + np.arange(1, n + 1) / rate
+    stamps = np.repeat(true[burst - 1::burst], burst)
+    return true, stamps
+
+
+def test_bursts_are_spread_back_onto_the_sample_times():
+    true, stamps = _burst_stamped()
+    values = np.random.default_rng(0).standard_normal((true.size, 6))
+    fix = spread_repeated_stamps(stamps, values, "topic /imu/data")
+    assert fix.keep.all() and fix.duplicates == 0
+    assert fix.bursts == true.size // 3 and fix.spread == 2 * true.size // 3
+    np.testing.assert_allclose(fix.t, true, rtol=0, atol=1e-6)  # float64 at 1.7e9 s: 2e-7
+    assert np.all(np.diff(fix.t) > 0)
+    assert fix.note.startswith("topic /imu/data: ") and "spread back" in fix.note
+
+
+def test_a_burst_after_a_pause_keeps_the_sampling_period():
+    # a 2 s pause in the reads: the burst after it is not stretched over the pause
+    true, stamps = _burst_stamped(seconds=4.0)
+    late = stamps > stamps[30]
+    stamps = np.where(late, stamps + 2.0, stamps)
+    true = np.where(late, true + 2.0, true)
+    fix = spread_repeated_stamps(stamps, np.arange(true.size, dtype=float)[:, None])
+    np.testing.assert_allclose(fix.t, true, rtol=0, atol=1e-6)  # float64 at 1.7e9 s: 2e-7
+
+
+def test_copies_are_left_out_and_distinct_stamps_untouched():
+    t = np.array([0.0, 0.1, 0.1, 0.2, 0.3, 0.3])
+    values = np.array([[1.0], [2.0], [2.0], [3.0], [np.nan], [np.nan]])
+    fix = spread_repeated_stamps(t, values, "topic /odom")
+    assert fix.keep.tolist() == [True, True, False, True, True, False]
+    assert fix.duplicates == 2 and fix.spread == 0
+    np.testing.assert_array_equal(fix.t, [0.0, 0.1, 0.2, 0.3])
+    assert "2 copies of the previous message" in fix.note
+    clean = spread_repeated_stamps(np.array([0.0, 0.1]), np.zeros((2, 1)))
+    assert clean.note == "" and clean.t.tolist() == [0.0, 0.1]
+
+
+def test_unsorted_stamps_or_mismatched_values_are_refused():
+    with pytest.raises(ValueError, match="non-decreasing"):
+        spread_repeated_stamps(np.array([0.0, 0.2, 0.1]), np.zeros((3, 1)))
+    with pytest.raises(ValueError, match=r"values \(N, k\)"):
+        spread_repeated_stamps(np.array([0.0, 0.1]), np.zeros((3, 1)))
