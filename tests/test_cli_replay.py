@@ -111,6 +111,22 @@ def test_errors_exit_2_with_a_message(tmp_path, capsys):
     assert not (tmp_path / "o.csv").exists()
 
 
+def test_imu_and_wheels_on_different_clocks_are_refused(logdir, tmp_path, capsys):
+    # wheels.csv moved onto another clock (a day later): no stamp of it overlaps imu.csv's
+    import shutil
+
+    d = tmp_path / "clocks"
+    shutil.copytree(logdir, d)
+    lines = (d / "wheels.csv").read_text().splitlines()
+    moved = [lines[0]] + [",".join([repr(float(r.split(",")[0]) + 86400.0),
+                                    *r.split(",")[1:]]) for r in lines[1:]]
+    (d / "wheels.csv").write_text("\n".join(moved) + "\n")
+    assert main(["replay", str(d), "-o", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "they do not overlap, so they are on different clocks" in err, err
+    assert "wheel frames" in err and not (tmp_path / "o.csv").exists()
+
+
 def test_real_command_line(logdir, tmp_path):
     out = tmp_path / "cli.csv"
     proc = subprocess.run([sys.executable, "-m", "fusion", "replay", str(logdir), "-o", str(out)],

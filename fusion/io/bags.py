@@ -191,9 +191,10 @@ class BagLog:
     """What :func:`read_bag` read: one log per requested topic (None if not requested),
     ``topics``, every topic of the file as ``{topic: (type, message count)}``, and ``note``:
     "" or, for an unfinished MCAP recording (a writer killed before it wrote the summary
-    section), what was read of it; ``stamp_notes``: per topic, messages that shared a stamp
-    and were spread or left out as copies
-    (:func:`fusion.io.repeated_stamps.spread_repeated_stamps`)."""
+    section), what was read of it; ``topic_notes``: per topic, what the reader did to its
+    messages (stamps shared by consecutive messages spread or copies left out,
+    :func:`fusion.io.repeated_stamps.spread_repeated_stamps`; IMU linear accelerations
+    flagged as not provided read as zero)."""
 
     imu: BagImuLog | None
     odometry: OdometryLog | None
@@ -202,7 +203,7 @@ class BagLog:
     source: str
     note: str = ""
     fixes: FixLog | None = None
-    stamp_notes: tuple[str, ...] = ()
+    topic_notes: tuple[str, ...] = ()
 
 
 def _ros1_name(msgtype: str) -> str:
@@ -410,7 +411,8 @@ class _Collector:
         self.bag_t: list[float] = []
         self.rows: list[tuple[float, ...]] = []
         self.frames: dict[str, str] = {}
-        self.note = ""  # what arrays() did to stamps shared by consecutive messages
+        self.note = ""  # what arrays() did: repeated stamps, absent accelerations
+        self.no_accel = 0  # IMU messages whose linear acceleration was flagged as absent
 
     def _frame(self, key: str, value: str) -> None:
         old = self.frames.setdefault(key, value)
@@ -431,7 +433,18 @@ class _Collector:
         if self.kind == "imu":
             q, a, g = msg.orientation, msg.linear_acceleration, msg.angular_velocity
             no_q = msg.orientation_covariance[0] == -1 or (q.w == q.x == q.y == q.z == 0)
-            self.rows.append((g.x, g.y, g.z, a.x, a.y, a.z,
+            if msg.angular_velocity_covariance[0] == -1:  # REP-145: "not provided"
+                raise LogFormatError(
+                    f"{self.path}: topic {self.topic}: message {len(self.t)} says it has no "
+                    "angular velocity (angular_velocity_covariance[0] = -1): the fusion needs "
+                    "the gyro's rates in every message (an orientation-only IMU driver?)")
+            accel = (a.x, a.y, a.z)
+            if msg.linear_acceleration_covariance[0] == -1:
+                # not provided: zero rows, which the attitude filter propagates without and
+                # the accelerometer checks leave out
+                accel = (0.0, 0.0, 0.0)
+                self.no_accel += 1
+            self.rows.append((g.x, g.y, g.z, *accel,
                               *((math.nan,) * 4 if no_q else (q.w, q.x, q.y, q.z))))
         elif self.kind == "odometry":
             p, q = msg.pose.pose.position, msg.pose.pose.orientation
@@ -472,11 +485,17 @@ class _Collector:
         if out_of_order:
             order = np.argsort(t, kind="stable")
             t, bag_t, rows = t[order], bag_t[order], rows[order]
+        notes = []
+        if self.no_accel:
+            notes.append(f"{where}: {self.no_accel} of {t.size} messages have no linear "
+                         "acceleration (linear_acceleration_covariance[0] = -1): read as zero "
+                         "(stillness from the gyro alone; without any, no tilt compensation)")
         if self.kind in _SPREAD_COLUMNS:
             fix = spread_repeated_stamps(t, rows[:, _SPREAD_COLUMNS[self.kind]], where)
             if fix.note:
                 t, bag_t, rows = fix.t, bag_t[fix.keep], rows[fix.keep]
-                self.note = fix.note
+                notes.append(fix.note)
+        self.note = "; ".join(notes)
         return t, bag_t, rows, out_of_order
 
 
@@ -552,7 +571,7 @@ def read_bag(
         topics=topics, source=str(path), note=note,
         fixes=_fix_log(collectors.get(fix_topic)) if fix_topic else None,
     )
-    log.stamp_notes = tuple(c.note for c in collectors.values() if c.note)
+    log.topic_notes = tuple(c.note for c in collectors.values() if c.note)
     return log
 
 
