@@ -20,7 +20,7 @@ base frame after the configured mount, is the check (:mod:`fusion.evaluation.tru
   ``v * w`` (``w`` the levelled gyro's vertical rate): the angle of the summed cross and dot
   products (a least-squares rotation, Wahba's problem in the plane), both sides high-passed
   (a slope's gravity is slow and larger than the driving's accelerations). Its standard
-  error comes from fitting consecutive blocks again. It needs the robot to have
+  error is a jackknife over consecutive blocks. It needs the robot to have
   accelerated or turned: without that the yaw is left undetermined (``yaw_known``). Only
   the lateral slip check and the opt-in accelerometer speed use the yaw; the heading rate
   needs roll and pitch alone.
@@ -59,7 +59,7 @@ _BIN = 0.5
 #: drowned the fit (terrain benchmark bags, seeds 31-33: standard errors of 12-26 deg
 #: without it, 2-3 deg with it; 4 s: 2-5 deg, 8 s: 3-13 deg).
 _HIGH_PASS = 2.0
-#: Consecutive blocks the yaw is fitted on again for its standard error.
+#: Consecutive blocks left out in turn for the yaw's standard error (a jackknife).
 _BLOCKS = 8
 
 
@@ -170,7 +170,8 @@ def _fit_yaw(t: NDArray[np.float64], rate: NDArray[np.float64], horizontal: NDAr
     levelled horizontal specific force onto the odometry's ``(dv/dt, v * w)``, compared as
     means over :data:`_BIN` s bins less their running mean over :data:`_HIGH_PASS` s (what
     is slower, a slope's gravity and the mean of long turns, left out); ``yaw_std`` from the
-    spread of the same fit over :data:`_BLOCKS` consecutive blocks (NaN when not fitted)."""
+    spread of the same fit with each of :data:`_BLOCKS` consecutive blocks left out (a
+    jackknife; NaN when not fitted)."""
     none = (0.0, math.nan, 0.0, math.nan)
     ok = np.isfinite(speed_t) & np.isfinite(speed)
     speed_t, speed = speed_t[ok], speed[ok]
@@ -199,10 +200,15 @@ def _fit_yaw(t: NDArray[np.float64], rate: NDArray[np.float64], horizontal: NDAr
     cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     dot = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
     yaw = math.atan2(float(cross.sum()), float(dot.sum()))
-    blocks = [math.remainder(math.atan2(float(c.sum()), float(d.sum())) - yaw, 2 * math.pi)
-              for c, d in zip(np.array_split(cross, _BLOCKS), np.array_split(dot, _BLOCKS),
-                              strict=True)]
-    yaw_std = float(np.std(blocks, ddof=1)) / math.sqrt(_BLOCKS)
+    # delete-one-block jackknife: each estimate leaves one block out (a block where the
+    # robot stood still weighs nothing in the fit and must not in its spread either)
+    c_blocks = np.array([c.sum() for c in np.array_split(cross, _BLOCKS)])
+    d_blocks = np.array([d.sum() for d in np.array_split(dot, _BLOCKS)])
+    left_out = np.array([math.remainder(math.atan2(float(cross.sum() - c), float(dot.sum() - d))
+                                        - yaw, 2 * math.pi)
+                         for c, d in zip(c_blocks, d_blocks, strict=True)])
+    spread = left_out - left_out.mean()
+    yaw_std = math.sqrt((_BLOCKS - 1) / _BLOCKS * float(np.sum(spread * spread)))
     energy = math.sqrt(float(np.sum(a * a)) * float(np.sum(b * b)))
     corr = math.hypot(float(cross.sum()), float(dot.sum())) / energy if energy > 0 else math.nan
     return yaw, yaw_std, excitation, corr

@@ -323,7 +323,8 @@ def _mount_warning(stats: Mapping[str, Any]) -> TrustWarning | None:
     tilt = angle_from_vertical(mean)
     if not tilt > MOUNT_TILT_LIMIT:
         return None
-    side = "upside down, " if tilt > math.pi / 2 else ""
+    side = ("upside down, " if tilt > math.radians(120.0) else
+            "on its side, " if tilt > math.radians(60.0) else "")
     return TrustWarning(
         "mount",
         f"the accelerometer's mean over {n} samples, in the base frame after the configured "
