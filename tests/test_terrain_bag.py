@@ -343,3 +343,43 @@ def test_an_imu_without_rates_is_refused_one_without_accelerations_is_fused(repl
     path = float(np.sum(np.hypot(np.diff(table["x"]), np.diff(table["y"]))))
     end = np.hypot(r.table[-1, 1] - table["x"][-1], r.table[-1, 2] - table["y"][-1])
     assert end < 0.01 * path, (end, path)
+
+
+def test_stray_header_stamps_are_left_out_and_a_clock_jump_refused(replayed, tmp_path):
+    # Header stamps against when the bag recorded each message: three IMU stamps 3 h ahead
+    # (corrupt) were sorted to the end, 3 rows 3 h later and a printed path of 5949 m; the
+    # stamping clock set back 100 s half way interleaved two stretches of the run (GPS RMSE
+    # 17 m), with only a count of messages out of order.
+    from reshaped_bag import rewrite_messages
+
+    from fusion.io.errors import LogFormatError
+    from fusion.jobs.replay import replay_bag
+
+    _, topics, _, _, table, _, bag = replayed
+    n = len(topics["/imu/data"])
+    count = {"i": 0}
+
+    def shifted(which, seconds):
+        def edit(msg, record_ns):
+            count["i"] += 1
+            if which(count["i"]):
+                ns = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(
+                    ns + round(seconds * 1e9), 10**9)
+            return record_ns
+        return edit
+
+    corrupt = tmp_path / "corrupt.bag"
+    rewrite_messages(bag, corrupt, "/imu/data",
+                     shifted(lambda i: i in (1001, 2001, 3001), 3 * 3600.0))
+    r = replay_bag(corrupt, tmp_path / "a.csv", imu_topic="/imu/data", odom_topic="/odom",
+                   imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    assert r.table.shape[0] == n - 3
+    assert any("3 messages (number 1001, 2001, 3001) left out" in note for note in r.notes)
+    assert r.table[-1, 0] == pytest.approx(table["t"][-1], abs=1e-6)
+    count["i"] = 0
+    jumped = tmp_path / "jumped.bag"
+    rewrite_messages(bag, jumped, "/imu/data", shifted(lambda i: i > n // 2, -100.0))
+    with pytest.raises(LogFormatError, match=r"clock jumped.*--stamps bag"):
+        replay_bag(jumped, tmp_path / "b.csv", imu_topic="/imu/data", odom_topic="/odom")
+    assert not (tmp_path / "b.csv").exists()

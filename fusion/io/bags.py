@@ -479,13 +479,17 @@ class _Collector:
             raise LogFormatError(
                 f"{where}: message {i + 1} (t = {t[i]:.9f} s) has a non-finite value: "
                 f"{check[i].tolist()}")
+        bag_t = np.asarray(self.bag_t, dtype=np.float64)
+        notes = []
+        if self.use_header:
+            t, bag_t, rows, stray_note = _without_stray_stamps(where, t, bag_t, rows)
+            if stray_note:
+                notes.append(stray_note)
         running_max = np.maximum.accumulate(t)
         out_of_order = int(np.count_nonzero(t[1:] < running_max[:-1]))
-        bag_t = np.asarray(self.bag_t, dtype=np.float64)
         if out_of_order:
             order = np.argsort(t, kind="stable")
             t, bag_t, rows = t[order], bag_t[order], rows[order]
-        notes = []
         if self.no_accel:
             notes.append(f"{where}: {self.no_accel} of {t.size} messages have no linear "
                          "acceleration (linear_acceleration_covariance[0] = -1): read as zero "
@@ -497,6 +501,50 @@ class _Collector:
                 notes.append(fix.note)
         self.note = "; ".join(notes)
         return t, bag_t, rows, out_of_order
+
+
+#: s: a header stamp further than this from its message's record time, against the median of
+#: that difference over the topic (a stable transport and recording latency), is stray: a
+#: corrupt stamp, or a clock that jumped. Sorting such stamps in lays hours of nothing (or
+#: two stretches of the run interleaved) into the replay.
+STAMP_OFFSET_LIMIT = 10.0
+#: Largest share of a topic's messages with stray stamps that are left out as corrupt; more
+#: is a clock that jumped, refused with the way out (the record times).
+STRAY_STAMP_SHARE = 0.01
+
+
+def _without_stray_stamps(where: str, t: NDArray[np.float64], bag_t: NDArray[np.float64],
+                          rows: NDArray[np.float64]
+                          ) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                     NDArray[np.float64], str]:
+    """``(t, bag_t, rows, note)`` without the messages whose header stamp strays from their
+    record time (:data:`STAMP_OFFSET_LIMIT`), and a note naming them ("" when none did).
+
+    Raises:
+        LogFormatError: more than :data:`STRAY_STAMP_SHARE` of the messages stray.
+    """
+    offset = t - bag_t
+    usual = float(np.median(offset))
+    stray = np.abs(offset - usual) > STAMP_OFFSET_LIMIT
+    n = int(np.count_nonzero(stray))
+    if not n:
+        return t, bag_t, rows, ""
+    first = int(np.flatnonzero(stray)[0])
+    if n > STRAY_STAMP_SHARE * t.size:
+        jump = int(np.flatnonzero(np.abs(offset - offset[0]) > STAMP_OFFSET_LIMIT)[0])
+        raise LogFormatError(
+            f"{where}: {n} of {t.size} header stamps are more than {STAMP_OFFSET_LIMIT:g} s "
+            "off the usual difference from when the bag recorded their messages: "
+            f"header.stamp - record time is {offset[0]:+.3f} s at message 1 and "
+            f"{offset[jump]:+.3f} s at message {jump + 1}; the stamping clock jumped. Read "
+            "the bag with its record times (`fusion replay --stamps bag`)")
+    numbers = ", ".join(str(i + 1) for i in np.flatnonzero(stray)[:5])
+    more = f" and {n - 5} more" if n > 5 else ""
+    note = (f"{where}: {n} messages (number {numbers}{more}) left out: their header stamps "
+            f"are more than {STAMP_OFFSET_LIMIT:g} s off when the bag recorded them (e.g. "
+            f"{offset[first] - usual:+.1f} s against the others), corrupt stamps")
+    keep = ~stray
+    return t[keep], bag_t[keep], rows[keep], note
 
 
 #: The row columns a repeated stamp's messages are compared on (a copy equals in all of
