@@ -594,6 +594,8 @@ def run_bag(args: argparse.Namespace) -> int:
     if imu.out_of_order or odom.out_of_order:
         print(f"warning: messages out of order in the bag (sorted): IMU {imu.out_of_order}, "
               f"odometry {odom.out_of_order}")
+    for text in r.coverage:
+        print(f"warning: {text}")
     dropped = (stats.imu_out_of_order + stats.imu_invalid_stamp, stats.twist_out_of_order
                + stats.twist_invalid_stamp)
     if any(dropped):
@@ -608,7 +610,8 @@ def run_bag(args: argparse.Namespace) -> int:
           f"trusted {stats.wheel_rate_distrusted} (near-zero ones fused as driving straight "
           f"{stats.straight_frames}), encoder faults (zero twist while the IMU "
           f"moved, not fused) {stats.encoder_faults}, gyro bias relearnt at a stop "
-          f"{stats.bias_relearnt}, invalid {ekf.stats['invalid']}")
+          f"{stats.bias_relearnt}, IMU gaps {stats.attitude_gaps}, speeds forgotten after a "
+          f"gap {stats.speed_resets}, invalid {ekf.stats['invalid']}")
     print(f"the bag's own odometry ({args.odom_topic}) final pose from its start: x "
           f"{own[-1, 0]:.3f} m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")
     if r.gps is not None:

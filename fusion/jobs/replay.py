@@ -447,11 +447,9 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
         bad = {k: v for k, v in capture_stats.items() if k not in ("frames", "bytes_in") and v}
         if bad:
             notes.append(f"capture parser counters: {bad}")
-    if n_imu and (wheel_t[-1] > streams.imu_t[-1] + chassis.encode_sampling_time
-                  or wheel_t[0] < streams.imu_t[0] - chassis.encode_sampling_time):
-        notes.append(f"wheel frames span {wheel_t[0]:.3f}-{wheel_t[-1]:.3f} s, the IMU "
-                     f"{streams.imu_t[0]:.3f}-{streams.imu_t[-1]:.3f} s; rows are written at "
-                     "IMU samples only, so the output covers the IMU's span")
+    if n_imu and streams.has_wheels:
+        notes.extend(coverage_warnings(streams.imu_t, wheel_t, robot.ekf.max_extrapolation,
+                                       "wheel frames"))
     t_out, xy, yaw = table[:, 0], table[:, 1:3], table[:, 3]
     wheel = WheelOdometry(chassis).update_batch(ticks[:, 0], ticks[:, 1])
     truth_res = None
@@ -517,7 +515,8 @@ class BagReplay:
     fused (:func:`fusion.io.odometry_motion.odometry_motion`: the odometry's own, or its
     poses' differences where its twist is empty, and why in ``motion.note``);
     ``moving_start``: as :attr:`ReplayResult.moving_start`; ``notes``: what the reader said
-    about the file (an unfinished MCAP recording, messages that shared a stamp)."""
+    about the file (an unfinished MCAP recording, messages that shared a stamp);
+    ``coverage``: what the output cannot cover (:func:`coverage_warnings`)."""
 
     table: NDArray[np.float64]
     pipeline: FusionPipeline
@@ -533,6 +532,40 @@ class BagReplay:
     motion: OdometryMotion | None = None
     moving_start: MovingStart | None = None
     notes: list[str] = field(default_factory=list)
+    coverage: list[str] = field(default_factory=list)
+
+
+def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
+                      longest: float, odometry: str = "odometry") -> list[str]:
+    """What the fused output cannot cover, one sentence each (empty when nothing is missing),
+    with ``longest`` s the EKF's ``max_extrapolation``: odometry stamps more than that
+    beyond the IMU's span (rows are written at IMU samples: a CSV ends at the IMU's last),
+    IMU samples more than that beyond the odometry's (the pose stands still there: speeds
+    forgotten), and gaps longer than that in either (an odometry gap stops the pose; an IMU
+    gap leaves the heading without the gyro)."""
+    out = []
+    before, after = imu_t[0] - odom_t[0], odom_t[-1] - imu_t[-1]
+    if before > longest or after > longest:
+        out.append(f"the {odometry} spans {odom_t[0]:.3f}-{odom_t[-1]:.3f} s, the IMU "
+                   f"{imu_t[0]:.3f}-{imu_t[-1]:.3f} s: {max(0.0, before):.1f} s before and "
+                   f"{max(0.0, after):.1f} s after the IMU's samples are not in a CSV output "
+                   "(rows at IMU samples; .jsonl and .mcap records go on)")
+    if -before > longest or -after > longest:
+        out.append(f"the IMU spans {imu_t[0]:.3f}-{imu_t[-1]:.3f} s, the {odometry} "
+                   f"{odom_t[0]:.3f}-{odom_t[-1]:.3f} s: over the {max(0.0, -before):.1f} s "
+                   f"before and {max(0.0, -after):.1f} s after the {odometry} the pose stands "
+                   "still (no speed)")
+    for name, t in (("IMU", imu_t), (odometry, odom_t)):
+        dt = np.diff(t)
+        gaps = np.flatnonzero(dt > longest)
+        if gaps.size:
+            i = int(gaps[np.argmax(dt[gaps])])
+            over = ("the pose stopped (speeds forgotten)" if name == odometry
+                    else "the heading had no gyro")
+            out.append(f"{name} gaps longer than {longest:g} s: {gaps.size}, "
+                       f"{float(np.sum(dt[gaps])):.1f} s in all (the longest {dt[i]:.1f} s "
+                       f"after {t[i]:.3f} s); over them {over}")
+    return out
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
@@ -614,8 +647,9 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
     notes = [n for n in (bag.note, *bag.topic_notes) if n]
+    coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps,
-                     gps_note, motion, start, notes)
+                     gps_note, motion, start, notes, coverage)
 
 
 def _check_fixes_overlap(path: Path, fixes: Any, imu_t: NDArray[np.float64],

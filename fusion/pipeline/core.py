@@ -214,9 +214,11 @@ class PipelineStats:
             ``imu_samples``, the mean specific force, which points up when the mount is right
             (:mod:`fusion.evaluation.trust`'s ``mount`` check).
         gyro_turn: rad, the gyro's heading rate (as fused, bias included)
-            integrated over the accepted IMU samples; gyro_time: s it spans.
+            integrated over the accepted IMU samples; gyro_time: s it spans (intervals longer
+            than the EKF's ``max_extrapolation`` left out of both: gaps).
         wheel_turn: rad, the heading change of the wheel frames ((right - left) travel /
-            wheel_distance); twist_turn: rad, the twists' yaw rate integrated.
+            wheel_distance); twist_turn: rad, the twists' yaw rate integrated (not over
+            intervals longer than ``max_extrapolation``).
         (The two turns let :mod:`fusion.evaluation.trust` see the sources disagree.)
         attitude_gaps: IMU periods longer than the attitude filter's ``max_gap`` (integrated
             over one regular period, inclination re-initialised from the accelerometer).
@@ -715,7 +717,7 @@ class FusionPipeline(Lifecycle):
                 if self._slip is not None:
                     # the base-frame specific force as measured (see _slip_detector)
                     slip_imu = (imu_t, accel[:, 0], accel[:, 1], rate, imu_codes)
-                dt = _steps(imu_t, self._last_imu_t)
+                dt = _steps(imu_t, self._last_imu_t, self.ekf.noise.max_extrapolation)
                 stats.accel_sum = _add_up_columns(stats.accel_sum, accel)
                 stats.gyro_turn = _add_up(stats.gyro_turn, rate * dt)
                 stats.gyro_time = _add_up(stats.gyro_time, dt)
@@ -748,8 +750,8 @@ class FusionPipeline(Lifecycle):
             parts.append((wheel_t, kind, t_eff, left, right,
                           np.arange(ref0, ref0 + wheel_t.size)))
         if twist_t is not None and twist_t.size:
-            stats.twist_turn = _add_up(stats.twist_turn,
-                                       twist_w * _steps(twist_t, self._last_twist_t))
+            stats.twist_turn = _add_up(stats.twist_turn, twist_w * _steps(
+                twist_t, self._last_twist_t, self.ekf.noise.max_extrapolation))
             self._last_twist_t = float(twist_t[-1])
             stats.twist_messages += twist_t.size
             ref0 = self._n_twists
@@ -1348,10 +1350,14 @@ def _floats(values) -> NDArray[np.float64]:
     return np.zeros(0) if values is None else np.asarray(values, dtype=np.float64).reshape(-1)
 
 
-def _steps(t: NDArray[np.float64], last: float) -> NDArray[np.float64]:
+def _steps(t: NDArray[np.float64], last: float, longest: float) -> NDArray[np.float64]:
     """Intervals before each stamp of ``t`` (s), the first from ``last`` (0 when ``last`` is
-    -inf: the first event of a source has no interval)."""
-    return np.diff(t, prepend=last if math.isfinite(last) else t[0])
+    -inf: the first event of a source has no interval), and 0 for an interval longer than
+    ``longest`` s: a gap, over which a rate says nothing (the EKF forgets its speeds after
+    ``max_extrapolation``; a rate times a 20 s gap was a turn of hundreds of degrees in the
+    turn counters)."""
+    dt = np.diff(t, prepend=last if math.isfinite(last) else t[0])
+    return np.where(dt > longest, 0.0, dt)
 
 
 def _add_up(total: float, values: NDArray[np.float64]) -> float:
