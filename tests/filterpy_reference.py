@@ -80,7 +80,7 @@ class FilterpyReference:
                                     "gyro_saturated", "encoder_faults", "updates",
                                     "speed_resets", "predictions", "accel_slips",
                                     "straight_frames", "wheel_scale_refits",
-                                    "bias_relearnt"), 0)
+                                    "bias_relearnt", "gyro_spikes"), 0)
         # the wheels' yaw rates are fused only while few turning frames fail the slip gate
         self.slip_share = 0.0
         self.distrust = False  # disproven: most turns disagree
@@ -90,6 +90,8 @@ class FilterpyReference:
         self.ticks_fit = np.zeros(6)  # the same over moving tick frames since k's restart
         self.ticks_turning = 0.0  # s of turning frames among those
         self.clipped_at = -math.inf  # filter time of the last saturated gyro sample
+        self.gyro_t = None  # time of the last gyro sample fused (the spike test)
+        self.spike_run = 0  # gyro samples rejected as spikes since then
         # gap policy: filter time of the last measurement of v and of w (None: forgotten)
         self.measured: dict[int, float | None] = {3: None, 4: None}
         self.forgotten: dict[int, tuple[float, float]] = {}  # i -> (time, second moment)
@@ -335,6 +337,20 @@ class FilterpyReference:
                 kf.P[4, 4] += 100.0 ** 2  # w forgotten: 100 rad/s, beyond any gyro's range
             H = model.gyro_jacobian(kf.x)
             R = model.gyro_noise(n.gyro_std ** 2)
+            if self.gyro_t is not None:
+                # a spike: further from the predicted rate than any robot turns
+                # (200 rad/s^2 since the last fused sample) plus 6 sigma; the third in a row
+                # is the rate, fused with w forgotten
+                s = (H @ kf.P @ H.T + R)[0, 0]
+                step = 200.0 * (self.t - self.gyro_t) + 6.0 * math.sqrt(s)
+                if abs(a - model.gyro_h(kf.x)[0]) > step:
+                    if self.spike_run < 2:
+                        self.spike_run += 1
+                        self.stats["gyro_spikes"] += 1
+                        return 2
+                    kf.P[4, 4] += 100.0 ** 2
+            self.spike_run = 0
+            self.gyro_t = self.t
             if self.zero_count >= n.zupt_frames:
                 s = (H @ kf.P @ H.T + R)[0, 0]
                 if ((a - model.gyro_h(kf.x)[0]) ** 2 / s > n.slip_gate

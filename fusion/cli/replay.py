@@ -208,7 +208,8 @@ def _print_result(r, level_note: bool = True) -> None:
           f"wheel yaw-rate scale re-set from its fit {s.get('wheel_scale_refits', 0)}, "
           f"encoder faults (zero ticks while the IMU moved, not "
           f"fused) {s['encoder_faults']}, gyro bias relearnt at a stop "
-          f"{s.get('bias_relearnt', 0)}, late inputs fused {s['late_applied']}, dropped "
+          f"{s.get('bias_relearnt', 0)}, gyro spikes not fused {s.get('gyro_spikes', 0)}, "
+          f"late inputs fused {s['late_applied']}, dropped "
           f"{s['late_dropped']}, invalid {s['invalid']}; wheel frames missing "
           f"{s['frames_missing']} ({s['gap_count']} gaps), "
           f"IMU gaps {s['attitude_gaps']}, "
@@ -610,7 +611,8 @@ def run_bag(args: argparse.Namespace) -> int:
           f"trusted {stats.wheel_rate_distrusted} (near-zero ones fused as driving straight "
           f"{stats.straight_frames}), encoder faults (zero twist while the IMU "
           f"moved, not fused) {stats.encoder_faults}, gyro bias relearnt at a stop "
-          f"{stats.bias_relearnt}, IMU gaps {stats.attitude_gaps}, speeds forgotten after a "
+          f"{stats.bias_relearnt}, gyro spikes not fused {stats.gyro_spikes}, IMU gaps "
+          f"{stats.attitude_gaps}, speeds forgotten after a "
           f"gap {stats.speed_resets}, invalid {ekf.stats['invalid']}")
     print(f"the bag's own odometry ({args.odom_topic}) final pose from its start: x "
           f"{own[-1, 0]:.3f} m, y {own[-1, 1]:.3f} m, yaw {math.degrees(own[-1, 2]):.2f} deg")

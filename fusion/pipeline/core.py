@@ -116,12 +116,13 @@ _log = logging.getLogger("fusion.pipeline")
 #: Why an input event was not fused (the keys of :meth:`FusionPipeline.ledger`'s
 #: ``dropped``): too late for the EKF; a stamp not after its source's previous one; a stamp
 #: that is NaN, infinite or ahead of the host clock by more than ``max_stamp_lead``; a NaN or
-#: infinite value; a gyro sample at full scale (saturated: not the rate); a wheel frame or
+#: infinite value; a gyro sample at full scale (saturated: not the rate); a gyro spike (a
+#: reading further from the predicted rate than any robot turns; a glitch); a wheel frame or
 #: twist with zero speed while the IMU shows motion (an encoder fault: flagged, not fused).
 #: A gap drops no event: the EKF's gap policy forgets speeds (``speed_resets``), the attitude
 #: filters count theirs (``attitude_gaps``), and every event after a gap is fused.
 DROP_REASONS = ("late", "out_of_order", "invalid_stamp", "invalid_value", "gyro_saturated",
-                "encoder_fault")
+                "gyro_spike", "encoder_fault")
 
 
 class SinkFailures(Exception):
@@ -202,6 +203,8 @@ class PipelineStats:
             wheel_scale_refit``: a skid-steer base or a wrong wheel_distance in robot.toml).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
+        gyro_spikes: gyro samples further from the predicted rate than any robot turns (a
+            glitch on the bus; not fused; the EKF's ``gyro_spikes``).
         bias_relearnt: stops at which the gyro bias was relearnt because every zero-velocity
             update of 0.5 s with the IMU still found the same yaw rate beyond the bias's
             variance (the bias had gone wrong while driving; the EKF's ``bias_relearnt``).
@@ -251,6 +254,7 @@ class PipelineStats:
     zupts: int = 0
     encoder_faults: int = 0
     bias_relearnt: int = 0
+    gyro_spikes: int = 0
     gap_count: int = 0
     frames_missing: int = 0
     accel_sum: tuple[float, float, float] = (0.0, 0.0, 0.0)
@@ -1262,6 +1266,7 @@ class FusionPipeline(Lifecycle):
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
         self.stats.bias_relearnt = s["bias_relearnt"]
+        self.stats.gyro_spikes = s["gyro_spikes"]
         self.stats.speed_resets = s["speed_resets"]
         self.stats.invalid = s["invalid"]
         self.stats.attitude_gaps = self.attitude.counters.gaps
@@ -1283,6 +1288,7 @@ class FusionPipeline(Lifecycle):
             + s.twist_invalid_stamp,
             "invalid_value": s.invalid_values + e["invalid"],
             "gyro_saturated": e["gyro_saturated"],
+            "gyro_spike": e["gyro_spikes"],
             # zero ticks while the IMU shows motion: flagged, not fused (the pose coasts)
             "encoder_fault": e["encoder_faults"],
         }

@@ -189,7 +189,19 @@ A_TICK_TURNING = 66
 A_STEADY_W = 67
 A_STEADY_T = 68
 A_BIAS_RELEARNT = 69
-AUX_SIZE = 70
+A_GYRO_T = 70  # filter time of the last gyro sample fused (NaN: none yet)
+A_SPIKE_RUN = 71  # gyro samples rejected as spikes since the last one fused
+A_GYRO_SPIKES = 72  # gyro samples rejected as spikes in all
+AUX_SIZE = 73
+#: rad/s^2: no ground robot's yaw rate changes faster (a differential drive's wheels at 5
+#: m/s^2 on a 0.3 m track: 33 rad/s^2); a gyro reading further from the predicted rate
+#: than this times the time since the last fused sample, plus SPIKE_SIGMAS standard
+#: deviations of the innovation, is a spike (a glitch on the bus), not the robot.
+MAX_ANGULAR_ACCEL = 200.0
+SPIKE_SIGMAS = 6.0
+#: A reading off by that much this many times in a row is the rate, not a spike: it is
+#: fused with w forgotten (an impact, a gyro that restarted with another offset).
+SPIKE_RUN = 3
 #: s: a forward specific force older than this drives v no more (the IMU feed stopped)
 ACCEL_HOLD = 0.1
 #: (rad/s)^2 added to w's variance before the first gyro sample (A_FIRST_GYRO): w is then
@@ -1250,7 +1262,8 @@ def step_core(x, P, aux, par, kind, t, a, b):
 
     Status: 0 applied, 1 slip (yaw rate not fused; speed fused down-weighted, or with its own
     noise when only the persistent-disagreement test flagged the frame), 2 gated out
-    (or a saturated gyro sample skipped), 3 S not positive definite,
+    (or a saturated gyro sample skipped, or a gyro spike: :data:`MAX_ANGULAR_ACCEL`),
+    3 S not positive definite,
     4 zero-velocity update, 5 dropped as too late, 6 invalid input,
     7 encoder fault (zero wheel speed while the IMU or the speed says the robot moves; not
     fused).
@@ -1285,6 +1298,19 @@ def step_core(x, P, aux, par, kind, t, a, b):
         R = gyro_noise(par[P_GYRO_VAR])
         y = gyro_h(x)
         y[0] = a - y[0]
+        if aux[A_GYRO_T] == aux[A_GYRO_T]:  # not the first gyro sample
+            # since the last one fused, in filter time (a late sample is fused at it)
+            step = (MAX_ANGULAR_ACCEL * (aux[A_T] - aux[A_GYRO_T])
+                    + SPIKE_SIGMAS * math.sqrt(innovation_variance(P, H, R, 0)))
+            if abs(y[0]) > step:
+                if aux[A_SPIKE_RUN] < SPIKE_RUN - 1:
+                    # a single glitch of 30 rad/s at 30 Hz turned the heading by 57 deg
+                    aux[A_SPIKE_RUN] += 1.0
+                    aux[A_GYRO_SPIKES] += 1.0
+                    return 2
+                P[4, 4] += UNKNOWN_RATE_VAR
+        aux[A_SPIKE_RUN] = 0.0
+        aux[A_GYRO_T] = aux[A_T]
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
             # motion onset while standing still: a gyro reading the still model cannot
             # explain, or an IMU that shakes, ends the stationary phase and gives w its

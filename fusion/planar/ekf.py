@@ -819,6 +819,8 @@ class PlanarEKF(ExtendedKalmanFilter):
             _relearn_bias_at_stop`),
             ``zupts``, ``late_dropped``, ``late_applied``,
             ``invalid`` (non-finite or implausible inputs), ``gyro_saturated``,
+            ``gyro_spikes`` (gyro samples further from the predicted rate than any robot
+            turns: a glitch, not fused; :data:`fusion.planar._ekf_core.MAX_ANGULAR_ACCEL`),
             ``encoder_faults``, ``updates``, ``speed_resets`` (v or w forgotten by the gap
             policy), ``predictions`` (prediction steps).
     """
@@ -916,6 +918,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         self._aux[core.A_YAW_BUDGET] = n.yaw_fix_burst
         # the wheels' yaw rate: no disagreement seen, not yet proven in turns (A_AGREED 0)
         self._aux[core.A_CLIPPED] = math.nan
+        self._aux[core.A_GYRO_T] = math.nan  # no gyro sample fused yet (the spike test)
         # no forward specific force yet, no accelerometer offset learnt
         self._aux[core.A_FX] = math.nan
         self._aux[core.A_FX_T] = math.nan
@@ -949,6 +952,7 @@ class PlanarEKF(ExtendedKalmanFilter):
             "late_applied": int(a[core.A_LATE_APPLIED]),
             "invalid": int(a[core.A_ERROR]),
             "gyro_saturated": int(a[core.A_SATURATED]),
+            "gyro_spikes": int(a[core.A_GYRO_SPIKES]),
             "encoder_faults": int(a[core.A_FAULTS]),
             "updates": int(a[core.A_UPDATES]),
             "speed_resets": int(a[core.A_SPEED_RESETS]),
