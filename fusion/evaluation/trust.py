@@ -341,6 +341,9 @@ def _accel_scale_cause(ratio: float) -> str:
     """The likely cause of an accelerometer mean ``ratio`` times standard gravity."""
     if abs(ratio * STANDARD_GRAVITY - 1.0) <= ACCEL_SCALE_TOLERANCE:
         return f"a log in g: multiply by {STANDARD_GRAVITY}"
+    if ratio < 0.2:
+        return ("nearly no gravity: a driver that removes it, where sensor_msgs/Imu and "
+                "imu.csv take the specific force with gravity (+9.81 up at rest)")
     power = round(math.log2(ratio))
     if power and abs(ratio / 2.0 ** power - 1.0) <= ACCEL_SCALE_TOLERANCE:
         return (f"{2.0 ** power:g} times: a driver scaling by another full-scale range than "

@@ -29,7 +29,7 @@ from scipy.integrate import trapezoid
 from fusion.calibration.mount import estimate_imu_mount
 from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
 from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
-from fusion.evaluation.trust import TrustWarning
+from fusion.evaluation.trust import ACCEL_SCALE_TOLERANCE, TrustWarning
 from fusion.geometry.angles import wrap_angle
 from fusion.io.errors import LogFormatError
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
@@ -46,6 +46,7 @@ from fusion.planar.model import NX
 from fusion.planar.odometry import WheelOdometry
 from fusion.planar.robot import RobotConfig
 from fusion.sinks.registry import open_sink
+from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = [
     "CAPTURE_SUFFIXES",
@@ -99,11 +100,19 @@ class Streams:
     def has_imu(self) -> bool:
         return self._has(self.imu_t)
 
-    @property
-    def has_accel(self) -> bool:
-        """Whether the accelerometer read anything (a driver that does not provide it
-        leaves zero rows)."""
-        return self.has_imu and bool(np.any(self.accel))
+    def level_note(self) -> str:
+        """Why the IMU's tilt cannot be compensated ("" when it can): an accelerometer whose
+        mean over the log is not gravity (zero rows: not provided; more than
+        :data:`fusion.evaluation.trust.ACCEL_SCALE_TOLERANCE` off 9.81 m/s^2: gravity removed,
+        g units, another full-scale range; the ``accel_scale`` warning says which)."""
+        if not self.has_imu:
+            return ""
+        norm = float(np.linalg.norm(np.mean(self.accel, axis=0)))
+        if abs(norm / STANDARD_GRAVITY - 1.0) <= ACCEL_SCALE_TOLERANCE:
+            return ""
+        what = ("reads zero throughout" if not np.any(self.accel) else
+                f"does not read gravity (its mean is {norm:.3g} m/s^2)")
+        return f"the accelerometer {what}: fused without tilt compensation (as --level)"
 
     @property
     def has_wheels(self) -> bool:
@@ -240,12 +249,13 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
     once, the gyro bias its first stop taught (:mod:`fusion.jobs.moving_start`), which a
     second pass took as the prior from the start (not with ``one_pass``: as a live run),
     else None. ``progress`` sees the first pass as the first half of the work. An IMU whose
-    accelerometer reads exactly zero throughout (not provided) is fused level (``tilt``
-    False): an attitude from the gyro alone drifts, and projecting the rates through it cost
-    more than the tilt it compensates (benchmarks/terrain's outdoor bag: 6.3 m of GPS RMSE
-    against 1.6 m level).
+    accelerometer does not read gravity (:meth:`Streams.level_note`: not provided, gravity
+    removed, other units) is fused level (``tilt`` False): an attitude from the gyro alone
+    drifts, and projecting the rates through it cost more than the tilt it compensates
+    (benchmarks/terrain's outdoor bag: 6.3 m of GPS RMSE against 1.6 m level; gravity
+    removed: 13.1 m against 1.5 m).
     """
-    tilt = tilt and streams.has_accel
+    tilt = tilt and not streams.level_note()
     first = _fuse_once(robot, streams, output, tilt, progress, 0.0 if one_pass else 0.5)
     table, pipe = first[0], first[1]
     start = None
@@ -440,9 +450,8 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
     n_imu = int(streams.imu_t.size) if streams.has_imu else 0
     t0, t1 = streams.span()
     notes = []
-    if n_imu and not streams.has_accel:
-        notes.append("the accelerometer reads zero throughout: fused without tilt "
-                     "compensation (as --level)")
+    if n_imu and tilt and streams.level_note():
+        notes.append(streams.level_note())
     if capture_stats is not None:
         bad = {k: v for k, v in capture_stats.items() if k not in ("frames", "bytes_in") and v}
         if bad:
@@ -646,7 +655,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
-    notes = [n for n in (bag.note, *bag.topic_notes) if n]
+    notes = [n for n in (bag.note, *bag.topic_notes, tilt and streams.level_note()) if n]
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps,
                      gps_note, motion, start, notes, coverage)
