@@ -449,9 +449,8 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
     wheel_t, ticks = streams.wheel_t, streams.ticks
     n_imu = int(streams.imu_t.size) if streams.has_imu else 0
     t0, t1 = streams.span()
-    notes = []
-    if n_imu and tilt and streams.level_note():
-        notes.append(streams.level_note())
+    level = streams.level_note() if tilt else ""
+    notes = [level] if level else []
     if capture_stats is not None:
         bad = {k: v for k, v in capture_stats.items() if k not in ("frames", "bytes_in") and v}
         if bad:
