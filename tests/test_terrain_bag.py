@@ -383,3 +383,55 @@ def test_stray_header_stamps_are_left_out_and_a_clock_jump_refused(replayed, tmp
     with pytest.raises(LogFormatError, match=r"clock jumped.*--stamps bag"):
         replay_bag(jumped, tmp_path / "b.csv", imu_topic="/imu/data", odom_topic="/odom")
     assert not (tmp_path / "b.csv").exists()
+
+
+def _negated(field):
+    """An edit for rewrite_messages: the odometry twist's ``field`` (``"linear.x"`` or
+    ``"angular.z"``) negated, its pose untouched."""
+    group, axis = field.split(".")
+
+    def edit(msg, record_ns):
+        vector = getattr(msg.twist.twist, group)
+        setattr(vector, axis, -getattr(vector, axis))
+        return record_ns
+
+    return edit
+
+
+def test_a_twist_against_its_pose_is_settled_by_the_imu(replayed, tmp_path):
+    # A driver that negates its twist's forward speed (or yaw rate) but not its pose. Before
+    # fusion.jobs.odometry_signs the forward speed's flip turned the fused track by 180 deg
+    # without a word (the outdoor benchmark bag: x -25.8 m where the untouched replay ends at
+    # +26.0 m; the GPS alignment hides the turn). The accelerometer's driving accelerations
+    # (or the gyro, for the yaw rate) side with the pose: the twist is fused negated, with a
+    # note, and the track is the untouched replay's. Without accelerations the IMU cannot
+    # tell which is flipped: a twist_pose warning, the twist taken as written.
+    from reshaped_bag import rewrite_messages
+
+    from fusion.jobs.replay import replay_bag
+
+    _, _, _, _, table, _, bag = replayed
+    mount = tuple(float(v) for v in MOUNT)
+    path = float(np.sum(np.hypot(np.diff(table["x"]), np.diff(table["y"]))))
+    for field in ("linear.x", "angular.z"):
+        flipped = tmp_path / f"{field}.bag"
+        rewrite_messages(bag, flipped, "/odom", _negated(field))
+        r = replay_bag(flipped, tmp_path / f"{field}.csv", imu_topic="/imu/data",
+                       odom_topic="/odom", imu_mount_rpy=mount)
+        said = [n for n in r.notes if "the IMU sides with the pose" in n]
+        quantity = "forward speed" if field == "linear.x" else "yaw rate"
+        assert len(said) == 1 and quantity in said[0], r.notes
+        assert not [w for w in r.warnings if w.name == "twist_pose"]
+        end = np.hypot(r.table[-1, 1] - table["x"][-1], r.table[-1, 2] - table["y"][-1])
+        assert end < 0.005 * path, (field, end, path)
+    blind = tmp_path / "blind.bag"
+    rewrite_messages(flipped.with_name("linear.x.bag"), blind, "/imu/data",
+                     _flag_not_provided("linear_acceleration"))
+    r = replay_bag(blind, tmp_path / "blind.csv", imu_topic="/imu/data", odom_topic="/odom",
+                   imu_mount_rpy=mount)
+    warned = [w for w in r.warnings if w.name == "twist_pose"]
+    assert len(warned) == 1 and "forward speed" in warned[0].message, r.warnings
+    assert warned[0].figures["twist_pose_speed_cosine"] < -0.99
+    # taken as written: the track is the untouched one turned by about 180 deg
+    end = np.hypot(r.table[-1, 1] + table["x"][-1], r.table[-1, 2] + table["y"][-1])
+    assert end < 0.05 * path, (end, path)

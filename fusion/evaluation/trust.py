@@ -163,7 +163,8 @@ HEADING_RATE = math.radians(0.5)
 @dataclass(frozen=True)
 class TrustWarning:
     """One failed check: ``name`` (``slip``, ``encoder_fault``, ``gyro_bias``, ``wheel_scale``,
-    ``odometry_scale``, ``heading_divergence``), a
+    ``odometry_scale``, ``mount``, ``gyro_axis``, ``accel_scale``, ``heading_divergence``;
+    ``twist_pose`` from :mod:`fusion.jobs.odometry_signs`), a
     sentence for the user with the figures, and the figures (SI: rad, rad/s, s, fractions)."""
 
     name: str

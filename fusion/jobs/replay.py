@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,6 +40,7 @@ from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
 from fusion.jobs.engine import run_tasks
 from fusion.jobs.moving_start import MovingStart, first_stop
+from fusion.jobs.odometry_signs import check_twist_signs
 from fusion.jobs.status import pipeline_warnings, status_record, write_status
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.model import NX
@@ -235,7 +236,7 @@ def find_log_dirs(path: Path) -> list[Path]:
 
 def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
                  tilt: bool = True, progress: Progress | None = None,
-                 one_pass: bool = False
+                 one_pass: bool = False, checked: Sequence[TrustWarning] = ()
                  ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats,
                             list[TrustWarning], MovingStart | None]:
     """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl;
@@ -253,10 +254,12 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
     removed, other units) is fused level (``tilt`` False): an attitude from the gyro alone
     drifts, and projecting the rates through it cost more than the tilt it compensates
     (benchmarks/terrain's outdoor bag: 6.3 m of GPS RMSE against 1.6 m level; gravity
-    removed: 13.1 m against 1.5 m).
+    removed: 13.1 m against 1.5 m). ``checked``: warnings found on the inputs before the
+    fusion (a bag's twist against its pose), put first.
     """
     tilt = tilt and not streams.level_note()
-    first = _fuse_once(robot, streams, output, tilt, progress, 0.0 if one_pass else 0.5)
+    first = _fuse_once(robot, streams, output, tilt, progress, 0.0 if one_pass else 0.5,
+                       checked=checked)
     table, pipe = first[0], first[1]
     start = None
     if not one_pass:
@@ -267,7 +270,7 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
             noise = dataclasses.replace(robot.ekf, initial_bias=start.bias,
                                         initial_bias_std=start.bias_std)
             second = _fuse_once(dataclasses.replace(robot, ekf=noise), streams, output, tilt,
-                                progress, 0.5, 0.5)
+                                progress, 0.5, 0.5, checked)
             return (*second, start)
         start = None
         if progress is not None:
@@ -277,7 +280,8 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
 
 
 def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: bool,
-               progress: Progress | None, share: float, offset: float = 0.0
+               progress: Progress | None, share: float, offset: float = 0.0,
+               checked: Sequence[TrustWarning] = ()
                ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats,
                           list[TrustWarning]]:
     """One pass of :func:`fuse_streams`; ``progress`` sees it as ``share`` of the work (all
@@ -298,7 +302,7 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
         pipe.push_arrays(streams.imu_t, streams.gyro, streams.accel, streams.wheel_t,
                          streams.ticks, twist_t=streams.twist_t, twist_v=streams.twist_v,
                          twist_w=streams.twist_w)
-        warnings = _with_mount_estimate(pipeline_warnings(pipe), robot, streams)
+        warnings = [*checked, *_with_mount_estimate(pipeline_warnings(pipe), robot, streams)]
         write_status(pipe, status_record(pipe, warnings))
     table = fused_table(pipe.state_rows, robot.chassis.speed_ratio
                          / robot.chassis.encode_sampling_time)
@@ -609,7 +613,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic, fix_topic=fix_topic,
                    stamps=stamps)
     imu, odom = bag.imu, bag.odometry
-    motion = odometry_motion(odom)
+    signs = check_twist_signs(odom, odometry_motion(odom), imu, robot.imu_mount_rpy)
+    motion = signs.motion
     streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=motion.t, twist_v=motion.v,
                       twist_w=motion.w)
     streams.check_overlap(f"{path}: topics {imu_topic} and {odom_topic}",
@@ -619,7 +624,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     if bag.fixes is not None:
         _check_fixes_overlap(path, bag.fixes, imu.t, odom.t)
     table, pipe, stats, warnings, start = fuse_streams(robot, streams, output, tilt=tilt,
-                                                       progress=progress, one_pass=one_pass)
+                                                       progress=progress, one_pass=one_pass,
+                                                       checked=signs.warnings)
     x0, y0, th0 = odom.x[0], odom.y[0], odom.yaw[0]
     c, sn = math.cos(th0), math.sin(th0)
     dx, dy = odom.x - x0, odom.y - y0
@@ -654,7 +660,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
-    notes = [n for n in (bag.note, *bag.topic_notes, tilt and streams.level_note()) if n]
+    notes = [n for n in (bag.note, *bag.topic_notes, *signs.notes,
+                         tilt and streams.level_note()) if n]
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps,
                      gps_note, motion, start, notes, coverage)
