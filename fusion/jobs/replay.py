@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.integrate import trapezoid
 
+from fusion.calibration.gyro_axes import axis_angle, gyro_yaw_axis
 from fusion.calibration.mount import estimate_imu_mount
 from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
 from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
@@ -69,6 +70,11 @@ __all__ = [
     "replay_logs",
     "run_log_job",
 ]
+
+#: rad: the odometry's turns about a gyro axis this far from the accelerometer's up (and as
+#: far from down) are the ``gyro_axes`` warning's (:func:`_gyro_axes_warnings`): a tilted
+#: mount moves both together; hills tilt the turning axis by a few degrees on average.
+GYRO_AXES_LIMIT = math.radians(30.0)
 
 #: Output suffix -> format.
 OUTPUT_FORMATS = {".csv": "csv", ".mcap": "mcap", ".jsonl": "jsonl"}
@@ -122,6 +128,21 @@ class Streams:
     @property
     def has_twist(self) -> bool:
         return self._has(self.twist_t)
+
+    def odometry_rates(self, chassis: Any
+                       ) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                  NDArray[np.float64]] | None:
+        """``(t s, v m/s, w rad/s)`` of the odometry: the wheel frames' (with ``chassis``,
+        a :class:`fusion.geometry.kinematics.DiffDriveParams`) or else the twists; None
+        without either."""
+        if self.has_wheels:
+            from fusion.geometry.kinematics import ticks_to_twist
+
+            v, w = ticks_to_twist(self.ticks[:, 0], self.ticks[:, 1], chassis)
+            return self.wheel_t, np.asarray(v, dtype=float), np.asarray(w, dtype=float)
+        if self.has_twist:
+            return self.twist_t, self.twist_v, self.twist_w
+        return None
 
     def span(self) -> tuple[float, float]:
         """First and last stamp over the streams, s."""
@@ -302,7 +323,8 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
         pipe.push_arrays(streams.imu_t, streams.gyro, streams.accel, streams.wheel_t,
                          streams.ticks, twist_t=streams.twist_t, twist_v=streams.twist_v,
                          twist_w=streams.twist_w)
-        warnings = [*checked, *_with_mount_estimate(pipeline_warnings(pipe), robot, streams)]
+        warnings = [*checked, *_with_mount_estimate(pipeline_warnings(pipe), robot, streams),
+                    *_gyro_axes_warnings(streams, robot)]
         write_status(pipe, status_record(pipe, warnings))
     table = fused_table(pipe.state_rows, robot.chassis.speed_ratio
                          / robot.chassis.encode_sampling_time)
@@ -322,13 +344,8 @@ def _with_mount_estimate(warnings: list[TrustWarning], robot: RobotConfig, strea
     out = []
     for w in warnings:
         if w.name == "mount" and streams.has_imu:
-            speed_t = speed = None
-            if streams.has_wheels:
-                c = robot.chassis
-                speed_t = streams.wheel_t
-                speed = streams.ticks.mean(axis=1) * c.speed_ratio / c.encode_sampling_time
-            elif streams.has_twist:
-                speed_t, speed = streams.twist_t, streams.twist_v
+            odometry = streams.odometry_rates(robot.chassis)
+            speed_t, speed = (None, None) if odometry is None else odometry[:2]
             try:
                 est = estimate_imu_mount(streams.imu_t, streams.gyro, streams.accel, speed_t,
                                          speed)
@@ -343,6 +360,37 @@ def _with_mount_estimate(warnings: list[TrustWarning], robot: RobotConfig, strea
             w = TrustWarning(w.name, f"{w.message}; {est.describe()}", figures)
         out.append(w)
     return out
+
+
+def _gyro_axes_warnings(streams: Streams, robot: RobotConfig) -> list[TrustWarning]:
+    """A ``gyro_axes`` warning when the odometry turns about a gyro axis more than
+    :data:`GYRO_AXES_LIMIT` from the vertical the accelerometer reads
+    (:mod:`fusion.calibration.gyro_axes`; both in the IMU frame, so the mount does not enter):
+    the gyro's axes are not the accelerometer's. Not within that of straight down: a gyro
+    turning the other way is ``gyro_axis``'s."""
+    odometry = streams.odometry_rates(robot.chassis) if streams.has_imu else None
+    if odometry is None or streams.level_note():
+        return []
+    fit = gyro_yaw_axis(streams.imu_t, streams.gyro, odometry[0], odometry[2])
+    if fit is None:
+        return []
+    up = np.mean(streams.accel, axis=0)
+    angle = axis_angle(fit.axis, up)
+    if not GYRO_AXES_LIMIT < angle < math.pi - GYRO_AXES_LIMIT:
+        return []
+    up_text = "(" + ", ".join(f"{c:+.2f}" for c in up / np.linalg.norm(up)) + ")"
+    return [TrustWarning(
+        "gyro_axes",
+        f"the odometry's turns show on the gyro about its axis {fit.describe()} (IMU frame; "
+        f"{fit.scale:.2f} odometry rad/s per gyro rad/s, correlation {fit.correlation:.3f} "
+        f"over {math.degrees(fit.turn):.0f} deg of turns), {math.degrees(angle):.0f} deg from "
+        f"the up the accelerometer reads, {up_text}: the gyro's axes are not the "
+        "accelerometer's (two gyro axes swapped in the driver, or rates and accelerations "
+        "from different sensors or frames), so the heading rate was taken about the wrong "
+        "axis",
+        {"gyro_axes_angle": angle, "gyro_yaw_axis_x": fit.axis[0],
+         "gyro_yaw_axis_y": fit.axis[1], "gyro_yaw_axis_z": fit.axis[2],
+         "gyro_yaw_axis_correlation": fit.correlation})]
 
 
 def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.float64]:
