@@ -111,6 +111,27 @@ def test_errors_exit_2_with_a_message(tmp_path, capsys):
     assert not (tmp_path / "o.csv").exists()
 
 
+def test_a_gyro_reading_exactly_zero_through_turns_is_refused(run, tmp_path, capsys):
+    # imu.csv whose rates are all 0 (a recorder that wrote the orientation and no rates):
+    # fused, the heading stayed straight through every turn. Refused, naming the file and
+    # the turns the wheels made; the same gyro on a log that never turns is replayed (a
+    # driver's deadband reads exactly 0 at rest).
+    wheel_turn = np.sum(np.abs(np.diff(run.truth[:, 2])))
+    assert wheel_turn > 1.0  # the mission turns
+    zero = np.zeros_like(run.gyro)
+    d = write_logdir(tmp_path / "z", EXAMPLE_ROBOT, run.imu_t, zero, run.accel, run.wheel_t,
+                     run.ticks)
+    out = tmp_path / "z.csv"
+    assert main(["replay", str(d), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert str(d / "imu.csv") in err and "exactly 0 while the odometry turned" in err, err
+    assert not out.exists()
+    straight = np.column_stack([run.ticks[:, 0], run.ticks[:, 0]])  # both wheels alike
+    d = write_logdir(tmp_path / "s", EXAMPLE_ROBOT, run.imu_t, zero, run.accel, run.wheel_t,
+                     straight)
+    assert main(["replay", str(d), "-o", str(out)]) == 0
+
+
 def test_imu_and_wheels_on_different_clocks_are_refused(logdir, tmp_path, capsys):
     # wheels.csv moved onto another clock (a day later): no stamp of it overlaps imu.csv's
     import shutil

@@ -76,6 +76,10 @@ __all__ = [
 #: mount moves both together; hills tilt the turning axis by a few degrees on average.
 GYRO_AXES_LIMIT = math.radians(30.0)
 
+#: rad: odometry turns through which a gyro reading exactly 0 is refused
+#: (:meth:`Streams.check_gyro`).
+DEAD_GYRO_TURN = 1.0
+
 #: Output suffix -> format.
 OUTPUT_FORMATS = {".csv": "csv", ".mcap": "mcap", ".jsonl": "jsonl"}
 
@@ -166,6 +170,26 @@ class Streams:
                 f"{where}: the IMU's stamps span {imu[0]:.3f}-{imu[1]:.3f} s and the {kind}'s "
                 f"{odo[0]:.3f}-{odo[1]:.3f} s: they do not overlap, so they are on different "
                 f"clocks ({hint})")
+
+    def check_gyro(self, where: str, chassis: Any) -> None:
+        """Refuse a gyro that reads exactly 0 on every axis in every sample while the
+        odometry turned more than :data:`DEAD_GYRO_TURN` (a real gyro's noise never reads
+        exactly 0 throughout; a deadband driver at rest may, but not through turns): fused,
+        it held the heading straight through every turn (the terrain outdoor bag: 67.7 m of
+        GPS RMSE, only heading_divergence said anything). LogFormatError naming ``where``."""
+        odometry = self.odometry_rates(chassis) if self.has_imu else None
+        if odometry is None or np.any(self.gyro):
+            return
+        t, _, w = odometry
+        dt = np.diff(t)
+        turn = float(np.sum(np.abs(w[1:]) * np.where(dt > 1.0, 0.0, dt)))  # gaps: no turn
+        if turn > DEAD_GYRO_TURN:
+            raise LogFormatError(
+                f"{where}: every angular velocity of its {self.imu_t.size} IMU samples is "
+                f"exactly 0 while the odometry turned {math.degrees(turn):.0f} deg: no gyro "
+                "rates (an orientation-only driver that does not say so, REP-145's "
+                "angular_velocity_covariance[0] = -1, or a dead sensor); the fusion needs "
+                "the gyro's rates")
 
     def nominal_imu_rate(self) -> float:
         """The IMU's nominal rate, Hz (the median interval, rounded: 100.0, not 99.99999 from
@@ -442,6 +466,7 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
     imu_t, gyro, accel, note = _finite_imu_rows(path / "imu.csv", log.imu_t, log.gyro,
                                                 log.accel)
     streams = Streams(imu_t, gyro, accel, log.wheel_t, log.ticks)
+    streams.check_gyro(f"{path / 'imu.csv'}", robot.chassis)
     result = _finish(path, output, robot, streams, log.truth_t, log.truth,
                      tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats,
                      one_pass=one_pass)
@@ -669,6 +694,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                           "a driver stamping with its device's clock: --stamps bag takes "
                           "when the bag recorded each message" if stamps == "header" else
                           "the bag recorded them at different times")
+    streams.check_gyro(f"{path}: topic {imu_topic}", robot.chassis)
     if bag.fixes is not None:
         _check_fixes_overlap(path, bag.fixes, imu.t, odom.t)
     table, pipe, stats, warnings, start = fuse_streams(robot, streams, output, tilt=tilt,
