@@ -221,7 +221,9 @@ class PipelineStats:
             than the EKF's ``max_extrapolation`` left out of both: gaps).
         wheel_turn: rad, the heading change of the wheel frames ((right - left) travel /
             wheel_distance); twist_turn: rad, the twists' yaw rate integrated (not over
-            intervals longer than ``max_extrapolation``).
+            intervals longer than ``max_extrapolation``); both only where the IMU has samples
+            (not before its first, nor in its gaps longer than ``max_extrapolation``: a 30 s
+            IMU gap while turning had made heading_divergence fire on a good track).
         (The two turns let :mod:`fusion.evaluation.trust` see the sources disagree.)
         attitude_gaps: IMU periods longer than the attitude filter's ``max_gap`` (integrated
             over one regular period, inclination re-initialised from the accelerometer).
@@ -456,6 +458,11 @@ class FusionPipeline(Lifecycle):
         self.stats = PipelineStats()
         self.latencies: collections.deque[float] = collections.deque(maxlen=latency_window)
         self._last_imu_t = -math.inf
+        self._first_imu_t = math.inf
+        # spans with no IMU sample (a gap's start plus max_extrapolation, its end), in time
+        # order: the odometry's turns there are not counted against the gyro's
+        self._imu_gaps: tuple[list[float], list[float]] = ([], [])
+        self._expects_imu = "imu" in sources
         self._last_wheel_t = -math.inf
         self._last_twist_t = -math.inf
         # payloads of accepted events by ref (per source): the IMU's (attitude, base-frame
@@ -722,6 +729,7 @@ class FusionPipeline(Lifecycle):
                     # the base-frame specific force as measured (see _slip_detector)
                     slip_imu = (imu_t, accel[:, 0], accel[:, 1], rate, imu_codes)
                 dt = _steps(imu_t, self._last_imu_t, self.ekf.noise.max_extrapolation)
+                self._note_imu_gaps(imu_t)
                 stats.accel_sum = _add_up_columns(stats.accel_sum, accel)
                 stats.gyro_turn = _add_up(stats.gyro_turn, rate * dt)
                 stats.gyro_time = _add_up(stats.gyro_time, dt)
@@ -744,8 +752,8 @@ class FusionPipeline(Lifecycle):
             self._note_gaps(wheel_t)
             self._last_wheel_t = float(wheel_t[-1])
             stats.wheel_frames += wheel_t.size
-            stats.wheel_turn = _add_up(stats.wheel_turn,
-                                       (ticks[:, 1] - ticks[:, 0]) * self._m_per_turn)
+            stats.wheel_turn = _add_up(stats.wheel_turn, np.where(
+                self._imu_covers(wheel_t), (ticks[:, 1] - ticks[:, 0]) * self._m_per_turn, 0.0))
             ref0 = self._wheel_rows.append(ticks)
             t_eff = wheel_t - self._wheel_shift - self.ekf.noise.wheel_latency
             kind = _EV_WHEELS if wheel_slip is None else np.where(
@@ -754,8 +762,9 @@ class FusionPipeline(Lifecycle):
             parts.append((wheel_t, kind, t_eff, left, right,
                           np.arange(ref0, ref0 + wheel_t.size)))
         if twist_t is not None and twist_t.size:
-            stats.twist_turn = _add_up(stats.twist_turn, twist_w * _steps(
-                twist_t, self._last_twist_t, self.ekf.noise.max_extrapolation))
+            stats.twist_turn = _add_up(stats.twist_turn, np.where(
+                self._imu_covers(twist_t), twist_w * _steps(
+                    twist_t, self._last_twist_t, self.ekf.noise.max_extrapolation), 0.0))
             self._last_twist_t = float(twist_t[-1])
             stats.twist_messages += twist_t.size
             ref0 = self._n_twists
@@ -1092,6 +1101,34 @@ class FusionPipeline(Lifecycle):
             return f.update(gyro[0], accel[0], timestamp=float(t[0]),
                             still=None if s != s else bool(s), known_accel=known[0])[None, :]
         return f.update_batch(gyro, accel, timestamps=t, still=still, known_accel=known)
+
+    def _note_imu_gaps(self, imu_t: NDArray[np.float64]) -> None:
+        """Record the IMU's first stamp and the spans of its gaps longer than the EKF's
+        ``max_extrapolation`` (before the samples ``imu_t``, not yet the last seen), each
+        from the gap's start plus that to its end: :meth:`_imu_covers`."""
+        longest = self.ekf.noise.max_extrapolation
+        self._first_imu_t = min(self._first_imu_t, float(imu_t[0]))
+        prev = np.concatenate([[self._last_imu_t], imu_t[:-1]])
+        for i in np.flatnonzero(np.isfinite(prev) & (imu_t - prev > longest)).tolist():
+            self._imu_gaps[0].append(float(prev[i]) + longest)
+            self._imu_gaps[1].append(float(imu_t[i]))
+
+    def _imu_covers(self, t: NDArray[np.float64]) -> NDArray[np.bool_]:
+        """Which odometry stamps ``t`` (s) the IMU covers, so their turns count against the
+        gyro's (``wheel_turn``, ``twist_turn``): from its first sample to ``max_extrapolation``
+        after its last so far, outside its gaps; all of them in a run without an IMU. The
+        same whether the IMU came before (a replay's batch) or is still to come (live: a
+        stamp past the last sample by more than that is in a gap, or before the first)."""
+        if not self._expects_imu:
+            return np.ones(t.size, dtype=bool)
+        covered = (t >= self._first_imu_t) & (
+            t <= self._last_imu_t + self.ekf.noise.max_extrapolation)
+        starts, ends = self._imu_gaps
+        if starts:
+            k = np.searchsorted(np.asarray(starts), t, side="right") - 1
+            inside = (k >= 0) & (t < np.asarray(ends)[np.maximum(k, 0)])
+            covered &= ~inside
+        return covered
 
     def _note_gaps(self, wheel_t: NDArray[np.float64]) -> None:
         """Count the wheel frames missing before each accepted frame (an interval of at
