@@ -26,11 +26,9 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.integrate import trapezoid
 
-from fusion.calibration.gyro_axes import axis_angle, gyro_yaw_axis
-from fusion.calibration.mount import estimate_imu_mount
 from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
 from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
-from fusion.evaluation.trust import ACCEL_SCALE_TOLERANCE, TrustWarning
+from fusion.evaluation.trust import TrustWarning
 from fusion.geometry.angles import wrap_angle
 from fusion.io.errors import LogFormatError
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
@@ -43,12 +41,17 @@ from fusion.jobs.engine import run_tasks
 from fusion.jobs.moving_start import MovingStart, first_stop
 from fusion.jobs.odometry_signs import check_twist_signs
 from fusion.jobs.status import pipeline_warnings, status_record, write_status
+from fusion.jobs.streams import (
+    Streams,
+    coverage_warnings,
+    gyro_axes_warnings,
+    with_mount_estimate,
+)
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.model import NX
 from fusion.planar.odometry import WheelOdometry
 from fusion.planar.robot import RobotConfig
 from fusion.sinks.registry import open_sink
-from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = [
     "CAPTURE_SUFFIXES",
@@ -71,15 +74,6 @@ __all__ = [
     "run_log_job",
 ]
 
-#: rad: the odometry's turns about a gyro axis this far from the accelerometer's up (and as
-#: far from down) are the ``gyro_axes`` warning's (:func:`_gyro_axes_warnings`): a tilted
-#: mount moves both together; hills tilt the turning axis by a few degrees on average.
-GYRO_AXES_LIMIT = math.radians(30.0)
-
-#: rad: odometry turns through which a gyro reading exactly 0 is refused
-#: (:meth:`Streams.check_gyro`).
-DEAD_GYRO_TURN = 1.0
-
 #: Output suffix -> format.
 OUTPUT_FORMATS = {".csv": "csv", ".mcap": "mcap", ".jsonl": "jsonl"}
 
@@ -87,119 +81,6 @@ CAPTURE_SUFFIXES = (".uart2",)
 
 #: ``callback(done, total)``: seconds of log time replayed so far and in all.
 Progress = Callable[[float, float], None]
-
-
-@dataclass
-class Streams:
-    """What a replay fuses: IMU samples in the IMU frame (s, rad/s, m/s^2), wheel frames (s,
-    int ticks per period) and external odometry twists (s, m/s, rad/s); any may be None."""
-
-    imu_t: NDArray[np.float64] | None = None
-    gyro: NDArray[np.float64] | None = None
-    accel: NDArray[np.float64] | None = None
-    wheel_t: NDArray[np.float64] | None = None
-    ticks: NDArray[np.int64] | None = None
-    twist_t: NDArray[np.float64] | None = None
-    twist_v: NDArray[np.float64] | None = None
-    twist_w: NDArray[np.float64] | None = None
-
-    @staticmethod
-    def _has(a) -> bool:
-        return a is not None and a.size > 0
-
-    @property
-    def has_imu(self) -> bool:
-        return self._has(self.imu_t)
-
-    def level_note(self) -> str:
-        """Why the IMU's tilt cannot be compensated ("" when it can): an accelerometer whose
-        mean over the log is not gravity (zero rows: not provided; more than
-        :data:`fusion.evaluation.trust.ACCEL_SCALE_TOLERANCE` off 9.81 m/s^2: gravity removed,
-        g units, another full-scale range; the ``accel_scale`` warning says which)."""
-        if not self.has_imu:
-            return ""
-        norm = float(np.linalg.norm(np.mean(self.accel, axis=0)))
-        if abs(norm / STANDARD_GRAVITY - 1.0) <= ACCEL_SCALE_TOLERANCE:
-            return ""
-        what = ("reads zero throughout" if not np.any(self.accel) else
-                f"does not read gravity (its mean is {norm:.3g} m/s^2)")
-        return f"the accelerometer {what}: fused without tilt compensation (as --level)"
-
-    @property
-    def has_wheels(self) -> bool:
-        return self._has(self.wheel_t)
-
-    @property
-    def has_twist(self) -> bool:
-        return self._has(self.twist_t)
-
-    def odometry_rates(self, chassis: Any
-                       ) -> tuple[NDArray[np.float64], NDArray[np.float64],
-                                  NDArray[np.float64]] | None:
-        """``(t s, v m/s, w rad/s)`` of the odometry: the wheel frames' (with ``chassis``,
-        a :class:`fusion.geometry.kinematics.DiffDriveParams`) or else the twists; None
-        without either."""
-        if self.has_wheels:
-            from fusion.geometry.kinematics import ticks_to_twist
-
-            v, w = ticks_to_twist(self.ticks[:, 0], self.ticks[:, 1], chassis)
-            return self.wheel_t, np.asarray(v, dtype=float), np.asarray(w, dtype=float)
-        if self.has_twist:
-            return self.twist_t, self.twist_v, self.twist_w
-        return None
-
-    def span(self) -> tuple[float, float]:
-        """First and last stamp over the streams, s."""
-        ts = [a for a in (self.imu_t, self.wheel_t, self.twist_t) if self._has(a)]
-        if not ts:
-            raise ValueError("nothing to replay: no IMU sample, wheel frame or twist")
-        return min(float(a[0]) for a in ts), max(float(a[-1]) for a in ts)
-
-    def check_overlap(self, where: str, hint: str) -> None:
-        """Refuse IMU samples and odometry (wheel frames or twists) whose stamps do not
-        overlap at all: the two were stamped on different clocks, and fused they would give
-        a track that never moves. LogFormatError naming ``where``, both spans and ``hint``."""
-        odometry = self.wheel_t if self.has_wheels else self.twist_t
-        if not (self.has_imu and self._has(odometry)):
-            return
-        imu = (float(self.imu_t[0]), float(self.imu_t[-1]))
-        odo = (float(odometry[0]), float(odometry[-1]))
-        if imu[1] < odo[0] or odo[1] < imu[0]:
-            kind = "wheel frames" if self.has_wheels else "odometry"
-            raise LogFormatError(
-                f"{where}: the IMU's stamps span {imu[0]:.3f}-{imu[1]:.3f} s and the {kind}'s "
-                f"{odo[0]:.3f}-{odo[1]:.3f} s: they do not overlap, so they are on different "
-                f"clocks ({hint})")
-
-    def check_gyro(self, where: str, chassis: Any) -> None:
-        """Refuse a gyro that reads exactly 0 on every axis in every sample while the
-        odometry turned more than :data:`DEAD_GYRO_TURN` (a real gyro's noise never reads
-        exactly 0 throughout; a deadband driver at rest may, but not through turns): fused,
-        it held the heading straight through every turn (the terrain outdoor bag: 67.7 m of
-        GPS RMSE, only heading_divergence said anything). LogFormatError naming ``where``."""
-        odometry = self.odometry_rates(chassis) if self.has_imu else None
-        if odometry is None or np.any(self.gyro):
-            return
-        t, _, w = odometry
-        dt = np.diff(t)
-        turn = float(np.sum(np.abs(w[1:]) * np.where(dt > 1.0, 0.0, dt)))  # gaps: no turn
-        if turn > DEAD_GYRO_TURN:
-            raise LogFormatError(
-                f"{where}: every angular velocity of its {self.imu_t.size} IMU samples is "
-                f"exactly 0 while the odometry turned {math.degrees(turn):.0f} deg: no gyro "
-                "rates (an orientation-only driver that does not say so, REP-145's "
-                "angular_velocity_covariance[0] = -1, or a dead sensor); the fusion needs "
-                "the gyro's rates")
-
-    def nominal_imu_rate(self) -> float:
-        """The IMU's nominal rate, Hz (the median interval, rounded: 100.0, not 99.99999 from
-        jittered stamps); 100 Hz without two samples (the attitude filter's first step, as
-        live)."""
-        if self.has_imu and self.imu_t.size >= 2:
-            dt = float(np.median(np.diff(self.imu_t)))
-            if math.isfinite(dt) and dt > 0:
-                return round(1.0 / dt, 3)
-        return 100.0
 
 
 @dataclass
@@ -347,8 +228,8 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
         pipe.push_arrays(streams.imu_t, streams.gyro, streams.accel, streams.wheel_t,
                          streams.ticks, twist_t=streams.twist_t, twist_v=streams.twist_v,
                          twist_w=streams.twist_w)
-        warnings = [*checked, *_with_mount_estimate(pipeline_warnings(pipe), robot, streams),
-                    *_gyro_axes_warnings(streams, robot)]
+        warnings = [*checked, *with_mount_estimate(pipeline_warnings(pipe), robot, streams),
+                    *gyro_axes_warnings(streams, robot)]
         write_status(pipe, status_record(pipe, warnings))
     table = fused_table(pipe.state_rows, robot.chassis.speed_ratio
                          / robot.chassis.encode_sampling_time)
@@ -357,64 +238,6 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
     if progress is not None and offset + part >= 1.0:
         progress(span, span)
     return table, pipe, pipe.finish_stats(), warnings
-
-
-def _with_mount_estimate(warnings: list[TrustWarning], robot: RobotConfig, streams: Streams
-                         ) -> list[TrustWarning]:
-    """``warnings`` with a ``mount`` warning (:mod:`fusion.evaluation.trust`) completed by the
-    mount estimated from the log (:func:`fusion.calibration.mount.estimate_imu_mount`: roll
-    and pitch from gravity, yaw from the driving accelerations against the odometry's
-    speed): what to set, not only that something is wrong."""
-    out = []
-    for w in warnings:
-        if w.name == "mount" and streams.has_imu:
-            odometry = streams.odometry_rates(robot.chassis)
-            speed_t, speed = (None, None) if odometry is None else odometry[:2]
-            try:
-                est = estimate_imu_mount(streams.imu_t, streams.gyro, streams.accel, speed_t,
-                                         speed)
-            except ValueError:
-                out.append(w)
-                continue
-            figures = {**w.figures, "estimated_roll": est.rpy[0],
-                       "estimated_pitch": est.rpy[1], "estimated_yaw": est.rpy[2],
-                       "estimated_yaw_known": float(est.yaw_known)}
-            if est.yaw_known:  # else NaN, which JSON does not have
-                figures["estimated_yaw_std"] = est.yaw_std
-            w = TrustWarning(w.name, f"{w.message}; {est.describe()}", figures)
-        out.append(w)
-    return out
-
-
-def _gyro_axes_warnings(streams: Streams, robot: RobotConfig) -> list[TrustWarning]:
-    """A ``gyro_axes`` warning when the odometry turns about a gyro axis more than
-    :data:`GYRO_AXES_LIMIT` from the vertical the accelerometer reads
-    (:mod:`fusion.calibration.gyro_axes`; both in the IMU frame, so the mount does not enter):
-    the gyro's axes are not the accelerometer's. Not within that of straight down: a gyro
-    turning the other way is ``gyro_axis``'s."""
-    odometry = streams.odometry_rates(robot.chassis) if streams.has_imu else None
-    if odometry is None or streams.level_note():
-        return []
-    fit = gyro_yaw_axis(streams.imu_t, streams.gyro, odometry[0], odometry[2])
-    if fit is None:
-        return []
-    up = np.mean(streams.accel, axis=0)
-    angle = axis_angle(fit.axis, up)
-    if not GYRO_AXES_LIMIT < angle < math.pi - GYRO_AXES_LIMIT:
-        return []
-    up_text = "(" + ", ".join(f"{c:+.2f}" for c in up / np.linalg.norm(up)) + ")"
-    return [TrustWarning(
-        "gyro_axes",
-        f"the odometry's turns show on the gyro about its axis {fit.describe()} (IMU frame; "
-        f"{fit.scale:.2f} odometry rad/s per gyro rad/s, correlation {fit.correlation:.3f} "
-        f"over {math.degrees(fit.turn):.0f} deg of turns), {math.degrees(angle):.0f} deg from "
-        f"the up the accelerometer reads, {up_text}: the gyro's axes are not the "
-        "accelerometer's (two gyro axes swapped in the driver, or rates and accelerations "
-        "from different sensors or frames), so the heading rate was taken about the wrong "
-        "axis",
-        {"gyro_axes_angle": angle, "gyro_yaw_axis_x": fit.axis[0],
-         "gyro_yaw_axis_y": fit.axis[1], "gyro_yaw_axis_z": fit.axis[2],
-         "gyro_yaw_axis_correlation": fit.correlation})]
 
 
 def fused_table(rows: NDArray[np.float64], m_per_tick_s: float) -> NDArray[np.float64]:
@@ -618,39 +441,6 @@ class BagReplay:
     moving_start: MovingStart | None = None
     notes: list[str] = field(default_factory=list)
     coverage: list[str] = field(default_factory=list)
-
-
-def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
-                      longest: float, odometry: str = "odometry") -> list[str]:
-    """What the fused output cannot cover, one sentence each (empty when nothing is missing),
-    with ``longest`` s the EKF's ``max_extrapolation``: odometry stamps more than that
-    beyond the IMU's span (rows are written at IMU samples: a CSV ends at the IMU's last),
-    IMU samples more than that beyond the odometry's (the pose stands still there: speeds
-    forgotten), and gaps longer than that in either (an odometry gap stops the pose; an IMU
-    gap leaves the heading without the gyro)."""
-    out = []
-    before, after = imu_t[0] - odom_t[0], odom_t[-1] - imu_t[-1]
-    if before > longest or after > longest:
-        out.append(f"the {odometry} spans {odom_t[0]:.3f}-{odom_t[-1]:.3f} s, the IMU "
-                   f"{imu_t[0]:.3f}-{imu_t[-1]:.3f} s: {max(0.0, before):.1f} s before and "
-                   f"{max(0.0, after):.1f} s after the IMU's samples are not in a CSV output "
-                   "(rows at IMU samples; .jsonl and .mcap records go on)")
-    if -before > longest or -after > longest:
-        out.append(f"the IMU spans {imu_t[0]:.3f}-{imu_t[-1]:.3f} s, the {odometry} "
-                   f"{odom_t[0]:.3f}-{odom_t[-1]:.3f} s: over the {max(0.0, -before):.1f} s "
-                   f"before and {max(0.0, -after):.1f} s after the {odometry} the pose stands "
-                   "still (no speed)")
-    for name, t in (("IMU", imu_t), (odometry, odom_t)):
-        dt = np.diff(t)
-        gaps = np.flatnonzero(dt > longest)
-        if gaps.size:
-            i = int(gaps[np.argmax(dt[gaps])])
-            over = ("the pose stopped (speeds forgotten)" if name == odometry
-                    else "the heading had no gyro")
-            out.append(f"{name} gaps longer than {longest:g} s: {gaps.size}, "
-                       f"{float(np.sum(dt[gaps])):.1f} s in all (the longest {dt[i]:.1f} s "
-                       f"after {t[i]:.3f} s); over them {over}")
-    return out
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
