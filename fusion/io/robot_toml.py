@@ -7,6 +7,15 @@ The optional ``[attitude]`` table chooses the pipeline's attitude filter::
     filter = "keel"             # "keel" (default) or "mahony"
     wheel_knowledge = true      # Keel only: feed v*w and wheel stillness (default: on)
     accel_time_constant = 3.0   # any other key: a field of KeelParams / MahonyParams, SI
+
+The optional ``[imu_motion]`` table sets when the IMU counts as still or moving
+(:class:`fusion.planar.imu_motion.MotionThresholds`; standard deviations over a short
+window, rad/s and m/s^2): an IMU that vibrates at rest needs higher stillness thresholds for
+its stops to be zero-velocity updates::
+
+    [imu_motion]
+    accel_still = 0.3           # default 0.15 m/s^2
+    gyro_still = 0.02           # default 0.01 rad/s
 """
 
 from __future__ import annotations
@@ -25,6 +34,7 @@ from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 from fusion.planar.ekf import EkfNoise
+from fusion.planar.imu_motion import MotionThresholds
 from fusion.planar.robot import ATTITUDE_FILTERS, AttitudeConfig, RobotConfig
 
 if sys.version_info >= (3, 11):
@@ -44,8 +54,11 @@ _FRAME_KEYS = {"odom", "base", "imu_mount_rpy"}
 _EKF_KEYS = {f.name for f in fields(EkfNoise)}
 
 
+_MOTION_KEYS = {f.name for f in fields(MotionThresholds)}
+
+
 #: The tables of robot.toml.
-ROBOT_TABLES = ("chassis", "frames", "ekf", "attitude")
+ROBOT_TABLES = ("chassis", "frames", "ekf", "attitude", "imu_motion")
 
 
 def key_line(text: str, table: str, key: str | None) -> int | None:
@@ -169,6 +182,7 @@ def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
         named = next((k for k in ekf_tab if k in str(exc)), None)
         raise LogFormatError(f"{at('ekf', named)}: [ekf] {exc}") from exc
     attitude = _attitude_config(doc.get("attitude", {}), at)
+    motion = _motion_thresholds(doc.get("imu_motion", {}), at)
     try:
         return RobotConfig(
             chassis=params,
@@ -177,10 +191,25 @@ def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
             imu_mount_rpy=rpy_t,  # type: ignore[arg-type]
             ekf=ekf,
             attitude=attitude,
+            imu_motion=motion,
         )
     except ValueError as exc:  # a frame name: the only check left to RobotConfig
         key = "base" if "base_frame" in str(exc) else "odom"
         raise LogFormatError(f"{at('frames', key)}: [frames] {key}: {exc}") from exc
+
+
+def _motion_thresholds(table: Any, at: Any) -> MotionThresholds:
+    """The ``[imu_motion]`` table (see the module docstring)."""
+    if not isinstance(table, dict) or set(table) - _MOTION_KEYS:
+        bad = sorted(set(table) - _MOTION_KEYS) if isinstance(table, dict) else [None]
+        raise LogFormatError(f"{at('imu_motion', bad[0])}: [imu_motion] allows only "
+                             f"{sorted(_MOTION_KEYS)}")
+    values = {k: _number(at("imu_motion", k), "imu_motion", k, v) for k, v in table.items()}
+    try:
+        return MotionThresholds(**values)
+    except ValueError as exc:
+        named = next((k for k in table if k in str(exc)), None)
+        raise LogFormatError(f"{at('imu_motion', named)}: [imu_motion] {exc}") from exc
 
 
 def _attitude_config(table: Any, at: Any) -> AttitudeConfig:
@@ -263,5 +292,10 @@ def write_robot_toml(path: str | Path, robot: RobotConfig | DiffDriveParams) -> 
         if att.wheel_knowledge is not None:
             lines.append(f"wheel_knowledge = {_toml_value(att.wheel_knowledge)}")
         lines += [f"{k} = {_toml_value(v)}" for k, v in att.params]
+    still = MotionThresholds()
+    moved = {f.name: getattr(robot.imu_motion, f.name) for f in fields(MotionThresholds)
+             if getattr(robot.imu_motion, f.name) != getattr(still, f.name)}
+    if moved:
+        lines += ["", "[imu_motion]"] + [f"{k} = {_toml_value(v)}" for k, v in moved.items()]
     with atomic_write(path, encoding="utf-8") as fh:
         fh.write("\n".join(lines) + "\n")

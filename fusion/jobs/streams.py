@@ -17,16 +17,21 @@ from numpy.typing import NDArray
 from fusion.calibration.gyro_axes import axis_angle, gyro_yaw_axis
 from fusion.calibration.mount import estimate_imu_mount
 from fusion.evaluation.trust import ACCEL_SCALE_TOLERANCE, TrustWarning
+from fusion.geometry.mount import imu_to_base, mount_matrix
 from fusion.io.errors import LogFormatError
+from fusion.planar.imu_motion import imu_window_stds
 from fusion.planar.robot import RobotConfig
 from fusion.types.constants import STANDARD_GRAVITY
 
 __all__ = [
     "DEAD_GYRO_TURN",
     "GYRO_AXES_LIMIT",
+    "MIN_STILL_ODOMETRY",
     "Streams",
     "coverage_warnings",
     "gyro_axes_warnings",
+    "rest_vibration",
+    "stillness_warnings",
     "with_mount_estimate",
 ]
 
@@ -34,6 +39,16 @@ __all__ = [
 #: far from down) are the ``gyro_axes`` warning's (:func:`gyro_axes_warnings`): a tilted
 #: mount moves both together; hills tilt the turning axis by a few degrees on average.
 GYRO_AXES_LIMIT = math.radians(30.0)
+
+#: s: the odometry reading zero for at least this long in all (stretches of 1 s or more)
+#: with hardly any zero-velocity update is the ``stillness`` warning's
+#: (:func:`stillness_warnings`).
+MIN_STILL_ODOMETRY = 5.0
+#: Zero-velocity updates per zero odometry frame below which the stops went unused.
+_FEW_ZUPTS = 0.2
+#: The stillness thresholds suggested: this margin over this quantile of the windows at rest.
+_REST_QUANTILE = 0.95
+_REST_MARGIN = 1.25
 
 #: rad: odometry turns through which a gyro reading exactly 0 is refused
 #: (:meth:`Streams.check_gyro`).
@@ -242,3 +257,102 @@ def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
                        f"{float(np.sum(dt[gaps])):.1f} s in all (the longest {dt[i]:.1f} s "
                        f"after {t[i]:.3f} s); over them {over}")
     return out
+
+
+def _zero_stretches(t: NDArray[np.float64], v: NDArray[np.float64], w: NDArray[np.float64],
+                    zero_v: float, zero_w: float) -> tuple[list[tuple[float, float]], int]:
+    """(start, end) s of the runs of odometry frames reading zero (within ``zero_v`` m/s and
+    ``zero_w`` rad/s) that last 1 s or more, and how many zero frames there are in all."""
+    zero = (np.abs(v) <= zero_v) & (np.abs(w) <= zero_w)
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], zero.astype(np.int8), [0]])))
+    spans = [(float(t[a]), float(t[b - 1])) for a, b in zip(edges[::2], edges[1::2],
+                                                              strict=True)]
+    return [(a, b) for a, b in spans if b - a >= 1.0], int(np.count_nonzero(zero))
+
+
+def rest_vibration(stds: NDArray[np.float64], imu_t: NDArray[np.float64],
+                   spans: list[tuple[float, float]], quantile: float = 0.5
+                   ) -> tuple[float, float]:
+    """(gyro rad/s, accel m/s^2): the IMU's vibration at rest, the ``quantile`` (default the
+    median) over the samples inside ``spans`` of the detector's window statistics ``stds``
+    ((N, 2) at ``imu_t``: :func:`fusion.planar.imu_motion.imu_window_stds`); NaN without a
+    sample there."""
+    inside = np.zeros(imu_t.size, dtype=bool)
+    for start, end in spans:
+        inside |= (imu_t >= start) & (imu_t <= end)
+    if not np.any(inside):
+        return math.nan, math.nan
+    g, a = np.quantile(stds[inside], quantile, axis=0)
+    return float(g), float(a)
+
+
+def stillness_warnings(streams: Streams, robot: RobotConfig, zupts: int) -> list[TrustWarning]:
+    """A ``stillness`` warning when the odometry read zero for :data:`MIN_STILL_ODOMETRY` s
+    or more (in stretches of 1 s or more) but fewer than a fifth of its zero frames became
+    zero-velocity updates (``zupts``), while the IMU vibrated there beyond the stillness
+    thresholds (``robot.imu_motion``): an IMU that shakes at rest (an engine, fans, a loose
+    mount) is never still, so stops teach nothing and the gyro bias is not learnt at them
+    (the terrain outdoor bag with 0.1-0.25 m/s^2 of vibration on every sample: 150 updates
+    fell to 0-6 and the GPS RMSE rose from 1.5 to 3.4-5.3 m without a word; parked, the
+    heading drifted by 104 deg). It gives the ``[imu_motion]`` thresholds that would take
+    those stops: 1.25 times the 95th percentile of the vibration measured there."""
+    if not streams.has_imu:
+        return []
+    odometry = streams.odometry_rates(robot.chassis)
+    if odometry is None:
+        return []
+    t, v, w = odometry
+    # zero ticks are exactly 0; a twist is as still as the EKF takes it
+    limits = (0.0, 0.0) if streams.has_wheels else (robot.ekf.twist_zero_v,
+                                                     robot.ekf.twist_zero_w)
+    spans, frames = _zero_stretches(t, v, w, *limits)
+    still_time = sum(b - a for a, b in spans)
+    if still_time < MIN_STILL_ODOMETRY or zupts >= _FEW_ZUPTS * frames:
+        return []
+    mount = mount_matrix(robot.imu_mount_rpy)  # the pipeline's detector sees the base frame
+    stds = imu_window_stds(streams.imu_t, imu_to_base(mount, streams.gyro),
+                           imu_to_base(mount, streams.accel), robot.imu_motion)
+    gyro_rest, accel_rest = rest_vibration(stds, streams.imu_t, spans)
+    th = robot.imu_motion
+    if not (gyro_rest > th.gyro_still or accel_rest > th.accel_still):
+        return []
+    # thresholds above nearly every window at rest: the detector needs still_time s of them
+    # in a row (1.5 times the median took half of the parked runs' frames, 1.25 times the
+    # 95th percentile nearly all)
+    gyro_top, accel_top = rest_vibration(stds, streams.imu_t, spans, _REST_QUANTILE)
+    gyro_set = max(th.gyro_still, _two_digits_up(_REST_MARGIN * gyro_top))
+    accel_set = max(th.accel_still, _two_digits_up(_REST_MARGIN * accel_top))
+    settings = f"[imu_motion] gyro_still = {gyro_set:g}, accel_still = {accel_set:g}"
+    if gyro_set > th.gyro_move or accel_set > th.accel_move:
+        # the motion thresholds well above the stillness ones, or a stop's vibration peaks
+        # read as motion
+        gyro_move = max(th.gyro_move, _two_digits_up(1.5 * gyro_set))
+        accel_move = max(th.accel_move, _two_digits_up(1.5 * accel_set))
+        settings += (f", gyro_move = {gyro_move:g}, accel_move = {accel_move:g} (which also "
+                     "makes a dead encoder feed while driving harder to tell from a stop)")
+    if gyro_set > th.gyro_still:
+        # measured: a gyro shaking by 0.01 rad/s of white noise at 100 Hz (14 times the
+        # MPU-6050's) on a degraded mission, yaw RMSE 5.5 deg without its stops, 9.0 with
+        settings += ("; check the result with the gyro's threshold raised: the EKF's gyro "
+                     "noise model is a still MPU-6050's, which understates a gyro shaking this "
+                     "much, and its stops can then make the heading worse (better: damp the "
+                     "IMU's mount)")
+    return [TrustWarning(
+        "stillness",
+        f"the odometry read zero for {still_time:.0f} s ({frames} frames) but only {zupts} "
+        f"were zero-velocity updates: where the robot stood still, its IMU vibrated (median "
+        f"of its window standard deviations: gyro {gyro_rest:.3g} rad/s, accelerometer "
+        f"{accel_rest:.3g} m/s^2, "
+        f"against the stillness thresholds {th.gyro_still:g} and {th.accel_still:g}), so it "
+        "never looked still, the stops taught nothing and the gyro bias was not learnt at "
+        f"them (an engine, fans, a loose mount); in robot.toml: {settings}. If the robot "
+        "was driving there instead, its odometry feed was dead",
+        {"still_odometry_time": still_time, "zero_frames": float(frames),
+         "zupts": float(zupts), "rest_gyro_std": gyro_rest, "rest_accel_std": accel_rest,
+         "suggested_gyro_still": gyro_set, "suggested_accel_still": accel_set})]
+
+
+def _two_digits_up(x: float) -> float:
+    """``x`` > 0 rounded up to two significant digits."""
+    scale = 10.0 ** (math.floor(math.log10(x)) - 1)
+    return math.ceil(x / scale - 1e-9) * scale

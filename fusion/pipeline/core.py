@@ -430,7 +430,7 @@ class FusionPipeline(Lifecycle):
         self._known_motion = (-math.inf, math.nan, math.nan, math.nan)
         self._last_speed = {"wheels": (-math.inf, 0.0), "twist": (-math.inf, 0.0)}
         # still / moving per IMU sample, for the EKF's ZUPT and encoder-fault decisions
-        self._imu_motion = ImuMotionDetector()
+        self._imu_motion = ImuMotionDetector(robot.imu_motion)
         # sums over the still IMU samples of the base x, y gyro rates (_rest_gyro_bias), and
         # their number
         self._rest_gyro_sum = (0.0, 0.0)

@@ -44,6 +44,7 @@ __all__ = [
     "ImuMotionDetector",
     "MotionThresholds",
     "imu_motion_codes",
+    "imu_window_stds",
 ]
 
 #: No IMU information (a gyro rate alone): the EKF falls back to the wheels (see its docstring).
@@ -116,7 +117,7 @@ def _largest_std(state, base, first, count):
 
 
 @njit
-def _motion_loop(state, th, t, gyro, accel, out):
+def _motion_loop(state, th, t, gyro, accel, out, stds):
     values = np.empty(6)
     for k in range(t.shape[0]):
         for c in range(3):
@@ -136,6 +137,8 @@ def _motion_loop(state, th, t, gyro, accel, out):
         state[_S_T] = t[k]
         gyro_std = _largest_std(state, _S_STATS, 0, 3)
         accel_std = _largest_std(state, _S_STATS, 3, 3)
+        stds[k, 0] = gyro_std
+        stds[k, 1] = accel_std
         if gyro_std <= th[2] and accel_std <= th[3]:
             state[_S_QUIET] += dt
         else:
@@ -160,6 +163,9 @@ class ImuMotionDetector:
         self._th = self.thresholds.as_array()
         self._state = np.zeros(_STATE_SIZE)
         self._state[_S_T] = math.nan
+        #: (N, 2) the window statistics of the last batch: the largest gyro (rad/s) and
+        #: accelerometer (m/s^2) standard deviation over the axes, per sample
+        self.last_stds = np.empty((0, 2))
 
     def update_batch(self, t: ArrayLike, gyro: ArrayLike, accel: ArrayLike
                      ) -> NDArray[np.float64]:
@@ -172,12 +178,23 @@ class ImuMotionDetector:
         if not t.size == g.shape[0] == a.shape[0]:
             raise ValueError(f"{t.size} IMU stamps but gyro {g.shape} and accel {a.shape}")
         out = np.empty(t.size)
-        _motion_loop(self._state, self._th, t, g, a, out)
+        self.last_stds = np.empty((t.size, 2))
+        _motion_loop(self._state, self._th, t, g, a, out, self.last_stds)
         return out
 
     def update(self, t: float, gyro: ArrayLike, accel: ArrayLike) -> int:
         """The code of one sample (see :meth:`update_batch`)."""
         return int(self.update_batch(np.array([t]), gyro, accel)[0])
+
+
+def imu_window_stds(t: ArrayLike, gyro: ArrayLike, accel: ArrayLike,
+                    thresholds: MotionThresholds | None = None) -> NDArray[np.float64]:
+    """(N, 2): for each sample of a whole recording, the largest gyro (rad/s) and
+    accelerometer (m/s^2) standard deviation over the axes in the detector's window, the
+    statistics :class:`ImuMotionDetector` compares with its thresholds."""
+    detector = ImuMotionDetector(thresholds)
+    detector.update_batch(t, gyro, accel)
+    return detector.last_stds
 
 
 def imu_motion_codes(t: ArrayLike, gyro: ArrayLike, accel: ArrayLike,

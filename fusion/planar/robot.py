@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 from fusion.geometry import quaternion as quat
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.planar.ekf import EkfNoise
+from fusion.planar.imu_motion import MotionThresholds
 
 __all__ = ["ATTITUDE_FILTERS", "AttitudeConfig", "RobotConfig"]
 
@@ -70,6 +71,9 @@ class RobotConfig:
         ekf: filter tuning (defaults where ``[ekf]`` is absent).
         attitude: the attitude filter of the pipeline (Keel with the wheels' knowledge where
             ``[attitude]`` is absent).
+        imu_motion: when the IMU counts as still or moving for the zero-velocity updates and
+            encoder faults (``[imu_motion]``; raise the stillness thresholds for an IMU that
+            vibrates at rest: an engine, fans, a loose mount).
 
     Raises:
         ValueError: a chassis, tuning or attitude setting of the wrong type, an empty or blank
@@ -83,6 +87,7 @@ class RobotConfig:
     imu_mount_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     ekf: EkfNoise = field(default_factory=EkfNoise)
     attitude: AttitudeConfig = field(default_factory=AttitudeConfig)
+    imu_motion: MotionThresholds = field(default_factory=MotionThresholds)
 
     def __post_init__(self) -> None:
         if not isinstance(self.chassis, DiffDriveParams):
@@ -90,6 +95,9 @@ class RobotConfig:
                              f"{self.chassis!r}")
         if not isinstance(self.ekf, EkfNoise):
             raise ValueError(f"RobotConfig.ekf must be an EkfNoise, got {self.ekf!r}")
+        if not isinstance(self.imu_motion, MotionThresholds):
+            raise ValueError(f"RobotConfig.imu_motion must be a MotionThresholds, got "
+                             f"{self.imu_motion!r}")
         if not isinstance(self.attitude, AttitudeConfig):
             raise ValueError(f"RobotConfig.attitude must be an AttitudeConfig, got "
                              f"{self.attitude!r}")
