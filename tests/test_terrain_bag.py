@@ -434,7 +434,8 @@ def test_a_twist_against_its_pose_is_settled_by_the_imu(replayed, tmp_path):
         said = [n for n in r.notes if "the IMU sides with the pose" in n]
         quantity = "forward speed" if field == "linear.x" else "yaw rate"
         assert len(said) == 1 and quantity in said[0], r.notes
-        assert not [w for w in r.warnings if w.name in ("twist_pose", "gyro_axes")]
+        assert not [w for w in r.warnings if w.name in ("twist_pose", "gyro_axes",
+                                                         "speed_scale", "stillness")]
         end = np.hypot(r.table[-1, 1] - table["x"][-1], r.table[-1, 2] - table["y"][-1])
         assert end < 0.005 * path, (field, end, path)
     blind = tmp_path / "blind.bag"
@@ -535,3 +536,31 @@ def test_a_topic_two_nodes_publish_at_once_is_refused(replayed, tmp_path):
     r = replay_bag(handed, tmp_path / "b.csv", imu_topic="/imu/data", odom_topic="/odom",
                    imu_mount_rpy=tuple(float(v) for v in MOUNT))
     assert len(r.odom) == len(replayed[1]["/odom"])
+
+
+def test_a_twist_in_centimetres_per_second_is_named(replayed, tmp_path):
+    # twist.linear.x in cm/s: most twists beyond max_speed were refused as implausible (only
+    # a counter said so) and the rest fused 100 times too fast (the outdoor benchmark bag:
+    # 328 m of GPS RMSE). Named twice: the accelerometer's accelerations against the
+    # odometry's (about 100 times) and the share of inputs refused.
+    from reshaped_bag import rewrite_messages
+
+    from fusion.jobs.replay import replay_bag
+
+    bag = replayed[6]
+
+    def centimetres(msg, record_ns):
+        msg.twist.twist.linear.x *= 100.0
+        return record_ns
+
+    cms = tmp_path / "cms.bag"
+    rewrite_messages(bag, cms, "/odom", centimetres)
+    r = replay_bag(cms, tmp_path / "cms.csv", imu_topic="/imu/data", odom_topic="/odom",
+                   imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    named = {w.name: w for w in r.warnings}
+    assert "speed_scale" in named, list(named)
+    assert named["speed_scale"].figures["odometry_accel_scale"] == pytest.approx(100, rel=0.2)
+    assert "cm/s?" in named["speed_scale"].message
+    # speeds above 0.5 m/s read above max_speed (50): refused, and named as such
+    assert r.stats.invalid > 0.01 * (r.stats.twist_messages + r.stats.imu_samples)
+    assert "implausible" in named

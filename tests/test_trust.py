@@ -403,3 +403,14 @@ def test_the_verdict_names_what_the_heading_rests_on(stats, bias, gyro_alone, ca
     last = capsys.readouterr().out.splitlines()[-1]
     assert last.startswith("warning: the fused odometry above should not be trusted")
     assert ("rests on the gyro alone" in last) == gyro_alone
+
+
+def test_most_of_a_stream_refused_as_implausible_is_named():
+    # 2451 of 2999 twists in cm/s beyond max_speed, 9000 IMU samples: 20 % of the inputs
+    (w,) = [w for w in trust_warnings({"twist_messages": 2999, "imu_samples": 9000,
+                                       "invalid": 2451}, None) if w.name == "implausible"]
+    assert w.figures == {"invalid": 2451.0, "inputs": 11999.0}
+    assert "other units" in w.message
+    # a corrupt value now and then (1 in 200): not a stream in other units
+    quiet = trust_warnings({"twist_messages": 2999, "imu_samples": 9000, "invalid": 59}, None)
+    assert not [w for w in quiet if w.name == "implausible"]

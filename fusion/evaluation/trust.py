@@ -81,6 +81,12 @@ Checks (each a :class:`TrustWarning` with its figures):
     samples as ``mount``; either check, not both (a mean too small to be gravity says
     nothing of the mount); neither for an accelerometer that reads exactly zero (a
     gyro-only source).
+``implausible``
+    More than :data:`IMPLAUSIBLE_LIMIT` of the inputs (IMU samples, wheel frames, twists) were
+    refused by the EKF as implausible or non-finite (``invalid``: a rate above ``max_rate``,
+    a speed above ``max_speed``): not a corrupt value now and then but a stream in other
+    units (a twist in cm/s on the terrain outdoor bag: 2451 of 2999 refused, the rest fused
+    100 times too fast, only a counter said so).
 ``heading_divergence``
     The odometry's heading change (wheel frames and twists) and the gyro's (its bias
     estimate taken out) differ by more than
@@ -115,6 +121,7 @@ __all__ = [
     "HEADING_FLOOR",
     "HEADING_FRACTION",
     "HEADING_RATE",
+    "IMPLAUSIBLE_LIMIT",
     "MOUNT_MIN_SAMPLES",
     "MOUNT_TILT_LIMIT",
     "ODOMETRY_CORRELATION",
@@ -123,6 +130,9 @@ __all__ = [
     "TrustWarning",
     "trust_warnings",
 ]
+
+#: Share of the inputs refused as implausible above which the ``implausible`` check fires.
+IMPLAUSIBLE_LIMIT = 0.01
 
 #: Fraction of odometry frames flagged as slip above which the inputs disagree ("most").
 SLIP_FRACTION_LIMIT = 0.5
@@ -163,7 +173,8 @@ HEADING_RATE = math.radians(0.5)
 @dataclass(frozen=True)
 class TrustWarning:
     """One failed check: ``name`` (``slip``, ``encoder_fault``, ``gyro_bias``, ``wheel_scale``,
-    ``odometry_scale``, ``mount``, ``gyro_axis``, ``accel_scale``, ``heading_divergence``;
+    ``odometry_scale``, ``mount``, ``gyro_axis``, ``accel_scale``, ``implausible``,
+    ``heading_divergence``;
     ``twist_pose`` from :mod:`fusion.jobs.odometry_signs`), a
     sentence for the user with the figures, and the figures (SI: rad, rad/s, s, fractions)."""
 
@@ -215,6 +226,17 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
     mount = _mount_warning(stats)
     if mount is not None:
         out.append(mount)
+    inputs = frames + int(stats.get("imu_samples", 0))
+    invalid = int(stats.get("invalid", 0))
+    if inputs and invalid / inputs > IMPLAUSIBLE_LIMIT:
+        out.append(TrustWarning(
+            "implausible",
+            f"{invalid} of the {inputs} inputs (IMU samples and odometry frames) were refused "
+            "as implausible or not finite (a rate above max_rate, a speed above max_speed; "
+            f"more than {100 * IMPLAUSIBLE_LIMIT:.0f} % is a stream in other units, e.g. "
+            "speeds in cm/s, not a corrupt value now and then): the rest of that stream was "
+            "fused as it reads",
+            {"invalid": float(invalid), "inputs": float(inputs)}))
     gyro_time = float(stats.get("gyro_time", 0.0))
     if gyro_bias is None or not gyro_time > 0:
         return out

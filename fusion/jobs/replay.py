@@ -45,6 +45,7 @@ from fusion.jobs.streams import (
     Streams,
     coverage_warnings,
     gyro_axes_warnings,
+    speed_scale_warnings,
     stillness_warnings,
     with_mount_estimate,
 )
@@ -231,7 +232,8 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
                          twist_w=streams.twist_w)
         warnings = [*checked, *with_mount_estimate(pipeline_warnings(pipe), robot, streams),
                     *gyro_axes_warnings(streams, robot),
-                    *stillness_warnings(streams, robot, pipe.finish_stats().zupts)]
+                    *stillness_warnings(streams, robot, pipe.finish_stats().zupts),
+                    *speed_scale_warnings(streams, robot)]
         write_status(pipe, status_record(pipe, warnings))
     table = fused_table(pipe.state_rows, robot.chassis.speed_ratio
                          / robot.chassis.encode_sampling_time)
