@@ -13,6 +13,7 @@ simulator's own sensor error, and still with the odometry stamped 0.2 s late.
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 from decimal import Decimal
 from pathlib import Path
@@ -564,3 +565,52 @@ def test_a_twist_in_centimetres_per_second_is_named(replayed, tmp_path):
     # speeds above 0.5 m/s read above max_speed (50): refused, and named as such
     assert r.stats.invalid > 0.01 * (r.stats.twist_messages + r.stats.imu_samples)
     assert "implausible" in named
+
+
+def test_a_saturated_gyro_is_found_and_its_plateau_skipped(replayed, tmp_path):
+    # The gyro clipped at 0.5 rad/s (a full-scale range too small for the turns): fused as
+    # read, every turn beyond it was lost (the outdoor benchmark bag: 8.4 m of GPS RMSE, the
+    # heading 245 deg off, and an odometry_scale warning blaming the odometry). The plateau
+    # is found and the EKF's gyro_limit set under it, with a note: the odometry carries the
+    # heading there (that bag: 1.87 m).
+    from reshaped_bag import rewrite_messages
+
+    from fusion.jobs.replay import replay_bag
+
+    _, _, _, _, table, _, bag = replayed
+    limit = 0.5
+
+    def clip(msg, record_ns):
+        rate = msg.angular_velocity
+        rate.x, rate.y, rate.z = (float(np.clip(v, -limit, limit))
+                                  for v in (rate.x, rate.y, rate.z))
+        return record_ns
+
+    clipped = tmp_path / "clipped.bag"
+    rewrite_messages(bag, clipped, "/imu/data", clip)
+    mount = tuple(float(v) for v in MOUNT)
+    r = replay_bag(clipped, tmp_path / "clipped.csv", imu_topic="/imu/data",
+                   odom_topic="/odom", imu_mount_rpy=mount)
+    said = [n for n in r.notes if "saturates" in n]
+    assert len(said) == 1 and "+-0.5 rad/s" in said[0], r.notes
+    assert r.pipeline.ekf.noise.gyro_limit == pytest.approx(0.98 * limit)
+    # fused as read (a finite gyro_limit of robot.toml's is left alone: here one above every
+    # rate) the turns beyond 0.5 rad/s are lost; skipped, this skid-steer bag's odometry
+    # (turning 1.5 times too fast) carries them, still far closer (measured: 40.6 m and
+    # 23.6 m from the unclipped replay's end, of a 100 m path)
+    from fusion.geometry.kinematics import DiffDriveParams
+    from fusion.planar.robot import RobotConfig
+
+    robot = RobotConfig(DiffDriveParams(wheel_distance=0.5, speed_ratio=1e-4,
+                                        encode_sampling_time=0.02))
+    robot = dataclasses.replace(robot, ekf=dataclasses.replace(robot.ekf, gyro_limit=1e9))
+    raw = replay_bag(clipped, tmp_path / "raw.csv", imu_topic="/imu/data", odom_topic="/odom",
+                     imu_mount_rpy=mount, robot=robot)
+    assert not [n for n in raw.notes if "saturates" in n]
+
+    def end_error(result):
+        return float(np.hypot(result.table[-1, 1] - table["x"][-1],
+                              result.table[-1, 2] - table["y"][-1]))
+
+    assert end_error(r) < 0.7 * end_error(raw), (end_error(r), end_error(raw))
+

@@ -47,6 +47,7 @@ from fusion.jobs.streams import (
     gyro_axes_warnings,
     speed_scale_warnings,
     stillness_warnings,
+    with_gyro_limit,
     with_mount_estimate,
 )
 from fusion.pipeline.core import FusionPipeline, PipelineStats
@@ -294,11 +295,11 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                                                 log.accel)
     streams = Streams(imu_t, gyro, accel, log.wheel_t, log.ticks)
     streams.check_gyro(f"{path / 'imu.csv'}", robot.chassis)
+    robot, limit_note = with_gyro_limit(robot, streams)
     result = _finish(path, output, robot, streams, log.truth_t, log.truth,
                      tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats,
                      one_pass=one_pass)
-    if note:
-        result.notes.append(note)
+    result.notes.extend(n for n in (note, limit_note) if n)
     return result
 
 
@@ -489,6 +490,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                           "when the bag recorded each message" if stamps == "header" else
                           "the bag recorded them at different times")
     streams.check_gyro(f"{path}: topic {imu_topic}", robot.chassis)
+    robot, limit_note = with_gyro_limit(robot, streams)
     if bag.fixes is not None:
         _check_fixes_overlap(path, bag.fixes, imu.t, odom.t)
     table, pipe, stats, warnings, start = fuse_streams(robot, streams, output, tilt=tilt,
@@ -528,7 +530,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
-    notes = [n for n in (bag.note, *bag.topic_notes, *signs.notes,
+    notes = [n for n in (bag.note, *bag.topic_notes, *signs.notes, limit_note,
                          tilt and streams.level_note()) if n]
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, bag.fixes, gps,

@@ -7,6 +7,7 @@ accelerometer's (``gyro_axes``), and what the output cannot cover (spans and gap
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -31,9 +32,11 @@ __all__ = [
     "Streams",
     "coverage_warnings",
     "gyro_axes_warnings",
+    "gyro_plateau",
     "rest_vibration",
     "speed_scale_warnings",
     "stillness_warnings",
+    "with_gyro_limit",
     "with_mount_estimate",
 ]
 
@@ -47,6 +50,13 @@ GYRO_AXES_LIMIT = math.radians(30.0)
 #: 1000, km/h: 3.6), not a wheel radius a few percent off, which this fit cannot resolve (a
 #: 10 % larger radius read 1.07; the bundled Jackal bag's Gazebo odometry reads 2.4).
 SPEED_SCALE_LIMIT = 3.0
+
+#: A gyro axis reading exactly its largest magnitude on this many consecutive samples has
+#: saturated (noise makes a free gyro's largest reading a lone sample).
+PLATEAU_RUN = 5
+#: The EKF's gyro_limit set for a saturated gyro: this share of the plateau (the vertical
+#: rate of a tilted IMU is the axis's times the cosine of the tilt: 0.98 up to 11 deg).
+PLATEAU_LIMIT_SHARE = 0.98
 
 #: s: the odometry reading zero for at least this long in all (stretches of 1 s or more)
 #: with hardly any zero-velocity update is the ``stillness`` warning's
@@ -398,3 +408,45 @@ def speed_scale_warnings(streams: Streams, robot: RobotConfig) -> list[TrustWarn
         f"are not in m/s or are off by that factor ({source}{guess}); the fused track's "
         "distances are off by as much",
         {"odometry_accel_scale": scale, "excitation": est.excitation})]
+
+
+def gyro_plateau(gyro: NDArray[np.float64]) -> tuple[float, int, int] | None:
+    """``(rad/s, samples, axis)``: where a gyro axis reads exactly its largest magnitude on
+    :data:`PLATEAU_RUN` or more consecutive samples, that magnitude (the smallest over such
+    axes), how many samples sit on it and the axis (0-2, IMU frame); None when no axis
+    saturates."""
+    found = None
+    for axis in range(3):
+        rates = np.abs(gyro[:, axis])
+        top = float(np.max(rates, initial=0.0))
+        if not top > 0.0:
+            continue
+        on = rates >= top
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], on.astype(np.int8), [0]])))
+        if np.max(edges[1::2] - edges[::2], initial=0) >= PLATEAU_RUN and (
+                found is None or top < found[0]):
+            found = (top, int(np.count_nonzero(on)), axis)
+    return found
+
+
+def with_gyro_limit(robot: RobotConfig, streams: Streams) -> tuple[RobotConfig, str]:
+    """``robot`` with the EKF's ``gyro_limit`` set below a saturated gyro's plateau
+    (:func:`gyro_plateau`) where robot.toml leaves it unset, and a note saying so ("" when
+    nothing changed): a clipped rate fused as the rate loses every turn beyond it (the terrain
+    outdoor bag's gyro clipped at 0.5 rad/s: 8.4 m of GPS RMSE, the heading 245 deg off, and
+    a warning that blamed the odometry). Samples at or above the limit are skipped and the
+    odometry carries the heading there (:class:`fusion.planar.ekf.EkfNoise` ``gyro_limit``)."""
+    if not streams.has_imu or math.isfinite(robot.ekf.gyro_limit):
+        return robot, ""
+    plateau = gyro_plateau(streams.gyro)
+    if plateau is None:
+        return robot, ""
+    top, samples, axis = plateau
+    limit = PLATEAU_LIMIT_SHARE * top
+    note = (f"the gyro's {'xyz'[axis]} axis reads exactly +-{top:.4g} rad/s "
+            f"({math.degrees(top):.4g} deg/s) on {samples} samples, in runs: it saturates "
+            f"there, so the EKF's gyro_limit is set to {limit:.4g} rad/s for this replay (the "
+            "samples beyond it skipped, the odometry carrying the heading; set [ekf] "
+            "gyro_limit in robot.toml, or a larger full-scale range on the IMU)")
+    return dataclasses.replace(robot, ekf=dataclasses.replace(robot.ekf, gyro_limit=limit)), \
+        note
