@@ -87,7 +87,8 @@ def reshape_jackal_bag(source: Path, dest: Path, *, cut: float = 10.0, imu_rate:
 def rewrite_messages(source: Path, dest: Path, topic: str, edit) -> None:
     """Copy the ROS 1 bag ``source`` to ``dest`` with every ``topic`` message passed through
     ``edit(msg, record_ns) -> record_ns`` (it changes the deserialised message in place and
-    returns the record time to write, ns); other topics are copied byte for byte."""
+    returns the record time to write, ns, or None to leave the message out); other topics
+    are copied byte for byte."""
     from rosbags.rosbag1 import Reader, Writer
     from rosbags.typesys import Stores, get_typestore
 
@@ -99,5 +100,7 @@ def rewrite_messages(source: Path, dest: Path, topic: str, edit) -> None:
             if conn.topic == topic:
                 msg = store.deserialize_ros1(raw, conn.msgtype)
                 t = edit(msg, t)
+                if t is None:
+                    continue
                 raw = store.serialize_ros1(msg, conn.msgtype)
             writer.write(conns[conn.id], t, raw)

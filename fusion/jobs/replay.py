@@ -38,7 +38,7 @@ from fusion.io.odometry_motion import OdometryMotion, odometry_motion
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
 from fusion.jobs.engine import run_tasks
-from fusion.jobs.moving_start import MovingStart, first_stop
+from fusion.jobs.moving_start import MovingStart, first_stop, last_estimate
 from fusion.jobs.odometry_signs import check_twist_signs
 from fusion.jobs.status import pipeline_warnings, status_record, write_status
 from fusion.jobs.streams import (
@@ -194,7 +194,8 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
     if not one_pass:
         var = pipe.state_rows[:, 1 + NX + 5]  # diag(P) of the bias
         start = first_stop(table[:, 0], table[:, 5], table[:, 6], var, table[:, 19] > 0,
-                           robot.ekf.bias_psd)
+                           robot.ekf.bias_psd) or last_estimate(
+            table[:, 0], table[:, 6], var, table[:, 19] > 0, robot.ekf.bias_psd)
         if start is not None and start.bias_std < robot.ekf.initial_bias_std:
             noise = dataclasses.replace(robot.ekf, initial_bias=start.bias,
                                         initial_bias_std=start.bias_std)
