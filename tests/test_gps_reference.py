@@ -135,7 +135,7 @@ FIX_KINDS = ("fix", "no-fix", "no-fix-stale", "no-altitude", "ddmm")
 
 
 def _write_bag_with_fixes(source: Path, dest: Path, *, kind=lambda i: "fix",
-                          stamp_shift: float = 0.0) -> None:
+                          stamp_shift: float = 0.0, record_shift: float = 0.0) -> None:
     """The Jackal bag plus a NavSatFix topic at every 5th odometry message (10 Hz): its pose
     turned by TURN, moved by SHIFT and put on the globe at ORIGIN by PROJ; fix i written as
     ``kind(i)`` (:data:`FIX_KINDS`), stamped ``stamp_shift`` s after its odometry message."""
@@ -181,7 +181,8 @@ def _write_bag_with_fixes(source: Path, dest: Path, *, kind=lambda i: "fix",
                                             service=1),
                             latitude=lat, longitude=lon, altitude=h,
                             position_covariance=np.zeros(9), position_covariance_type=0)
-                writer.write(fconn, ns, store.serialize_ros1(fix, "sensor_msgs/msg/NavSatFix"))
+                writer.write(fconn, ns + round(record_shift * 1e9),
+                             store.serialize_ros1(fix, "sensor_msgs/msg/NavSatFix"))
             k += 1
 
 
@@ -257,15 +258,37 @@ def test_replay_scores_the_tracks_against_gps(gps_bag, tmp_path, capsys):
 
 def test_gps_stamped_on_another_clock_is_refused_before_anything_is_written(
         datasets_dir, tmp_path, capsys):
+    # recorded 1000 s after the run as well: no fix of this run's
     shifted = tmp_path / "gps_later.bag"
     _write_bag_with_fixes(datasets_dir / "rosbag" / "jackal_sim_test2.bag", shifted,
-                          stamp_shift=1000.0)
+                          stamp_shift=1000.0, record_shift=1000.0)
     out = tmp_path / "f.csv"
     assert main(["replay", str(shifted), "--imu-topic", IMU, "--odom-topic", ODOM,
                  "--gps-topic", FIX, "-o", str(out)]) != 0
     err = capsys.readouterr().err
     assert f"topic {FIX}: 0 of its 612 fixes (stamped 1047.584-1108.684 s) lie inside" in err
     assert "another clock" in err and not out.exists()
+
+
+def test_gps_stamped_on_another_clock_but_recorded_with_the_run_is_moved_onto_it(
+        datasets_dir, tmp_path, capsys):
+    # only the header stamps 1000 s late (the receiver's clock), recorded with the run: the
+    # record times show the offset against the odometry's, which is taken out, with a note
+    shifted = tmp_path / "gps_stamped_later.bag"
+    _write_bag_with_fixes(datasets_dir / "rosbag" / "jackal_sim_test2.bag", shifted,
+                          stamp_shift=1000.0)
+    same = tmp_path / "gps_on_time.bag"
+    _write_bag_with_fixes(datasets_dir / "rosbag" / "jackal_sim_test2.bag", same)
+    rmse = {}
+    for name, bag in (("shifted", shifted), ("same", same)):
+        out = tmp_path / f"{name}.csv"
+        assert main(["replay", str(bag), "--imu-topic", IMU, "--odom-topic", ODOM,
+                     "--gps-topic", FIX, "-o", str(out)]) == 0
+        text = capsys.readouterr().out
+        rmse[name] = [line for line in text.splitlines() if line.strip().startswith("fused:")]
+        if name == "shifted":
+            assert f"note: GPS topic {FIX}: its header stamps are +1000.000 s off" in text
+    assert rmse["shifted"] == rmse["same"]
 
 
 def test_a_gps_topic_of_another_type_or_without_fixes_is_named(datasets_dir, gps_bag, tmp_path,
