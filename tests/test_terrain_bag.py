@@ -691,3 +691,31 @@ def test_gps_stamped_on_gps_time_is_compared_on_the_odometrys_clock(replayed, tm
     assert offset == pytest.approx(18.0, abs=0.1)
     for track in ("fused", "bag odometry", "gyro at stops"):
         assert shifted.gps.rmse[track] == pytest.approx(clean.gps.rmse[track], abs=0.05)
+
+
+def test_a_twist_without_its_yaw_rate_takes_the_poses(replayed, tmp_path):
+    # A driver that leaves twist.angular.z at 0 while its pose turns: the odometry 'never
+    # turned' against the gyro, and heading_divergence called a good track untrustworthy.
+    # The yaw rate is taken from the pose's headings, with a note; the replay then warns as
+    # the untouched bag does (its skid-steer odometry turning 1.5 times too fast).
+    from reshaped_bag import rewrite_messages
+
+    from fusion.jobs.replay import replay_bag
+
+    _, _, _, _, table, _, bag = replayed
+
+    def no_rate(msg, record_ns):
+        msg.twist.twist.angular.z = 0.0
+        return record_ns
+
+    rateless = tmp_path / "rateless.bag"
+    rewrite_messages(bag, rateless, "/odom", no_rate)
+    mount = tuple(float(v) for v in MOUNT)
+    kw = {"imu_topic": "/imu/data", "odom_topic": "/odom", "imu_mount_rpy": mount}
+    r = replay_bag(rateless, tmp_path / "rateless.csv", **kw)
+    clean = replay_bag(bag, tmp_path / "clean.csv", **kw)
+    assert any("yaw rate is 0 in every message" in n for n in r.notes), r.notes
+    assert sorted(w.name for w in r.warnings) == sorted(w.name for w in clean.warnings)
+    path = float(np.sum(np.hypot(np.diff(table["x"]), np.diff(table["y"]))))
+    end = np.hypot(r.table[-1, 1] - clean.table[-1, 1], r.table[-1, 2] - clean.table[-1, 2])
+    assert end < 0.01 * path, (end, path)

@@ -34,7 +34,7 @@ from fusion.calibration.mount import estimate_imu_mount
 from fusion.evaluation.trust import TrustWarning
 from fusion.geometry.mount import imu_to_base, mount_matrix
 from fusion.io.odometry_motion import OdometryMotion
-from fusion.io.twist_against_pose import TwistPoseFit, fit_of
+from fusion.io.twist_against_pose import MIN_TURN, TwistPoseFit, fit_of
 
 __all__ = ["GYRO_VERDICT_COSINE", "YAW_VERDICT", "SignCheck", "check_twist_signs"]
 
@@ -69,9 +69,19 @@ def check_twist_signs(odom: Any, motion: OdometryMotion, imu: Any,
         return SignCheck(motion)
     fit = fit_of(odom, motion.v)
     out = SignCheck(motion, fit)
+    name = odom.topic or "the odometry"
+    if fit.turn >= MIN_TURN and not np.any(motion.w) and np.all(np.diff(odom.t) > 0):
+        # a driver that leaves angular.z at 0 while its pose turns: the yaw rate its poses
+        # show (else the odometry 'never turned' against the gyro: heading_divergence on a
+        # good track)
+        rate = np.gradient(np.unwrap(odom.yaw), odom.t)
+        out.notes.append(f"{name}: its twist's yaw rate is 0 in every message while its pose "
+                         f"turned {math.degrees(fit.turn):.0f} deg: the yaw rate is taken "
+                         "from the pose's headings")
+        out.motion = dataclasses.replace(motion, w=rate)
+        return out
     if not (fit.speed_opposite or fit.rate_opposite):
         return out
-    name = odom.topic or "the odometry"
     R = mount_matrix(imu_mount_rpy)
     gyro, accel = imu_to_base(R, imu.gyro), imu_to_base(R, imu.accel)
     v, w = motion.v, motion.w
