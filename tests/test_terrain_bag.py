@@ -719,3 +719,16 @@ def test_a_twist_without_its_yaw_rate_takes_the_poses(replayed, tmp_path):
     path = float(np.sum(np.hypot(np.diff(table["x"]), np.diff(table["y"]))))
     end = np.hypot(r.table[-1, 1] - clean.table[-1, 1], r.table[-1, 2] - clean.table[-1, 2])
     assert end < 0.01 * path, (end, path)
+    # with its forward speed negated as well, the sign check still runs on the speed
+
+    def no_rate_backwards(msg, record_ns):
+        msg.twist.twist.linear.x = -msg.twist.twist.linear.x
+        return no_rate(msg, record_ns)
+
+    both = tmp_path / "both.bag"
+    rewrite_messages(bag, both, "/odom", no_rate_backwards)
+    r = replay_bag(both, tmp_path / "both.csv", **kw)
+    assert any("yaw rate is 0 in every message" in n for n in r.notes), r.notes
+    assert any("forward speed" in n and "sides with the pose" in n for n in r.notes), r.notes
+    end = np.hypot(r.table[-1, 1] - clean.table[-1, 1], r.table[-1, 2] - clean.table[-1, 2])
+    assert end < 0.01 * path, (end, path)

@@ -26,7 +26,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.integrate import cumulative_trapezoid
 
-__all__ = ["MIN_CORRELATION", "MIN_TURN", "YawAxis", "axis_angle", "gyro_yaw_axis"]
+__all__ = ["MIN_CORRELATION", "MIN_TURN", "YawAxis", "axis_angle", "components",
+           "gyro_yaw_axis"]
 
 #: rad: the odometry's turns (sum of |w| dt over the intervals fitted) needed for a fit.
 MIN_TURN = 2.0 * math.pi
@@ -55,7 +56,12 @@ class YawAxis:
 
     def describe(self) -> str:
         """The axis as IMU-frame components, e.g. ``(+0.00, +1.00, -0.01)``."""
-        return "(" + ", ".join(f"{c:+.2f}" for c in self.axis) + ")"
+        return components(self.axis)
+
+
+def components(v: ArrayLike) -> str:
+    """A vector's components for a message, e.g. ``(+0.00, +1.00, -0.01)``."""
+    return "(" + ", ".join(f"{float(c):+.2f}" for c in np.asarray(v).reshape(-1)) + ")"
 
 
 def gyro_yaw_axis(imu_t: ArrayLike, gyro: ArrayLike, odom_t: ArrayLike, odom_w: ArrayLike

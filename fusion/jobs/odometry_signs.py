@@ -78,8 +78,7 @@ def check_twist_signs(odom: Any, motion: OdometryMotion, imu: Any,
         out.notes.append(f"{name}: its twist's yaw rate is 0 in every message while its pose "
                          f"turned {math.degrees(fit.turn):.0f} deg: the yaw rate is taken "
                          "from the pose's headings")
-        out.motion = dataclasses.replace(motion, w=rate)
-        return out
+        motion = out.motion = dataclasses.replace(motion, w=rate)
     if not (fit.speed_opposite or fit.rate_opposite):
         return out
     R = mount_matrix(imu_mount_rpy)

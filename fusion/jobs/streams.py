@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from fusion.calibration.gyro_axes import axis_angle, gyro_yaw_axis
+from fusion.calibration.gyro_axes import axis_angle, components, gyro_yaw_axis
 from fusion.calibration.mount import estimate_imu_mount
 from fusion.evaluation.trust import ACCEL_SCALE_TOLERANCE, TrustWarning
 from fusion.geometry.mount import imu_to_base, mount_matrix
@@ -229,7 +229,7 @@ def gyro_axes_warnings(streams: Streams, robot: RobotConfig) -> list[TrustWarnin
     angle = axis_angle(fit.axis, up)
     if not GYRO_AXES_LIMIT < angle < math.pi - GYRO_AXES_LIMIT:
         return []
-    up_text = "(" + ", ".join(f"{c:+.2f}" for c in up / np.linalg.norm(up)) + ")"
+    up_text = components(up / np.linalg.norm(up))
     return [TrustWarning(
         "gyro_axes",
         f"the odometry's turns show on the gyro about its axis {fit.describe()} (IMU frame; "
