@@ -17,6 +17,7 @@ from __future__ import annotations
 import csv
 import dataclasses
 import errno
+import gc
 import math
 import threading
 
@@ -190,6 +191,12 @@ class Rig:
             sources=pipeline_sources, publish_rate_hz=publish_rate_hz,
             on_record=self.records.append,
             on_sink_error=lambda sink, exc, text: self.sink_errors.append(text)).open()
+        # a full collection now, not in the middle of a run: late in a long test session the
+        # heap is large, and a collection that stalls the readers for 85 ms of wall time (0.7
+        # s of robot time at 8x) overflows the simulated chip's 85-sample FIFO, so a fault
+        # window's samples never arrive (the clock-jump test read invalid_stamp 0 in three of
+        # four fresh-clone full-suite runs of 2026-11-29, never alone)
+        gc.collect()
         if self.robot is not None:
             self.robot.start()
         self.runner = LiveRunner(self.pipe, sources=sources,
