@@ -17,7 +17,6 @@ from __future__ import annotations
 import csv
 import dataclasses
 import errno
-import gc
 import math
 import threading
 
@@ -26,7 +25,7 @@ import pytest
 from sim_hardware import NackBursts, sim_hardware  # tests/sim_hardware.py
 
 from drivers.sim.robot import ScaledClock, SimRobotParams, send_twist
-from fusion.cli.demo import nominal_config, warm_up
+from fusion.cli.demo import freeze_heap, nominal_config, warm_up
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.live import (
@@ -166,8 +165,8 @@ class Rig:
                  make_sources=None, wrap=None, extra_sinks=(),
                  pipeline_sources=("imu", "wheels"), publish_rate_hz=None,
                  **runner_kw) -> None:
+        freeze_heap()  # as the commands do: no long GC pauses of the source threads
         self.clock = ScaledClock(speed)
-        self.t0 = self.clock()
         self.faults: list[tuple[str, str]] = []
         self.sink_errors: list[str] = []
         self.mcap = tmp_path / "out.mcap"
@@ -191,18 +190,16 @@ class Rig:
             sources=pipeline_sources, publish_rate_hz=publish_rate_hz,
             on_record=self.records.append,
             on_sink_error=lambda sink, exc, text: self.sink_errors.append(text)).open()
-        # a full collection now, not in the middle of a run: late in a long test session the
-        # heap is large, and a collection that stalls the readers for 85 ms of wall time (0.7
-        # s of robot time at 8x) overflows the simulated chip's 85-sample FIFO, so a fault
-        # window's samples never arrive (the clock-jump test read invalid_stamp 0 in three of
-        # four fresh-clone full-suite runs of 2026-11-29, never alone)
-        gc.collect()
         if self.robot is not None:
             self.robot.start()
+        # the rig's time starts with the sources (not the set-up), and before their threads:
+        # a wrapper reads it from the first read on (set after them, a set-up that took over
+        # 2 robot s made the raising source fail at once on the old origin, and its outage
+        # was measured across two origins: 0.44 robot s for 2.8 in a full-suite run)
+        self.t0 = self.clock()
         self.runner = LiveRunner(self.pipe, sources=sources,
                                  on_fault=lambda n, text: self.faults.append((n, text)),
                                  **runner_kw).start()
-        self.t0 = self.clock()  # the rig's time starts with the sources (not the set-up)
         self.sent = -1.0
         self.trace: list[tuple[float, int, int]] = []  # (t, IMU samples, frames accepted)
 
