@@ -243,3 +243,41 @@ def test_a_moving_start_takes_the_first_stops_bias_back_to_the_start(moving_run,
     assert yaw["two"] < yaw["one"], yaw
     # near what the gyro's scale and cross-axis errors alone leave (the bias known exactly)
     assert yaw["two"] < run_all.reference_yaw_rmse(truth_run) + 0.5, yaw
+
+
+def test_an_imu_log_stamped_half_a_second_late_is_moved_back(dead_run, tmp_path):
+    # The same log with every imu.csv stamp 0.5 s later (an IMU driver stamping when its
+    # buffer drains): the replay finds the lag from the turns, moves the IMU's stamps back
+    # with a note, and scores against the simulator's truth as the untouched log does;
+    # --imu-lag 0 keeps the stamps and loses the heading. The untouched log's small
+    # interval-mean lag (about -10 ms here) is left alone.
+    import shutil
+
+    from fusion.jobs.replay import replay_logdir
+
+    _, folder, _ = dead_run
+    late = tmp_path / "late"
+    late.mkdir()
+    for name in ("robot.toml", "wheels.csv", "truth.csv"):
+        shutil.copy(folder / name, late / name)
+    lines = (folder / "imu.csv").read_text().splitlines()
+    rows = [line.split(",", 1) for line in lines[1:] if line]
+    (late / "imu.csv").write_text("\n".join(
+        [lines[0], *(f"{float(t) + 0.5:.9f},{rest}" for t, rest in rows)]) + "\n")
+    untouched = replay_logdir(folder, tmp_path / "on_time.csv")
+    moved = replay_logdir(late, tmp_path / "moved.csv")
+    kept = replay_logdir(late, tmp_path / "kept.csv", imu_lag=0.0)
+    assert not any("IMU's stamps" in n for n in untouched.notes), untouched.notes
+    notes = [n for n in moved.notes if "IMU's stamps were" in n]
+    assert len(notes) == 1 and "late" in notes[0], moved.notes
+    found = float(notes[0].split("were ")[1].split(" s ")[0])
+    assert abs(found - 0.5) < 0.03, notes  # 40 Hz wheel frames: half an interval, 12 ms
+    on_time = untouched.truth
+    assert abs(moved.truth["fused_yaw_deg"] - on_time["fused_yaw_deg"]) < 0.2, (
+        moved.truth, on_time)
+    assert abs(moved.truth["fused_pct"] - on_time["fused_pct"]) < 0.2, (moved.truth, on_time)
+    print(f"IMU 0.5 s late: found {found:.3f} s; yaw RMSE {on_time['fused_yaw_deg']:.2f} deg "
+          f"on time, {moved.truth['fused_yaw_deg']:.2f} moved, "
+          f"{kept.truth['fused_yaw_deg']:.2f} kept; final error {on_time['fused_pct']:.2f} %, "
+          f"{moved.truth['fused_pct']:.2f}, {kept.truth['fused_pct']:.2f}")
+    assert kept.truth["fused_yaw_deg"] > moved.truth["fused_yaw_deg"] + 0.5, kept.truth

@@ -284,6 +284,10 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         "--one-pass": [changes("moving", "--one-pass"),
                        refused("capture", "--one-pass does not apply to a DATA-uart2 capture",
                                "--one-pass")],
+        # a lag given moves the IMU's stamps (auto, the default, finds none on these inputs)
+        "--imu-lag": [*(changes(k, "--imu-lag", "0.3") for k in ("logdir", "bag", "folder")),
+                      refused("capture", "--imu-lag does not apply to a DATA-uart2 capture",
+                              "--imu-lag", "0.3")],
         # the folder's base runs with --jobs 1: two worker processes say so in the table
         "--jobs": [changes("folder", "--jobs", "2"),
                    *(refused(k, "--jobs applies to a folder of logs only", "--jobs", "2")

@@ -123,8 +123,8 @@ def test_the_bias_is_learnt_before_the_first_stop(replayed):
     assert abs(learnt - oracle) < 0.5 * abs(oracle), (learnt, oracle)
 
 
-def _odometry_stamped_late(bag: Path, out: Path, latency: float) -> None:
-    """Copy ``bag`` to ``out`` with every /odom message's header stamp (and record time)
+def _stamped_late(bag: Path, out: Path, latency: float, topic: str = "/odom") -> None:
+    """Copy ``bag`` to ``out`` with every ``topic`` message's header stamp (and record time)
     ``latency`` s later, with rosbags: a driver that stamps its twist when it publishes it."""
     from reshaped_bag import rewrite_messages
 
@@ -135,7 +135,7 @@ def _odometry_stamped_late(bag: Path, out: Path, latency: float) -> None:
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 10**9)
         return t + shift
 
-    rewrite_messages(bag, out, "/odom", late)
+    rewrite_messages(bag, out, topic, late)
 
 
 def test_odometry_stamped_late_still_teaches_the_bias(replayed, tmp_path):
@@ -151,9 +151,11 @@ def test_odometry_stamped_late_still_teaches_the_bias(replayed, tmp_path):
 
     _, _, _, _, table, _, bag = replayed
     late = tmp_path / "late.bag"
-    _odometry_stamped_late(bag, late, 0.2)
+    _stamped_late(bag, late, 0.2)
+    # as stamped (--imu-lag 0): by default the replay would move the IMU's stamps 0.235 s
+    # back onto the odometry's clock (checked at the end)
     r = replay_bag(late, tmp_path / "late.csv", imu_topic="/imu/data", odom_topic="/odom",
-                   imu_mount_rpy=tuple(float(v) for v in MOUNT), one_pass=True)
+                   imu_mount_rpy=tuple(float(v) for v in MOUNT), one_pass=True, imu_lag=0.0)
     stats = r.pipeline.stats
     assert stats.odometry_rate_correlation > 0.95, stats.odometry_rate_correlation
     assert stats.straight_frames > 100
@@ -174,10 +176,18 @@ def test_odometry_stamped_late_still_teaches_the_bias(replayed, tmp_path):
     # The second pass (the default) takes the first full stop's gyro readings as the prior
     # (+0.38) and ends within 0.01 deg/s of the on-time replay.
     two = replay_bag(late, tmp_path / "two.csv", imu_topic="/imu/data", odom_topic="/odom",
-                     imu_mount_rpy=tuple(float(v) for v in MOUNT))
+                     imu_mount_rpy=tuple(float(v) for v in MOUNT), imu_lag=0.0)
     assert two.moving_start is not None
     assert abs(np.degrees(two.moving_start.bias - table["gyro_bias_z"][-1])) < 0.05
     assert abs(np.degrees(two.table[-1, 6] - table["gyro_bias_z"][-1])) < 0.05
+    # By default the lag is found (the IMU looks early against the late twists: 0.2 s plus
+    # the twists' own half interval) and the IMU's stamps are moved back by it
+    auto = replay_bag(late, tmp_path / "auto.csv", imu_topic="/imu/data", odom_topic="/odom",
+                      imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    notes = [n for n in auto.notes if "IMU's stamps were" in n]
+    assert len(notes) == 1 and " s early " in notes[0], auto.notes
+    assert abs(float(notes[0].split("were ")[1].split(" s ")[0]) - 0.2) < 0.06, notes
+    assert abs(np.degrees(auto.table[-1, 6] - table["gyro_bias_z"][-1])) < 0.05
 
 
 def test_the_cross_validation_replays_the_bag_as_the_command_does(replayed, tmp_path):
@@ -732,3 +742,33 @@ def test_a_twist_without_its_yaw_rate_takes_the_poses(replayed, tmp_path):
     assert any("forward speed" in n and "sides with the pose" in n for n in r.notes), r.notes
     end = np.hypot(r.table[-1, 1] - clean.table[-1, 1], r.table[-1, 2] - clean.table[-1, 2])
     assert end < 0.01 * path, (end, path)
+
+
+@pytest.mark.parametrize("latency", [1.0, -0.6])
+def test_an_imu_stamped_late_or_early_is_moved_onto_the_odometry_clock(replayed, tmp_path,
+                                                                       latency):
+    # An IMU driver that stamps its messages 1 s late (0.6 s early): fused as stamped, the
+    # gyro's turns meet the twists' a second apart (the probe bag: 2.42 m of GPS RMSE against
+    # 1.46). The replay finds the lag from the turns both see and moves the IMU's stamps by it,
+    # with a note; the result scores against GPS as the untouched bag does.
+    from fusion.jobs.replay import replay_bag
+
+    bag = replayed[6]
+    kw = dict(imu_topic="/imu/data", odom_topic="/odom", fix_topic="/gps/fix",
+              imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    untouched = replay_bag(bag, tmp_path / "on_time.csv", **kw)
+    assert not any("IMU's stamps" in n for n in untouched.notes), untouched.notes
+    late = tmp_path / "late.bag"
+    _stamped_late(bag, late, latency, "/imu/data")
+    moved = replay_bag(late, tmp_path / "moved.csv", **kw)
+    kept = replay_bag(late, tmp_path / "kept.csv", imu_lag=0.0, **kw)
+    notes = [n for n in moved.notes if "IMU's stamps were" in n]
+    assert len(notes) == 1, moved.notes
+    found = float(notes[0].split("were ")[1].split(" s ")[0])
+    assert abs(found - abs(latency)) < 0.06, notes  # a 10 Hz twist: half an interval
+    assert ("late" if latency > 0 else "early") in notes[0]
+    on_time = untouched.gps.rmse["fused"]
+    assert abs(moved.gps.rmse["fused"] - on_time) < 0.1 * on_time, (moved.gps.rmse, on_time)
+    print(f"IMU {latency:+.1f} s: found {found:.3f} s; fused GPS RMSE {on_time:.2f} m on time, "
+          f"{moved.gps.rmse['fused']:.2f} m moved, {kept.gps.rmse['fused']:.2f} m kept")
+    assert kept.gps.rmse["fused"] > moved.gps.rmse["fused"] + 0.1, (kept.gps.rmse, on_time)

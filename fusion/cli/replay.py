@@ -64,6 +64,11 @@ def register(subparsers) -> None:
                    help="fuse as a live run would: where the robot drives off at once, do not "
                         "fuse the log a second time from the gyro bias its first stop taught "
                         "(default: that second pass, said in a 'note: moving start' line)")
+    p.add_argument("--imu-lag", type=_imu_lag, default=None, metavar="S|auto",
+                   help="s by which the IMU's stamps are later than the odometry's (taken off "
+                        "them before fusing; 0 leaves them). Default auto: estimated from the "
+                        "turns both see, and moved only when clearly off (more than 0.1 s or "
+                        "two intervals of the slower stream), with a note")
     p.add_argument("--level", action="store_true",
                    help="take the robot as level: use the gyro's z axis as the yaw rate "
                         "(default: tilt-compensate with the attitude filter's attitude)")
@@ -109,6 +114,19 @@ def register(subparsers) -> None:
                           "frame, for a bag or a log directory (default: imu_mount_rpy of "
                           "--robot, else of the log's robot.toml, else 0 0 0)")
     p.set_defaults(func=run)
+
+
+def _imu_lag(text: str) -> float | None:
+    """--imu-lag: "auto" (None) or a finite number of s."""
+    if text.strip().lower() == "auto":
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected s (e.g. 0.25) or 'auto', got {text!r}")
+    return value
 
 
 # -- progress -----------------------------------------------------------------------------------
@@ -376,7 +394,8 @@ def _run(args: argparse.Namespace) -> int:
     if path.is_file():
         for given, option in ((args.level, "--level"),
                               (args.imu_mount_rpy is not None, "--imu-mount-rpy"),
-                              (args.one_pass, "--one-pass")):
+                              (args.one_pass, "--one-pass"),
+                              (args.imu_lag is not None, "--imu-lag")):
             if given:
                 raise CommandError(f"{option} does not apply to a DATA-uart2 capture (it has "
                                    "no IMU); it applies to log directories and bags")
@@ -418,7 +437,7 @@ def _run(args: argparse.Namespace) -> int:
         r = job.replay_logdir(path, args.output, tilt=not args.level, plot=args.plot,
                               robot=robot, imu_mount_rpy=args.imu_mount_rpy,
                               progress=bar.callback, load_progress=bar.loading,
-                              one_pass=args.one_pass)
+                              one_pass=args.one_pass, imu_lag=args.imu_lag)
     _print_result(r)
     return _exit_status(args, r.warnings)
 
@@ -495,7 +514,7 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
     ext = {"csv": ".csv", "mcap": ".mcap", "jsonl": ".jsonl"}[args.format or "csv"]
     work = [job.LogJob(str(p), str(out_dir / (p.name + ext)), not args.level,
                        None if args.plot is None else str(args.plot / (p.name + ".png")),
-                       one_pass=args.one_pass)
+                       one_pass=args.one_pass, imu_lag=args.imu_lag)
             for p in logs]
     bar = _Progress(len(work), f"replay {len(work)} logs", "logs",
                     _stderr_is_tty() if args.progress is None else args.progress,
@@ -579,7 +598,8 @@ def run_bag(args: argparse.Namespace) -> int:
                            odom_topic=args.odom_topic, fix_topic=args.gps_topic,
                            stamps=args.stamps or "header", robot=robot,
                            imu_mount_rpy=args.imu_mount_rpy, tilt=not args.level,
-                           plot=args.plot, progress=bar.callback, one_pass=args.one_pass)
+                           plot=args.plot, progress=bar.callback, one_pass=args.one_pass,
+                           imu_lag=args.imu_lag)
     imu, odom, table, stats, own = r.imu, r.odom, r.table, r.stats, r.own
     written = (f"{table.shape[0]} rows" if args.output.suffix.lower() == ".csv"
                else f"{stats.records} records")

@@ -38,6 +38,7 @@ from fusion.io.odometry_motion import OdometryMotion, odometry_motion
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
 from fusion.jobs.engine import run_tasks
+from fusion.jobs.imu_lag import choose_imu_lag, shifted
 from fusion.jobs.moving_start import MovingStart, first_stop, last_estimate
 from fusion.jobs.odometry_signs import check_twist_signs
 from fusion.jobs.status import pipeline_warnings, status_record, write_status
@@ -272,7 +273,7 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                   imu_mount_rpy: tuple[float, float, float] | None = None,
                   progress: Progress | None = None,
                   load_progress: Callable[[str, int, int], None] | None = None,
-                  one_pass: bool = False) -> ReplayResult:
+                  one_pass: bool = False, imu_lag: float | None = None) -> ReplayResult:
     """Replay a log directory into ``output``; optionally draw ``plot`` (PNG).
 
     ``progress(done, total)``: s of log time replayed; ``load_progress(file name, done,
@@ -281,7 +282,9 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
     ``robot`` replaces the directory's own robot.toml (geometry, IMU mount, EKF tuning);
     ``imu_mount_rpy`` (URDF roll, pitch, yaw, rad) replaces the IMU mount of either;
     ``one_pass``: fuse as a live run would, without taking a moving start's bias back from
-    its first stop (:func:`fuse_streams`).
+    its first stop (:func:`fuse_streams`). ``imu_lag``: s to take off the IMU's stamps to
+    put them on the odometry's clock; None: estimated from the turns, and moved only when
+    clearly late or early (:mod:`fusion.jobs.imu_lag`, with a note).
     Raises on bad input, leaving no partial output.
     """
     path, output = Path(path), Path(output)
@@ -296,11 +299,13 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                                                 log.accel)
     streams = Streams(imu_t, gyro, accel, log.wheel_t, log.ticks)
     streams.check_gyro(f"{path / 'imu.csv'}", robot.chassis)
+    lag, lag_note = choose_imu_lag(streams, robot.chassis, imu_lag)
+    streams = shifted(streams, lag)
     robot, limit_note = with_gyro_limit(robot, streams)
     result = _finish(path, output, robot, streams, log.truth_t, log.truth,
                      tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats,
                      one_pass=one_pass)
-    result.notes.extend(n for n in (note, limit_note) if n)
+    result.notes.extend(n for n in (note, lag_note, limit_note) if n)
     return result
 
 
@@ -454,7 +459,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                robot: RobotConfig | None = None,
                imu_mount_rpy: tuple[float, float, float] | None = None, tilt: bool = True,
                plot: str | Path | None = None,
-               progress: Progress | None = None, one_pass: bool = False) -> BagReplay:
+               progress: Progress | None = None, one_pass: bool = False,
+               imu_lag: float | None = None) -> BagReplay:
     """Replay a ROS bag's IMU messages and odometry twists (the ``ros`` extra).
 
     ``robot``: wheel_distance and [ekf] tuning (default: neutral values; the wheel distance
@@ -465,7 +471,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     topic to score the fused track, the bag's odometry and the gyro-at-stops baseline against
     (position RMSE after one SE(2) alignment each; refused before anything is written when
     fewer than 2 fixes fall inside the span the IMU and the odometry share) and to draw on the
-    plot. ``one_pass``: as in :func:`replay_logdir`.
+    plot. ``one_pass``, ``imu_lag``: as in :func:`replay_logdir` (the IMU's stamps moved
+    for everything after: the fusion, the gyro-at-stops baseline, the plot).
     """
     from fusion.geometry.kinematics import DiffDriveParams
     from fusion.io.bags import read_bag
@@ -482,14 +489,21 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic, fix_topic=fix_topic,
                    stamps=stamps)
     imu, odom = bag.imu, bag.odometry
-    signs = check_twist_signs(odom, odometry_motion(odom), imu, robot.imu_mount_rpy)
-    motion = signs.motion
+    motion = odometry_motion(odom)
     streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=motion.t, twist_v=motion.v,
                       twist_w=motion.w)
     streams.check_overlap(f"{path}: topics {imu_topic} and {odom_topic}",
                           "a driver stamping with its device's clock: --stamps bag takes "
                           "when the bag recorded each message" if stamps == "header" else
                           "the bag recorded them at different times")
+    # the lag first: the sign checks compare the gyro's turns with the odometry's in time
+    lag, lag_note = choose_imu_lag(streams, robot.chassis, imu_lag)
+    if lag:
+        imu = dataclasses.replace(imu, t=imu.t - lag)
+    signs = check_twist_signs(odom, motion, imu, robot.imu_mount_rpy)
+    motion = signs.motion
+    streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=motion.t, twist_v=motion.v,
+                      twist_w=motion.w)
     streams.check_gyro(f"{path}: topic {imu_topic}", robot.chassis)
     robot, limit_note = with_gyro_limit(robot, streams)
     fixes, fix_note = bag.fixes, ""
@@ -534,8 +548,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
-    notes = [n for n in (bag.note, *bag.topic_notes, *signs.notes, limit_note, fix_note,
-                         tilt and streams.level_note()) if n]
+    notes = [n for n in (bag.note, *bag.topic_notes, lag_note, *signs.notes, limit_note,
+                         fix_note, tilt and streams.level_note()) if n]
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, fixes, gps,
                      gps_note, motion, start, notes, coverage)
@@ -597,13 +611,14 @@ def _gyro_at_stops_track(robot: RobotConfig, imu, motion: OdometryMotion
 @dataclass(frozen=True)
 class LogJob:
     """One log of a folder replay: input and output paths, tilt compensation, optional PNG,
-    one pass (:func:`replay_logdir`)."""
+    one pass, the IMU's lag (None: estimated) (:func:`replay_logdir`)."""
 
     source: str
     output: str
     tilt: bool = True
     plot: str | None = None
     one_pass: bool = False
+    imu_lag: float | None = None
 
 
 def run_log_job(job: LogJob) -> tuple[str, Any]:
@@ -611,7 +626,7 @@ def run_log_job(job: LogJob) -> tuple[str, Any]:
     the log; a worker process runs this)."""
     try:
         return "ok", replay_logdir(job.source, job.output, tilt=job.tilt, plot=job.plot,
-                                   one_pass=job.one_pass)
+                                   one_pass=job.one_pass, imu_lag=job.imu_lag)
     except Exception as exc:  # reported in the summary; the other logs go on
         msg = str(exc) or type(exc).__name__
         if job.source not in msg:

@@ -1,0 +1,146 @@
+"""The IMU's lag behind the odometry's stamps (fusion.calibration.time_offset) and what a
+replay does with it (fusion.jobs.imu_lag), against lags injected into analytic yaw rates.
+
+The rates are a sum of sines at incommensurate periods (no single period to alias onto) with
+a gyro that has a bias, a 3 % scale error, noise and its own axes (a mount rolled and yawed):
+the injected lag is the reference. The replays of recorded-shaped data (the terrain bag, the
+black-box simulator's logs) are in test_terrain_bag.py and test_blackbox_replay.py.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from fusion.calibration.time_offset import MAX_LAG, estimate_imu_lag
+from fusion.cli import main
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.jobs.imu_lag import LAG_LIMIT, choose_imu_lag, lag_limit, shifted
+from fusion.jobs.streams import Streams
+
+CHASSIS = DiffDriveParams(wheel_distance=0.5, speed_ratio=1e-4, encode_sampling_time=0.02)
+PERIODS = (7.3, 11.9, 23.1, 41.7)  # s
+
+
+def yaw_rate(t):
+    """rad/s: the robot's turning, up to about 1 rad/s."""
+    t = np.asarray(t, dtype=float)
+    return sum(0.25 * np.sin(2 * math.pi * t / p + k) for k, p in enumerate(PERIODS))
+
+
+def imu_late(lag, *, span=300.0, rate=100.0, mount=(0.0, 0.0, 0.0), seed=1, late_from=None,
+             lag2=None):
+    """IMU samples stamped ``lag`` s late (``lag2`` from stamp ``late_from`` on): (t, gyro,
+    accel) in a mount given as URDF rpy (rad) taking IMU vectors to the base."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(0.0, span, 1.0 / rate)
+    lags = np.full(t.size, float(lag))
+    if late_from is not None:
+        lags[t >= late_from] = lag2
+    base = np.zeros((t.size, 3))
+    base[:, 2] = 1.03 * yaw_rate(t - lags) + math.radians(0.5)
+    base[:, :2] = rng.normal(0.0, 0.02, (t.size, 2))  # pitching and rolling
+    base += rng.normal(0.0, 0.005, base.shape)
+    to_imu = Rotation.from_euler("xyz", mount).inv()
+    gravity = np.tile([0.0, 0.0, 9.81], (t.size, 1)) + rng.normal(0.0, 0.3, (t.size, 3))
+    return t, to_imu.apply(base), to_imu.apply(gravity)
+
+
+def odometry(rate=20.0, span=300.0, seed=2):
+    rng = np.random.default_rng(seed)
+    s = np.arange(0.0, span, 1.0 / rate)
+    return s, yaw_rate(s) + rng.normal(0.0, 0.02, s.size)
+
+
+@pytest.mark.parametrize("lag", [-0.7, 0.0, 0.25, 1.3, 2.6])
+def test_the_injected_lag_is_found_to_5_ms(lag):
+    t, gyro, accel = imu_late(lag)
+    s, w = odometry()
+    est = estimate_imu_lag(t, gyro, accel.mean(axis=0), s, w)
+    assert est is not None
+    assert abs(est.lag - lag) < 0.005, est
+    # four whole pieces of 60 s in the just under 300 s the streams share
+    assert est.correlation > 0.95 and est.pieces == 4 and est.spread < 0.01
+
+
+def test_a_mount_rolled_over_and_yawed_gives_the_same_lag():
+    # the real outdoor bag's mount: the yaw rate is the IMU's y axis, read through the
+    # accelerometer's up; an upside-down IMU (negative correlation) as well
+    s, w = odometry()
+    for mount in ((math.pi / 2, 0.0, -math.pi / 2), (math.pi, 0.0, 0.3)):
+        t, gyro, accel = imu_late(0.4, mount=mount)
+        est = estimate_imu_lag(t, gyro, accel.mean(axis=0), s, w)
+        assert est is not None and abs(est.lag - 0.4) < 0.005, (mount, est)
+
+
+def test_no_lag_without_turns_or_without_a_relation():
+    t, gyro, accel = imu_late(0.3)
+    s, w = odometry()
+    up = accel.mean(axis=0)
+    # a robot that drove straight: nothing to line up
+    assert estimate_imu_lag(t, gyro, up, s, np.zeros_like(w)) is None
+    # an odometry that does not follow the gyro at any lag (another robot's)
+    other = np.random.default_rng(5).normal(0.0, 0.5, s.size)
+    assert estimate_imu_lag(t, gyro, up, s, other) is None
+    # streams that share less than four times the lags searched
+    short = s < 3.0 * MAX_LAG
+    assert estimate_imu_lag(t, gyro, up, s[short], w[short]) is None
+
+
+def _streams(t, gyro, accel, s, w):
+    return Streams(t, gyro, accel, twist_t=s, twist_v=np.full(s.size, 0.5), twist_w=w)
+
+
+def test_a_replay_moves_a_clear_lag_and_leaves_a_small_one():
+    s, w = odometry()
+    streams = _streams(*imu_late(0.45), s, w)
+    assert lag_limit(streams) == pytest.approx(LAG_LIMIT)  # 20 Hz: two intervals, 0.1 s
+    lag, note = choose_imu_lag(streams, CHASSIS)
+    assert abs(lag - 0.45) < 0.005
+    assert f"{lag:.3f} s late" in note and "--imu-lag 0" in note
+    moved = shifted(streams, lag)
+    assert np.allclose(moved.imu_t, streams.imu_t - lag) and moved.twist_t is streams.twist_t
+    again = choose_imu_lag(moved, CHASSIS)
+    assert again == (0.0, "")  # nothing left to move
+    # early IMU stamps, said so
+    lag, note = choose_imu_lag(_streams(*imu_late(-0.3), s, w), CHASSIS)
+    assert abs(lag + 0.3) < 0.005 and "early" in note
+    # within the limit: what a twist's interval mean looks like; left alone, nothing said
+    assert choose_imu_lag(_streams(*imu_late(0.06), s, w), CHASSIS) == (0.0, "")
+
+
+def test_the_limit_grows_with_a_slow_stream():
+    # a 5 Hz odometry: its twists are means over 0.2 s; a lag of 0.3 s is within two of them
+    s, w = odometry(rate=5.0)
+    streams = _streams(*imu_late(0.3), s, w)
+    assert lag_limit(streams) == pytest.approx(0.4)
+    assert choose_imu_lag(streams, CHASSIS) == (0.0, "")
+
+
+def test_pieces_that_disagree_leave_the_stamps_and_say_so():
+    # the IMU's driver restarted at 150 s with another lag: no one lag fits the run
+    s, w = odometry()
+    streams = _streams(*imu_late(0.3, late_from=150.0, lag2=1.5), s, w)
+    lag, note = choose_imu_lag(streams, CHASSIS)
+    assert lag == 0.0
+    assert "disagree" in note and "not moved" in note and "--imu-lag" in note
+
+
+def test_a_given_lag_is_taken_as_it_is():
+    s, w = odometry()
+    streams = _streams(*imu_late(0.45), s, w)
+    assert choose_imu_lag(streams, CHASSIS, 0.0) == (0.0, "")  # --imu-lag 0: left alone
+    lag, note = choose_imu_lag(streams, CHASSIS, 0.2)
+    assert lag == 0.2 and "-0.200 s" in note and "--imu-lag" in note
+    with pytest.raises(ValueError, match="finite"):
+        choose_imu_lag(streams, CHASSIS, math.nan)
+
+
+def test_the_command_line_refuses_a_lag_that_is_not_a_number(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["replay", "x.bag", "-o", "out.csv", "--imu-lag", "late"])
+    assert info.value.code == 2
+    assert "expected s (e.g. 0.25) or 'auto', got 'late'" in capsys.readouterr().err
