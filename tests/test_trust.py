@@ -25,6 +25,7 @@ from fusion.evaluation.trust import (
     GYRO_BIAS_LIMIT,
     HEADING_FLOOR,
     ODOMETRY_CORRELATION,
+    RADIUS_MISMATCH_LIMIT,
     SLIP_FRACTION_LIMIT,
     WHEEL_SCALE_LIMIT,
     trust_warnings,
@@ -117,6 +118,27 @@ def test_heading_check_removes_the_bias_estimate() -> None:
                                            0.0)] == ["heading_divergence"]
 
 
+def test_heading_check_credits_the_wheel_calibration_the_ekf_estimated() -> None:
+    # 60 s, the gyro turning -6 rad (bias removed), 80 m driven: wheels whose yaw-rate scale
+    # is 3 % low and whose right wheel covers a little more ground than the left (0.025 rad
+    # per m, a 0.5 % radius mismatch on a 0.19 m track) turn -0.97 * 6 + 0.025 * 80 = -3.82
+    # rad (the black-box simulator's dead seed 403: odometry -131 deg, gyro -340, 79 m, in
+    # 300 s); 1.38 rad allowed
+    stats = {"wheel_frames": 1500, "gyro_time": 60.0, "wheel_turn": -0.97 * 6.0 + 2.0,
+             "gyro_turn": -6.0, "wheel_travel": 80.0}
+    assert trust_warnings(stats, 0.0, -0.03, 0.025) == []
+    (w,) = trust_warnings(stats, 0.0, -0.03)  # the radius mismatch not credited: 2 rad apart
+    assert w.figures["divergence"] == pytest.approx(2.0)
+    (w,) = trust_warnings(stats, 0.0)  # neither: 2.18 rad
+    assert w.figures["divergence"] == pytest.approx(2.18)
+    # credited only up to three prior standard deviations: c = 0.5 rad/m explains no 40 rad
+    far = {**stats, "wheel_turn": -0.97 * 6.0 + 0.5 * 80.0}
+    (w,) = trust_warnings(far, 0.0, -0.03, 0.5)
+    assert w.figures["radius_mismatch"] == RADIUS_MISMATCH_LIMIT
+    assert w.figures["divergence"] == pytest.approx((0.5 - RADIUS_MISMATCH_LIMIT) * 80.0)
+    assert "radius mismatch +0.1500 rad/m over 80 m" in w.message
+
+
 def _unwrapped_turn(yaw: np.ndarray) -> float:
     yaw = np.unwrap(yaw[np.isfinite(yaw)])
     return float(yaw[-1] - yaw[0])
@@ -201,6 +223,11 @@ def test_a_simulated_replay_does_not_warn(logdir, tmp_path, capsys) -> None:
     c = status["counters"]
     gyro = c["gyro_turn"] - status["gyro_bias"] * c["gyro_time"]
     assert math.degrees(abs(gyro - _unwrapped_turn(truth[:, 3]))) < 2
+    # the wheels' travel (what a radius mismatch turns them by) is the distance driven: the
+    # mission drives forwards only, and its slip patches spin the wheels a little further
+    path = float(np.sum(np.hypot(np.diff(truth[:, 1]), np.diff(truth[:, 2]))))
+    assert c["twist_travel"] == 0.0
+    assert path < c["wheel_travel"] < 1.05 * path, (c["wheel_travel"], path)
 
 
 def _with_imu_columns(logdir: Path, dest: Path, columns: tuple[str, ...], factor: float) -> Path:

@@ -17,12 +17,13 @@ STRICT_EXIT_STATUS = 3
 
 
 def pipeline_warnings(pipe: FusionPipeline) -> list[TrustWarning]:
-    """The trust checks over ``pipe``'s counters and its EKF's gyro bias and wheel yaw-rate
-    scale estimates (neither checked without an IMU sample)."""
+    """The trust checks over ``pipe``'s counters and its EKF's gyro bias and wheel
+    calibration estimates (yaw-rate scale, radius mismatch; none without an IMU sample)."""
     stats = pipe.finish_stats()
     bias = float(pipe.ekf.gyro_bias) if stats.imu_samples else None
     k = float(pipe.ekf.x[6]) if stats.imu_samples else None  # the gyro is its reference
-    return trust_warnings(stats.as_dict(), bias, k)
+    c = float(pipe.ekf.x[7]) if stats.imu_samples else None
+    return trust_warnings(stats.as_dict(), bias, k, c)
 
 
 def status_record(pipe: FusionPipeline, warnings: list[TrustWarning]) -> dict[str, Any]:

@@ -224,6 +224,10 @@ class PipelineStats:
             intervals longer than ``max_extrapolation``); both only where the IMU has samples
             (not before its first, nor in its gaps longer than ``max_extrapolation``: a 30 s
             IMU gap while turning had made heading_divergence fire on a good track).
+        wheel_travel, twist_travel: m, signed, the wheel frames' and the twists' travel
+            over the same frames (what a wheel radius mismatch turns the odometry by, ``c``
+            rad/m; apart, as the turns, so that the sums do not depend on how the two
+            sources interleave).
         (The two turns let :mod:`fusion.evaluation.trust` see the sources disagree.)
         attitude_gaps: IMU periods longer than the attitude filter's ``max_gap`` (integrated
             over one regular period, inclination re-initialised from the accelerometer).
@@ -264,6 +268,8 @@ class PipelineStats:
     gyro_time: float = 0.0
     wheel_turn: float = 0.0
     twist_turn: float = 0.0
+    wheel_travel: float = 0.0
+    twist_travel: float = 0.0
     attitude_gaps: int = 0
     speed_resets: int = 0
     invalid: int = 0
@@ -473,6 +479,7 @@ class FusionPipeline(Lifecycle):
         self._state = "new"
         self._m_per_s = chassis.speed_ratio / self.period
         self._m_per_turn = chassis.speed_ratio / chassis.wheel_distance  # rad per tick
+        self._m_per_tick = chassis.speed_ratio
         self._wheel_shift = 0.5 * self.period  # a frame's effective time: stamp - this - latency
         # wheel frames and twists into the EKF's horizontal, heading-rate terms (tilt only)
         self._heading_frame = HeadingFrame(self.period, chassis.speed_ratio,
@@ -752,8 +759,11 @@ class FusionPipeline(Lifecycle):
             self._note_gaps(wheel_t)
             self._last_wheel_t = float(wheel_t[-1])
             stats.wheel_frames += wheel_t.size
+            covered = self._imu_covers(wheel_t)
             stats.wheel_turn = _add_up(stats.wheel_turn, np.where(
-                self._imu_covers(wheel_t), (ticks[:, 1] - ticks[:, 0]) * self._m_per_turn, 0.0))
+                covered, (ticks[:, 1] - ticks[:, 0]) * self._m_per_turn, 0.0))
+            stats.wheel_travel = _add_up(stats.wheel_travel, np.where(
+                covered, 0.5 * (ticks[:, 1] + ticks[:, 0]) * self._m_per_tick, 0.0))
             ref0 = self._wheel_rows.append(ticks)
             t_eff = wheel_t - self._wheel_shift - self.ekf.noise.wheel_latency
             kind = _EV_WHEELS if wheel_slip is None else np.where(
@@ -762,9 +772,10 @@ class FusionPipeline(Lifecycle):
             parts.append((wheel_t, kind, t_eff, left, right,
                           np.arange(ref0, ref0 + wheel_t.size)))
         if twist_t is not None and twist_t.size:
-            stats.twist_turn = _add_up(stats.twist_turn, np.where(
-                self._imu_covers(twist_t), twist_w * _steps(
-                    twist_t, self._last_twist_t, self.ekf.noise.max_extrapolation), 0.0))
+            covered = self._imu_covers(twist_t) * _steps(
+                twist_t, self._last_twist_t, self.ekf.noise.max_extrapolation)
+            stats.twist_turn = _add_up(stats.twist_turn, twist_w * covered)
+            stats.twist_travel = _add_up(stats.twist_travel, twist_v * covered)
             self._last_twist_t = float(twist_t[-1])
             stats.twist_messages += twist_t.size
             ref0 = self._n_twists
