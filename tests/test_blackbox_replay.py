@@ -250,7 +250,7 @@ def test_an_imu_log_stamped_half_a_second_late_is_moved_back(dead_run, tmp_path)
     # buffer drains): the replay finds the lag from the turns, moves the IMU's stamps back
     # with a note, and scores against the simulator's truth as the untouched log does;
     # --imu-lag 0 keeps the stamps and loses the heading. The untouched log's small
-    # interval-mean lag (about -10 ms here) is left alone.
+    # interval-mean lag is left alone. A folder replay says so per log.
     import shutil
 
     from fusion.jobs.replay import replay_logdir
@@ -267,11 +267,11 @@ def test_an_imu_log_stamped_half_a_second_late_is_moved_back(dead_run, tmp_path)
     untouched = replay_logdir(folder, tmp_path / "on_time.csv")
     moved = replay_logdir(late, tmp_path / "moved.csv")
     kept = replay_logdir(late, tmp_path / "kept.csv", imu_lag=0.0)
-    assert not any("IMU's stamps" in n for n in untouched.notes), untouched.notes
-    notes = [n for n in moved.notes if "IMU's stamps were" in n]
-    assert len(notes) == 1 and "late" in notes[0], moved.notes
-    found = float(notes[0].split("were ")[1].split(" s ")[0])
-    assert abs(found - 0.5) < 0.03, notes  # 40 Hz wheel frames: half an interval, 12 ms
+    assert untouched.imu_lag == 0.0 and not any("IMU's" in n for n in untouched.notes)
+    found = moved.imu_lag
+    assert abs(found - 0.5) < 0.01, found  # the wheel frames' half period accounted for
+    assert any(f"ran {found:.3f} s behind" in n for n in moved.notes), moved.notes
+    assert kept.imu_lag == 0.0
     on_time = untouched.truth
     assert abs(moved.truth["fused_yaw_deg"] - on_time["fused_yaw_deg"]) < 0.2, (
         moved.truth, on_time)
@@ -281,3 +281,10 @@ def test_an_imu_log_stamped_half_a_second_late_is_moved_back(dead_run, tmp_path)
           f"{kept.truth['fused_yaw_deg']:.2f} kept; final error {on_time['fused_pct']:.2f} %, "
           f"{moved.truth['fused_pct']:.2f}, {kept.truth['fused_pct']:.2f}")
     assert kept.truth["fused_yaw_deg"] > moved.truth["fused_yaw_deg"] + 0.5, kept.truth
+    folder = tmp_path / "logs"
+    folder.mkdir()
+    late.rename(folder / "late")
+    printed = io.StringIO()
+    with redirect_stdout(printed):
+        assert main(["replay", str(folder), "-o", str(tmp_path / "out"), "--jobs", "1"]) == 0
+    assert f"warning: late: the IMU's stamps ran {found:.3f} s behind" in printed.getvalue()

@@ -63,12 +63,12 @@ def test_the_injected_lag_is_found_to_5_ms(lag):
     assert est is not None
     assert abs(est.lag - lag) < 0.005, est
     # four whole pieces of 60 s in the just under 300 s the streams share
-    assert est.correlation > 0.95 and est.pieces == 4 and est.spread < 0.01
+    assert est.correlation > 0.95 and len(est.piece_lags) == 4 and est.spread < 0.01
 
 
 def test_a_mount_rolled_over_and_yawed_gives_the_same_lag():
     # the real outdoor bag's mount: the yaw rate is the IMU's y axis, read through the
-    # accelerometer's up; an upside-down IMU (negative correlation) as well
+    # accelerometer's up; an IMU upside down as well
     s, w = odometry()
     for mount in ((math.pi / 2, 0.0, -math.pi / 2), (math.pi, 0.0, 0.3)):
         t, gyro, accel = imu_late(0.4, mount=mount)
@@ -94,22 +94,52 @@ def _streams(t, gyro, accel, s, w):
     return Streams(t, gyro, accel, twist_t=s, twist_v=np.full(s.size, 0.5), twist_w=w)
 
 
+def _moved(choice):
+    """(lag, note) of a LagChoice."""
+    return choice.lag, choice.note
+
+
 def test_a_replay_moves_a_clear_lag_and_leaves_a_small_one():
     s, w = odometry()
     streams = _streams(*imu_late(0.45), s, w)
     assert lag_limit(streams) == pytest.approx(LAG_LIMIT)  # 20 Hz: two intervals, 0.1 s
-    lag, note = choose_imu_lag(streams, CHASSIS)
+    lag, note = _moved(choose_imu_lag(streams, CHASSIS))
     assert abs(lag - 0.45) < 0.005
-    assert f"{lag:.3f} s late" in note and "--imu-lag 0" in note
+    assert f"ran {lag:.3f} s behind the odometry's" in note and "--imu-lag 0" in note
     moved = shifted(streams, lag)
     assert np.allclose(moved.imu_t, streams.imu_t - lag) and moved.twist_t is streams.twist_t
-    again = choose_imu_lag(moved, CHASSIS)
-    assert again == (0.0, "")  # nothing left to move
+    assert _moved(choose_imu_lag(moved, CHASSIS)) == (0.0, "")  # nothing left to move
     # early IMU stamps, said so
-    lag, note = choose_imu_lag(_streams(*imu_late(-0.3), s, w), CHASSIS)
-    assert abs(lag + 0.3) < 0.005 and "early" in note
+    lag, note = _moved(choose_imu_lag(_streams(*imu_late(-0.3), s, w), CHASSIS))
+    assert abs(lag + 0.3) < 0.005 and "ahead of" in note
     # within the limit: what a twist's interval mean looks like; left alone, nothing said
-    assert choose_imu_lag(_streams(*imu_late(0.06), s, w), CHASSIS) == (0.0, "")
+    assert _moved(choose_imu_lag(_streams(*imu_late(0.06), s, w), CHASSIS)) == (0.0, "")
+
+
+def test_wheel_frames_are_expected_half_a_period_early():
+    # wheel frames at 25 Hz, each the mean rate over the 40 ms it closes (what ticks are),
+    # stamped at its end: on time, the estimate reads the IMU 20 ms early, which is no lag;
+    # 0.3 s late, the lag moved is 0.3 s
+    rng = np.random.default_rng(3)
+    period, m_per_tick = 0.04, 1e-4
+    ends = np.arange(period, 300.0, period)
+    angle = np.array([quad_turn(e - period, e) for e in ends])  # rad turned in each period
+    d = 0.5 * CHASSIS.wheel_distance * angle / m_per_tick  # ticks each wheel apart
+    ticks = np.column_stack([200 - d, 200 + d]).round().astype(np.int64)
+    chassis = DiffDriveParams(wheel_distance=CHASSIS.wheel_distance, speed_ratio=m_per_tick,
+                              encode_sampling_time=period)
+    for lag in (0.0, 0.3):
+        t, gyro, accel = imu_late(lag, seed=int(rng.integers(100)))
+        choice = choose_imu_lag(Streams(t, gyro, accel, ends, ticks), chassis)
+        assert choice.estimate is not None
+        assert abs(choice.estimate.lag - (lag - 0.5 * period)) < 0.006, choice.estimate
+        assert abs(choice.lag - lag) < 0.006 if lag else choice.lag == 0.0
+
+
+def quad_turn(t0, t1):
+    """rad: the integral of :func:`yaw_rate` from ``t0`` to ``t1`` s."""
+    x = np.linspace(t0, t1, 9)
+    return float(np.trapezoid(yaw_rate(x), x))
 
 
 def test_the_limit_grows_with_a_slow_stream():
@@ -117,26 +147,80 @@ def test_the_limit_grows_with_a_slow_stream():
     s, w = odometry(rate=5.0)
     streams = _streams(*imu_late(0.3), s, w)
     assert lag_limit(streams) == pytest.approx(0.4)
-    assert choose_imu_lag(streams, CHASSIS) == (0.0, "")
+    assert _moved(choose_imu_lag(streams, CHASSIS)) == (0.0, "")
 
 
 def test_pieces_that_disagree_leave_the_stamps_and_say_so():
     # the IMU's driver restarted at 150 s with another lag: no one lag fits the run
     s, w = odometry()
     streams = _streams(*imu_late(0.3, late_from=150.0, lag2=1.5), s, w)
-    lag, note = choose_imu_lag(streams, CHASSIS)
-    assert lag == 0.0
-    assert "disagree" in note and "not moved" in note and "--imu-lag" in note
+    choice = choose_imu_lag(streams, CHASSIS)
+    assert choice.lag == 0.0 and "do not keep one lag" in choice.note
+    assert "not moved" in choice.note
+    # pieces of 60 s: two before the restart, one across it, one after
+    lags = choice.estimate.piece_lags
+    assert len(lags) == 4 and np.allclose(lags[:2], 0.3, atol=0.01)
+    assert abs(lags[3] - 1.5) < 0.01
+    assert ", ".join(f"{x:+.3f}" for x in lags) in choice.note
+    # -0.4 s, then +0.4 s: on the whole run about 0, which alone would pass as on time
+    streams = _streams(*imu_late(-0.4, late_from=150.0, lag2=0.4), s, w)
+    lag, note = _moved(choose_imu_lag(streams, CHASSIS))
+    assert lag == 0.0 and "do not keep one lag" in note
+
+
+def test_a_run_too_short_for_two_pieces_is_not_moved():
+    # 50 s (pieces of 20 s: two would fit, but the first 20 s turn too little here)
+    s, w = odometry(span=50.0)
+    t, gyro, accel = imu_late(0.5, span=50.0)
+    w = np.where(s < 22.0, 0.0, w)
+    gyro[t < 22.5, 2] = math.radians(0.5)  # standing: the bias alone
+    lag, note = _moved(choose_imu_lag(_streams(t, gyro, accel, s, w), CHASSIS))
+    assert lag == 0.0 and "too short or turned too little" in note
+    assert "--imu-lag 0.5" in note
+
+
+def test_a_lag_beyond_the_search_is_no_estimate():
+    # 3.5 s late: the best lag within +-3 s is its edge, which says nothing
+    s, w = odometry()
+    t, gyro, accel = imu_late(3.5)
+    assert estimate_imu_lag(t, gyro, accel.mean(axis=0), s, w) is None
+    assert _moved(choose_imu_lag(_streams(t, gyro, accel, s, w), CHASSIS)) == (0.0, "")
+
+
+def test_a_steady_weave_is_not_lined_up_against_its_mirror_image():
+    # a slalom at one 4 s period, 0.8 s late: half a period away the rates are each other's
+    # negative; the correlation is signed, so the lag found is 0.8 s, not -1.2
+    rng = np.random.default_rng(7)
+    t = np.arange(0.0, 300.0, 0.01)
+    s = np.arange(0.0, 300.0, 0.05)
+    gyro = np.zeros((t.size, 3))
+    gyro[:, 2] = 0.8 * np.sin(2 * math.pi * (t - 0.8) / 4.0) + rng.normal(0, 0.01, t.size)
+    accel = np.tile([0.0, 0.0, 9.81], (t.size, 1))
+    w = 0.8 * np.sin(2 * math.pi * s / 4.0)
+    est = estimate_imu_lag(t, gyro, accel.mean(axis=0), s, w)
+    assert est is not None and abs(est.lag - 0.8) < 0.005, est
+
+
+@pytest.mark.parametrize("lag", [0.3, 1.0, 2.0])
+def test_without_gravity_the_axis_that_turns_is_found(lag):
+    # an accelerometer that reads zero (a bag whose driver has none): the gyro's turning
+    # axis is the one that lines up best with the odometry at some lag, here -y
+    s, w = odometry()
+    t, gyro, accel = imu_late(lag, mount=(math.pi / 2, 0.0, 0.0))
+    lag_found, note = _moved(choose_imu_lag(_streams(t, gyro, 0.0 * accel, s, w), CHASSIS))
+    assert abs(lag_found - lag) < 0.005 and "behind" in note
 
 
 def test_a_given_lag_is_taken_as_it_is():
     s, w = odometry()
     streams = _streams(*imu_late(0.45), s, w)
-    assert choose_imu_lag(streams, CHASSIS, 0.0) == (0.0, "")  # --imu-lag 0: left alone
-    lag, note = choose_imu_lag(streams, CHASSIS, 0.2)
+    assert _moved(choose_imu_lag(streams, CHASSIS, 0.0)) == (0.0, "")  # --imu-lag 0
+    lag, note = _moved(choose_imu_lag(streams, CHASSIS, 0.2))
     assert lag == 0.2 and "-0.200 s" in note and "--imu-lag" in note
     with pytest.raises(ValueError, match="finite"):
         choose_imu_lag(streams, CHASSIS, math.nan)
+    with pytest.raises(ValueError, match="no IMU samples to move"):
+        choose_imu_lag(Streams(twist_t=s, twist_v=w, twist_w=w), CHASSIS, 0.2)
 
 
 def test_the_command_line_refuses_a_lag_that_is_not_a_number(capsys):

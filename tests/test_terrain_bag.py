@@ -180,13 +180,14 @@ def test_odometry_stamped_late_still_teaches_the_bias(replayed, tmp_path):
     assert two.moving_start is not None
     assert abs(np.degrees(two.moving_start.bias - table["gyro_bias_z"][-1])) < 0.05
     assert abs(np.degrees(two.table[-1, 6] - table["gyro_bias_z"][-1])) < 0.05
-    # By default the lag is found (the IMU looks early against the late twists: 0.2 s plus
-    # the twists' own half interval) and the IMU's stamps are moved back by it
+    # By default the lag is found (the IMU runs ahead of the late twists: 0.2 s plus the
+    # twists' own half interval) and the IMU's stamps are moved later by it, onto the
+    # odometry's clock
     auto = replay_bag(late, tmp_path / "auto.csv", imu_topic="/imu/data", odom_topic="/odom",
                       imu_mount_rpy=tuple(float(v) for v in MOUNT))
-    notes = [n for n in auto.notes if "IMU's stamps were" in n]
-    assert len(notes) == 1 and " s early " in notes[0], auto.notes
-    assert abs(float(notes[0].split("were ")[1].split(" s ")[0]) - 0.2) < 0.06, notes
+    assert abs(auto.imu_lag + 0.2) < 0.06, auto.imu_lag
+    notes = [n for n in auto.notes if "IMU's stamps ran" in n]
+    assert len(notes) == 1 and f"ran {-auto.imu_lag:.3f} s ahead of" in notes[0], auto.notes
     assert abs(np.degrees(auto.table[-1, 6] - table["gyro_bias_z"][-1])) < 0.05
 
 
@@ -757,18 +758,23 @@ def test_an_imu_stamped_late_or_early_is_moved_onto_the_odometry_clock(replayed,
     kw = dict(imu_topic="/imu/data", odom_topic="/odom", fix_topic="/gps/fix",
               imu_mount_rpy=tuple(float(v) for v in MOUNT))
     untouched = replay_bag(bag, tmp_path / "on_time.csv", **kw)
-    assert not any("IMU's stamps" in n for n in untouched.notes), untouched.notes
+    assert untouched.imu_lag == 0.0
+    assert not any("IMU's" in n for n in untouched.notes), untouched.notes
     late = tmp_path / "late.bag"
     _stamped_late(bag, late, latency, "/imu/data")
     moved = replay_bag(late, tmp_path / "moved.csv", **kw)
     kept = replay_bag(late, tmp_path / "kept.csv", imu_lag=0.0, **kw)
-    notes = [n for n in moved.notes if "IMU's stamps were" in n]
-    assert len(notes) == 1, moved.notes
-    found = float(notes[0].split("were ")[1].split(" s ")[0])
-    assert abs(found - abs(latency)) < 0.06, notes  # a 10 Hz twist: half an interval
-    assert ("late" if latency > 0 else "early") in notes[0]
+    found = moved.imu_lag
+    assert abs(found - latency) < 0.06, found  # a 10 Hz twist: half an interval
+    side = "behind" if latency > 0 else "ahead of"
+    assert [n for n in moved.notes if "IMU's stamps ran" in n] == [
+        n for n in moved.notes if f"ran {abs(found):.3f} s {side} the odometry's" in n]
+    assert any("IMU's stamps ran" in n for n in moved.notes), moved.notes
+    # the output is on the odometry's clock: its rows at the IMU's stamps less the lag
+    assert moved.table[0, 0] == pytest.approx(moved.imu.t[0])
+    assert moved.imu.t[0] == pytest.approx(kept.imu.t[0] - found)
     on_time = untouched.gps.rmse["fused"]
     assert abs(moved.gps.rmse["fused"] - on_time) < 0.1 * on_time, (moved.gps.rmse, on_time)
-    print(f"IMU {latency:+.1f} s: found {found:.3f} s; fused GPS RMSE {on_time:.2f} m on time, "
+    print(f"IMU {latency:+.1f} s: found {found:+.3f} s; fused GPS RMSE {on_time:.2f} m on time, "
           f"{moved.gps.rmse['fused']:.2f} m moved, {kept.gps.rmse['fused']:.2f} m kept")
     assert kept.gps.rmse["fused"] > moved.gps.rmse["fused"] + 0.1, (kept.gps.rmse, on_time)

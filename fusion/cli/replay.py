@@ -547,6 +547,8 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
     warned = []
     for w in work:
         status, value = results[w.source]
+        for note in value.notes if status == "ok" else ():
+            print(f"warning: {Path(w.source).name}: {note}")
         if status == "ok" and value.warnings:
             warned.extend(value.warnings)
             for tw in value.warnings:

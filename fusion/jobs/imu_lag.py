@@ -1,72 +1,97 @@
-"""A replay's IMU stamps put on the odometry's clock when they lag it
+"""A replay's IMU stamps put on the odometry's clock when the two disagree
 (:func:`fusion.calibration.time_offset.estimate_imu_lag`), or by the lag the user gives
 (``fusion replay --imu-lag``).
 
-Below :func:`lag_limit` a lag is left alone: a twist or a wheel frame is the mean rate over
-the interval it closes, half an interval before its stamp, which the estimate reads as a
-small lag (-5 to -16 ms on the black-box simulator's runs, -35 ms on the terrain bag's 10 Hz
-twists), and a few tens of ms cost nothing measurable (the terrain bag's IMU 0.3 s late:
-1.49 m of GPS RMSE against 1.46). Above it the IMU's stamps are moved by the whole estimate,
-with a note; when pieces of the run disagree on the lag (a run whose turns repeat at one
-period), nothing is moved and the note says so.
+The lag moved is the estimate less what a well-stamped log shows: a wheel frame is the mean
+rate over the period it closes, which the pipeline already places half a period before its
+stamp, and which the estimate reads as the IMU half a period early (-5 to -16 ms on the
+black-box simulator's runs); a twist is taken at its stamp. Up to :func:`lag_limit` nothing
+is moved: a few tens of ms cost nothing measurable (the terrain bag's IMU 0.3 s late: 1.49 m
+of GPS RMSE against 1.46). Beyond it the IMU's stamps are moved with a note, when at least
+two pieces of the run line up at the same lag; when they do not (a driver restarted with
+another lag, turns that repeat at one period), or when the run is too short or turned too
+little to check on two pieces, nothing is moved and the note says why.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
-from fusion.calibration.gyro_axes import gyro_yaw_axis
-from fusion.calibration.time_offset import PIECE, estimate_imu_lag
+from fusion.calibration.time_offset import ImuLag, estimate_imu_lag
 from fusion.jobs.streams import Streams
 
-__all__ = ["LAG_LIMIT", "choose_imu_lag", "lag_limit", "shifted"]
+__all__ = ["LAG_LIMIT", "LagChoice", "choose_imu_lag", "lag_limit", "shifted"]
 
 #: s: the least lag moved, whatever the streams' rates.
 LAG_LIMIT = 0.1
 
 
+@dataclass(frozen=True)
+class LagChoice:
+    """What a replay does with the IMU's stamps.
+
+    Attributes:
+        lag: s taken off the IMU's stamps (0: left as they are).
+        note: what to tell the user ("" for nothing).
+        estimate: the estimate it rests on (None: given, or none found).
+    """
+
+    lag: float = 0.0
+    note: str = ""
+    estimate: ImuLag | None = None
+
+
 def lag_limit(streams: Streams) -> float:
     """s: lags up to this are left alone: :data:`LAG_LIMIT`, or two intervals of the slower
     stream (the IMU's or the odometry's median interval) if that is longer."""
-    periods = [float(np.median(np.diff(t))) for t in (streams.imu_t, streams.wheel_t,
-                                                      streams.twist_t)
-               if t is not None and t.size >= 2]
-    return max([LAG_LIMIT, *(2.0 * p for p in periods if math.isfinite(p))])
+    periods = [_period(t) for t in (streams.imu_t, streams.wheel_t, streams.twist_t)]
+    return max([LAG_LIMIT, *(2.0 * p for p in periods if p is not None)])
 
 
-def choose_imu_lag(streams: Streams, chassis, given: float | None = None) -> tuple[float, str]:
-    """``(lag, note)``: s to subtract from the IMU's stamps (0: leave them) and what to tell
-    the user ("" for nothing). ``given``: the user's lag (``--imu-lag``), taken as it is;
-    None: estimated (module docstring). ``chassis``: the wheel frames' geometry."""
+def choose_imu_lag(streams: Streams, chassis, given: float | None = None) -> LagChoice:
+    """What to take off the IMU's stamps (module docstring). ``given``: the user's lag
+    (``--imu-lag``), taken as it is; None: estimated. ``chassis``: the wheel frames'
+    geometry. ValueError for a given lag that is not finite or without IMU samples."""
     if given is not None:
         if not math.isfinite(given):
             raise ValueError(f"--imu-lag must be a finite number of s, got {given!r}")
-        note = (f"IMU stamps moved by {-given:+.3f} s onto the odometry's clock (--imu-lag)"
-                if given else "")
-        return float(given), note
+        if not streams.has_imu:
+            raise ValueError("--imu-lag: there are no IMU samples to move")
+        return LagChoice(float(given), f"IMU stamps moved by {-given:+.3f} s onto the "
+                         "odometry's clock (--imu-lag)" if given else "")
     odometry = streams.odometry_rates(chassis) if streams.has_imu else None
     if odometry is None:
-        return 0.0, ""
+        return LagChoice()
     t, _, w = odometry
-    up = _up(streams, t, w)
-    if up is None:
-        return 0.0, ""
-    est = estimate_imu_lag(streams.imu_t, streams.gyro, up, t, w)
+    est = _estimate(streams, t, w)
+    if est is None:
+        return LagChoice()
+    # a wheel frame's rate is its period's mean: read as half a period late (module docstring)
+    expected = -0.5 * (_period(streams.wheel_t) or 0.0) if streams.has_wheels else 0.0
+    lag = est.lag - expected
     limit = lag_limit(streams)
-    if est is None or not abs(est.lag) > limit:
-        return 0.0, ""
-    late = f"{est.lag:.3f} s late" if est.lag > 0 else f"{-est.lag:.3f} s early"
+    pieces = (f"pieces of {est.piece:.0f} s line up at "
+              + ", ".join(f"{x - expected:+.3f}" for x in est.piece_lags) + " s")
     if est.spread > 0.5 * limit:
-        return 0.0, (f"the IMU's stamps look {late} against the odometry's, but pieces of the "
-                     f"run disagree by up to {est.spread:.3f} s: not moved (give --imu-lag "
-                     "to move them)")
-    return est.lag, (f"the IMU's stamps were {late} against the odometry's (their yaw rates "
-                     f"line up best there: correlation {est.correlation:.3f}; {est.pieces} "
-                     f"pieces of {PIECE:.0f} s agree within {est.spread:.3f} s): "
-                     "moved onto the odometry's clock (--imu-lag 0 keeps them)")
+        return LagChoice(0.0, f"the IMU's and the odometry's stamps do not keep one lag "
+                         f"through the run ({pieces}: a driver restarted with another lag, "
+                         "or turns that repeat at one period): not moved; --imu-lag S "
+                         "moves every IMU stamp by S", est)
+    if not abs(lag) > limit:
+        return LagChoice(estimate=est)
+    apart = _apart(lag)
+    if len(est.piece_lags) < 2:
+        return LagChoice(0.0, f"{apart} (their yaw rates line up best there, correlation "
+                         f"{est.correlation:.3f}), but the run is too short or turned too "
+                         f"little to check it on two pieces of {est.piece:.0f} s: not moved; "
+                         f"--imu-lag {lag:.3f} moves them", est)
+    return LagChoice(lag, f"{apart} (their yaw rates line up best there: correlation "
+                     f"{est.correlation:.3f}; {pieces}): the IMU's moved onto the odometry's "
+                     "clock (--imu-lag 0 keeps them)", est)
 
 
 def shifted(streams: Streams, lag: float) -> Streams:
@@ -76,10 +101,27 @@ def shifted(streams: Streams, lag: float) -> Streams:
     return dataclasses.replace(streams, imu_t=streams.imu_t - lag)
 
 
-def _up(streams: Streams, t, w):
-    """The IMU frame's up: the accelerometer's mean where it reads gravity, else the gyro
-    axis the odometry turns about; None if neither is known."""
+def _apart(lag: float) -> str:
+    """The lag in words, blaming neither clock."""
+    side = "behind" if lag > 0 else "ahead of"
+    return f"the IMU's stamps ran {abs(lag):.3f} s {side} the odometry's"
+
+
+def _period(t) -> float | None:
+    """s: the median interval of stamps ``t`` (None for fewer than two or not finite)."""
+    if t is None or t.size < 2:
+        return None
+    p = float(np.median(np.diff(t)))
+    return p if math.isfinite(p) and p > 0 else None
+
+
+def _estimate(streams: Streams, t, w) -> ImuLag | None:
+    """The lag about the accelerometer's up; where the accelerometer does not read gravity,
+    about whichever IMU axis (either sign) lines up best with the odometry."""
     if not streams.level_note():
-        return np.mean(streams.accel, axis=0)
-    axis = gyro_yaw_axis(streams.imu_t, streams.gyro, t, w)
-    return None if axis is None else np.array(axis.axis)
+        return estimate_imu_lag(streams.imu_t, streams.gyro, np.mean(streams.accel, axis=0),
+                                t, w)
+    found = [estimate_imu_lag(streams.imu_t, streams.gyro, sign * axis, t, w)
+             for axis in np.eye(3) for sign in (1.0, -1.0)]
+    found = [f for f in found if f is not None]
+    return max(found, key=lambda f: f.correlation, default=None)

@@ -112,6 +112,8 @@ class ReplayResult:
             ``[ekf] gyro_scale`` unless an absolute yaw moved it).
         moving_start: where the robot drove off at once, the gyro bias its first stop
             taught, taken as the prior from the start (:mod:`fusion.jobs.moving_start`).
+        imu_lag: s taken off the IMU's stamps before fusing (:mod:`fusion.jobs.imu_lag`;
+            the output's ``t`` is then on the wheel frames' clock, not imu.csv's).
     """
 
     source: str
@@ -133,6 +135,7 @@ class ReplayResult:
     warnings: list[TrustWarning] = field(default_factory=list)
     gyro_scale: float = 0.0
     moving_start: MovingStart | None = None
+    imu_lag: float = 0.0
 
 
 def output_format(path: Path) -> str:
@@ -299,13 +302,17 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                                                 log.accel)
     streams = Streams(imu_t, gyro, accel, log.wheel_t, log.ticks)
     streams.check_gyro(f"{path / 'imu.csv'}", robot.chassis)
-    lag, lag_note = choose_imu_lag(streams, robot.chassis, imu_lag)
-    streams = shifted(streams, lag)
+    try:
+        lag = choose_imu_lag(streams, robot.chassis, imu_lag)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    streams = shifted(streams, lag.lag)
     robot, limit_note = with_gyro_limit(robot, streams)
     result = _finish(path, output, robot, streams, log.truth_t, log.truth,
                      tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats,
                      one_pass=one_pass)
-    result.notes.extend(n for n in (note, lag_note, limit_note) if n)
+    result.notes.extend(n for n in (note, lag.note, limit_note) if n)
+    result.imu_lag = lag.lag
     return result
 
 
@@ -435,7 +442,8 @@ class BagReplay:
     poses' differences where its twist is empty, and why in ``motion.note``);
     ``moving_start``: as :attr:`ReplayResult.moving_start`; ``notes``: what the reader said
     about the file (an unfinished MCAP recording, messages that shared a stamp);
-    ``coverage``: what the output cannot cover (:func:`coverage_warnings`)."""
+    ``coverage``: what the output cannot cover (:func:`coverage_warnings`); ``imu_lag``: s
+    taken off the IMU's stamps (the output's ``t`` then on the odometry's clock)."""
 
     table: NDArray[np.float64]
     pipeline: FusionPipeline
@@ -452,6 +460,7 @@ class BagReplay:
     moving_start: MovingStart | None = None
     notes: list[str] = field(default_factory=list)
     coverage: list[str] = field(default_factory=list)
+    imu_lag: float = 0.0
 
 
 def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_topic: str,
@@ -489,21 +498,23 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic, fix_topic=fix_topic,
                    stamps=stamps)
     imu, odom = bag.imu, bag.odometry
+    where = f"{path}: topics {imu_topic} and {odom_topic}"
     motion = odometry_motion(odom)
-    streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=motion.t, twist_v=motion.v,
-                      twist_w=motion.w)
-    streams.check_overlap(f"{path}: topics {imu_topic} and {odom_topic}",
-                          "a driver stamping with its device's clock: --stamps bag takes "
-                          "when the bag recorded each message" if stamps == "header" else
-                          "the bag recorded them at different times")
-    # the lag first: the sign checks compare the gyro's turns with the odometry's in time
-    lag, lag_note = choose_imu_lag(streams, robot.chassis, imu_lag)
-    if lag:
-        imu = dataclasses.replace(imu, t=imu.t - lag)
+    Streams(imu.t, imu.gyro, imu.accel, twist_t=motion.t).check_overlap(
+        where, "a driver stamping with its device's clock: --stamps bag takes when the bag "
+        "recorded each message" if stamps == "header" else
+        "the bag recorded them at different times")
+    # the signs before the lag: the lag's correlation is signed, on the repaired twists
     signs = check_twist_signs(odom, motion, imu, robot.imu_mount_rpy)
     motion = signs.motion
     streams = Streams(imu.t, imu.gyro, imu.accel, twist_t=motion.t, twist_v=motion.v,
                       twist_w=motion.w)
+    lag = choose_imu_lag(streams, robot.chassis, imu_lag)
+    if lag.lag:
+        imu = dataclasses.replace(imu, t=imu.t - lag.lag)
+        streams = shifted(streams, lag.lag)
+        streams.check_overlap(where, f"after moving the IMU's stamps by {-lag.lag:+.3f} s "
+                                     "(--imu-lag)")
     streams.check_gyro(f"{path}: topic {imu_topic}", robot.chassis)
     robot, limit_note = with_gyro_limit(robot, streams)
     fixes, fix_note = bag.fixes, ""
@@ -548,11 +559,11 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
-    notes = [n for n in (bag.note, *bag.topic_notes, lag_note, *signs.notes, limit_note,
+    notes = [n for n in (bag.note, *bag.topic_notes, *signs.notes, lag.note, limit_note,
                          fix_note, tilt and streams.level_note()) if n]
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, fixes, gps,
-                     gps_note, motion, start, notes, coverage)
+                     gps_note, motion, start, notes, coverage, lag.lag)
 
 
 #: s: GPS header stamps whose offset from their record times differs from the odometry's by

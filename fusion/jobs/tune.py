@@ -49,6 +49,7 @@ from fusion.evaluation.crossval import kfold_splits
 from fusion.evaluation.trajectory import position_rmse, yaw_rmse
 from fusion.io.logdir import LogDir, read_logdir
 from fusion.jobs.engine import run_tasks
+from fusion.jobs.imu_lag import choose_imu_lag, shifted
 from fusion.jobs.replay import Streams, find_log_dirs, fuse_streams
 from fusion.jobs.replay import _truth_at as truth_at  # the replay's truth interpolation
 from fusion.planar.odometry import integrate_wheel_travel
@@ -135,9 +136,11 @@ def odometry_yaw_rmse(robot: RobotConfig, log: LogDir, radius_ratio: float = 1.0
 
 
 def fused_position_rmse(robot: RobotConfig, log: LogDir) -> float:
-    """Position RMSE (m) of the fused odometry (the replay's pipeline, no output file)
-    against the truth, at the fused rows inside the truth's span."""
+    """Position RMSE (m) of the fused odometry (the replay's pipeline, no output file, the
+    IMU's stamps moved as the replay moves them) against the truth, at the fused rows inside
+    the truth's span."""
     streams = Streams(log.imu_t, log.gyro, log.accel, log.wheel_t, log.ticks)
+    streams = shifted(streams, choose_imu_lag(streams, robot.chassis).lag)
     table = fuse_streams(robot, streams, None)[0]
     t = table[:, 0]
     inside = _inside(log, t)

@@ -224,11 +224,11 @@ class PipelineStats:
             intervals longer than ``max_extrapolation``); both only where the IMU has samples
             (not before its first, nor in its gaps longer than ``max_extrapolation``: a 30 s
             IMU gap while turning had made heading_divergence fire on a good track).
+        (The two turns let :mod:`fusion.evaluation.trust` see the sources disagree.)
         wheel_travel, twist_travel: m, signed, the wheel frames' and the twists' travel
             over the same frames (what a wheel radius mismatch turns the odometry by, ``c``
             rad/m; apart, as the turns, so that the sums do not depend on how the two
             sources interleave).
-        (The two turns let :mod:`fusion.evaluation.trust` see the sources disagree.)
         attitude_gaps: IMU periods longer than the attitude filter's ``max_gap`` (integrated
             over one regular period, inclination re-initialised from the accelerometer).
         speed_resets: the EKF's speeds forgotten after ``max_extrapolation`` s without a
