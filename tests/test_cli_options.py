@@ -174,6 +174,7 @@ TABLE: dict[str, dict[str, list[Row]]] = {
                                 "--use-truth", "--distance", "20")],
         "--window": [changes("logdir", "--window", "50")],
         "--level": [changes("logdir", "--level")],
+        "--imu-lag": [changes("logdir", "--imu-lag", "0.3")],
         "--write": [changes("logdir", "--write", "robot-calibrated.toml")],
     },
     "calibrate umbmark": {

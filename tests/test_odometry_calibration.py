@@ -149,6 +149,27 @@ def test_cli_calibrate_odometry(tmp_path, capsys):
     assert "refusing to overwrite" in capsys.readouterr().err
 
 
+def test_cli_calibrate_odometry_puts_a_late_imu_on_the_wheels_clock(tmp_path, capsys):
+    # the same log with imu.csv stamped 0.7 s late: fitted as stamped, the gyro's turns meet
+    # the wheels' 0.7 s apart; the command moves the IMU's stamps as fusion replay does
+    from fusion.cli import main
+
+    run = degraded_mission(seed=1, duration=150.0)
+    d = write_synthetic_run(tmp_path / "run", run)
+    lines = (d / "imu.csv").read_text().splitlines()
+    rows = [line.split(",", 1) for line in lines[1:] if line]
+    (d / "imu.csv").write_text("\n".join(
+        [lines[0], *(f"{float(t) + 0.7:.9f},{rest}" for t, rest in rows)]) + "\n")
+    assert main(["calibrate", "odometry", str(d), "--level"]) == 0
+    out = capsys.readouterr().out
+    assert "note: the IMU's stamps ran 0.7" in out and "behind the odometry's" in out
+    fitted = _value(out, "wheel_distance")
+    assert fitted == pytest.approx(run.true_wheel_distance, rel=0.003)
+    # as stamped (--imu-lag 0): no window's gyro and wheels agree on when the robot turned
+    assert main(["calibrate", "odometry", str(d), "--level", "--imu-lag", "0"]) == 2
+    assert "the separation is not observable" in capsys.readouterr().err
+
+
 def test_cli_umbmark(tmp_path, capsys):
     from fusion.cli import main
 

@@ -15,8 +15,9 @@ error drop out; a parabola through the peak refines it below the grid). The corr
 signed: ``up`` fixes which way the gyro turns, so a robot weaving at a steady period does not
 line up against its own mirror image half a period away. A peak on the edge of the search is
 no estimate (the lag is longer, or there is none). The run is also cut into pieces
-(:func:`piece_length`), each with its own lag: their range says whether one lag fits the
-whole run (a driver restarted with another lag, a weave whose period aliases).
+(:func:`piece_length`), each that turned :data:`PIECE_TURN` with its own lag: their range
+says whether one lag fits the whole run (a driver restarted with another lag, a weave whose
+period aliases).
 
 Each sample is taken as the rate at its stamp: a wheel frame or a twist that is the mean over
 the interval it closes reads as late by about half that interval.
@@ -48,6 +49,9 @@ MIN_PIECE = 20.0
 #: The least correlation at the peak for a lag to mean anything (the two rates then follow
 #: each other closely; below, the gyro's axis or the odometry is not the robot's turning).
 MIN_CORRELATION = 0.8
+#: rad: the odometry's turns a piece needs for its own lag (the whole run needs
+#: :data:`fusion.calibration.gyro_axes.MIN_TURN`): a quarter turn has onsets enough to place.
+PIECE_TURN = 0.5 * math.pi
 #: s: a stream silent for longer than this (or three of its intervals, if longer) has a gap;
 #: the grid points whose window touches it are not used.
 GAP = 1.0
@@ -133,7 +137,7 @@ def estimate_imu_lag(imu_t: ArrayLike, gyro: ArrayLike, up: ArrayLike, odom_t: A
     lags = []
     for start in range(0, grid.size - n_piece + 1, n_piece):
         sl = slice(start, start + n_piece)
-        if _turn(b[sl], valid[sl]) < MIN_TURN:
+        if _turn(b[sl], valid[sl]) < PIECE_TURN:
             continue
         piece_lag, piece_corr = _best_lag(a[sl], b[sl], valid[sl])
         if piece_lag is not None and piece_corr >= MIN_CORRELATION:

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from fusion.cli import CommandError
+from fusion.cli.replay import imu_lag_arg
 
 __all__ = ["register"]
 
@@ -53,6 +54,10 @@ def register(subparsers) -> None:
                    help="wheel frames per fitting window (default 25, one second at 40 ms)")
     o.add_argument("--level", action="store_true",
                    help="use the gyro z axis (default: tilt-compensated with Mahony)")
+    o.add_argument("--imu-lag", type=imu_lag_arg, default=None, metavar="S|auto",
+                   help="s by which the IMU's stamps are later than the wheel frames' (taken "
+                        "off them; 0 leaves them). Default auto: as fusion replay, estimated "
+                        "from the turns and moved only when clearly off, with a note")
     o.add_argument("--write", type=Path, metavar="TOML",
                    help="also write a robot.toml with the corrected [chassis] (frames and "
                         "[ekf] copied from the log's robot.toml); refuses to overwrite the "
@@ -102,6 +107,8 @@ def run_odometry(args: argparse.Namespace) -> int:
     from fusion.calibration.odometry import calibrate_odometry
     from fusion.geometry.mount import vertical_rate
     from fusion.io.logdir import read_logdir
+    from fusion.jobs.imu_lag import choose_imu_lag
+    from fusion.jobs.streams import Streams
 
     if not args.input.is_dir():
         raise CommandError(f"{args.input}: not a log directory")
@@ -122,8 +129,13 @@ def run_odometry(args: argparse.Namespace) -> int:
         q = Mahony(axes=6).update_batch(log.gyro, log.accel, timestamps=log.imu_t)
         gyro_z = vertical_rate(log.gyro, q)
     gyro_z = gyro_z / (1.0 + log.robot.ekf.gyro_scale)  # the reference: a calibrated gyro
+    # the IMU's stamps on the wheels' clock, as fusion replay puts them
+    lag = choose_imu_lag(Streams(log.imu_t, log.gyro, log.accel, log.wheel_t, log.ticks),
+                         log.robot.chassis, args.imu_lag)
+    if lag.note:
+        print(f"note: {lag.note}")
     cal = calibrate_odometry(
-        log.imu_t, gyro_z, log.wheel_t, log.ticks, log.robot.chassis,
+        log.imu_t - lag.lag, gyro_z, log.wheel_t, log.ticks, log.robot.chassis,
         distance=args.distance,
         truth_t=log.truth_t if args.use_truth else None,
         truth=log.truth if args.use_truth else None,

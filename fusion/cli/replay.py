@@ -64,7 +64,7 @@ def register(subparsers) -> None:
                    help="fuse as a live run would: where the robot drives off at once, do not "
                         "fuse the log a second time from the gyro bias its first stop taught "
                         "(default: that second pass, said in a 'note: moving start' line)")
-    p.add_argument("--imu-lag", type=_imu_lag, default=None, metavar="S|auto",
+    p.add_argument("--imu-lag", type=imu_lag_arg, default=None, metavar="S|auto",
                    help="s by which the IMU's stamps are later than the odometry's (taken off "
                         "them before fusing; 0 leaves them). Default auto: estimated from the "
                         "turns both see, and moved only when clearly off (more than 0.1 s or "
@@ -116,8 +116,9 @@ def register(subparsers) -> None:
     p.set_defaults(func=run)
 
 
-def _imu_lag(text: str) -> float | None:
-    """--imu-lag: "auto" (None) or a finite number of s."""
+def imu_lag_arg(text: str) -> float | None:
+    """--imu-lag (here and in ``fusion calibrate odometry``): "auto" (None) or a finite
+    number of s."""
     if text.strip().lower() == "auto":
         return None
     try:
