@@ -166,7 +166,9 @@ class Rig:
                  pipeline_sources=("imu", "wheels"), publish_rate_hz=None,
                  **runner_kw) -> None:
         freeze_heap()  # as the commands do: no long GC pauses of the source threads
-        self.clock = ScaledClock(speed)
+        # a host clock up for a while (the time since boot): a stamp stepped back 10 s is
+        # out of order, not below 0 (test_stamps_below_zero_are_counted_not_written)
+        self.clock = ScaledClock(speed, start=1000.0)
         self.faults: list[tuple[str, str]] = []
         self.sink_errors: list[str] = []
         self.mcap = tmp_path / "out.mcap"
@@ -405,6 +407,21 @@ def test_nan_and_inf_stamps_first_and_mid_stream_are_counted(tmp_path):
     # a NaN first frame blocks nothing: the wheels go on (about 25 frames per s)
     assert st.wheel_frames > 0.8 * 25 * 5.0 - len(bad)
     rig.check(led, "NaN and inf stamps, first and mid-stream", "0 (the next event)")
+
+
+def test_stamps_below_zero_are_counted_not_written(tmp_path):
+    # the first events stamped below 0 (a clock stepped back further than it had run): fused,
+    # their negative stamps reached the MCAP sink, which refused them at close (ROS time
+    # cannot be negative); live they are invalid stamps, and the outputs hold every record
+    def early(i, ev, t):
+        return _restamp(ev, ev.t - 2000.0) if i < 5 else ev
+
+    rig = Rig(tmp_path, speed=8.0, wrap=lambda s, rig: Mangled(s, rig, early))
+    rig.drive_until(3.0)
+    led = rig.close()
+    assert led["dropped"]["invalid_stamp"] == 2 * 5, led  # both sources
+    assert min(r.t for r in rig.records) > 0
+    rig.check(led, "stamps below 0 (the first 5 of each source)", "0 (the next event)")
 
 
 def test_30_s_of_silence_of_the_imu(tmp_path):

@@ -71,19 +71,23 @@ def mission_duration(mission=MISSION) -> float:
 class ScaledClock:
     """Robot time that runs ``speed`` times faster than the wall clock, s.
 
-    ``monotonic()`` (also the instance itself, called) reads it; ``sleep(s)`` sleeps ``s``
-    robot seconds. It has no ``advance``: the simulated MPU6050 then follows it without
-    adding wire time.
+    ``monotonic()`` (also the instance itself, called) reads it, from ``start`` s on (a host's
+    monotonic clock reads the time since boot: ``start=1000.0`` is one that has been up a
+    while); ``sleep(s)`` sleeps ``s`` robot seconds. It has no ``advance``: the simulated
+    MPU6050 then follows it without adding wire time.
     """
 
-    def __init__(self, speed: float = 1.0) -> None:
+    def __init__(self, speed: float = 1.0, start: float = 0.0) -> None:
         if not (math.isfinite(speed) and speed > 0):
             raise ValueError(f"speed must be > 0, got {speed!r}")
+        if not math.isfinite(start):
+            raise ValueError(f"start must be finite, got {start!r}")
         self.speed = float(speed)
+        self.start = float(start)
         self._t0 = time.monotonic()
 
     def monotonic(self) -> float:
-        return (time.monotonic() - self._t0) * self.speed
+        return self.start + (time.monotonic() - self._t0) * self.speed
 
     __call__ = monotonic
 

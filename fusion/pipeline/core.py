@@ -115,7 +115,8 @@ _log = logging.getLogger("fusion.pipeline")
 
 #: Why an input event was not fused (the keys of :meth:`FusionPipeline.ledger`'s
 #: ``dropped``): too late for the EKF; a stamp not after its source's previous one; a stamp
-#: that is NaN, infinite or ahead of the host clock by more than ``max_stamp_lead``; a NaN or
+#: that is NaN, infinite or, live, below 0 or ahead of the host clock by more than
+#: ``max_stamp_lead``; a NaN or
 #: infinite value; a gyro sample at full scale (saturated: not the rate); a gyro spike (a
 #: reading further from the predicted rate than any robot turns; a glitch); a wheel frame or
 #: twist with zero speed while the IMU shows motion (an encoder fault: flagged, not fused).
@@ -174,8 +175,8 @@ class PipelineStats:
         imu_samples: IMU samples accepted (pushed in time order).
         imu_out_of_order: IMU samples dropped because their stamp did not increase.
         imu_invalid_stamp, wheel_invalid_stamp, twist_invalid_stamp: events dropped because
-            their stamp was NaN, infinite or ahead of the host clock by more than
-            ``max_stamp_lead`` s.
+            their stamp was NaN, infinite or (with ``max_stamp_lead``) below 0 or ahead of the
+            host clock by more than ``max_stamp_lead`` s.
         invalid_values: IMU samples and twists dropped for a NaN or infinite value.
         wheel_frames: wheel frames accepted.
         wheel_out_of_order: wheel frames dropped because their stamp did not increase.
@@ -328,8 +329,9 @@ class FusionPipeline(Lifecycle):
         on_progress: ``callback(t)`` with the filter's effective time (s) after each chunk of
             :data:`BATCH_CHUNK` events of :meth:`push_arrays` (progress bars).
         max_stamp_lead: with a ``clock``: an event stamped more than this many s after
-            ``clock()`` is dropped as an invalid stamp (a live stamp cannot be in the future:
-            a clock jump or a corrupt stamp); None (default) checks nothing.
+            ``clock()``, or before 0, is dropped as an invalid stamp (a live stamp cannot be
+            in the future, and no host clock reads below 0, nor can ROS time: a clock jump
+            or a corrupt stamp); None (default) checks nothing.
         accel_slip: the accelerometer slip test (:mod:`fusion.planar.accel_slip`) on every
             wheel frame: True with :class:`AccelSlipParams`' noise figures and the EKF's
             ``tick_std`` and ``wheel_latency``, an :class:`AccelSlipParams`, or False
@@ -688,23 +690,23 @@ class FusionPipeline(Lifecycle):
                 twist_t=None, twist_v=None, twist_w=None, flush: bool = False) -> None:
         """Events of each source in their arrival order -> the compiled event core."""
         stats = self.stats
-        limit = math.inf
+        limit, floor = math.inf, -math.inf
         if self._clock is not None and self.max_stamp_lead is not None:
-            limit = self._clock() + self.max_stamp_lead
+            limit, floor = self._clock() + self.max_stamp_lead, 0.0
         parts = []  # (stamp, kind, t_eff, a, b, ref) per source with events
         # the other sources' accepted events first: the attitude filter is told what the
         # wheels (or twists) that arrived before each IMU sample knew
         if wheel_t is not None and wheel_t.size:
             stats.events_in += wheel_t.size
-            bad, dropped, wheel_t, (ticks,) = _in_order(wheel_t, self._last_wheel_t, limit,
-                                                        ticks)
+            bad, dropped, wheel_t, (ticks,) = _in_order(wheel_t, self._last_wheel_t,
+                                                        (floor, limit), ticks)
             stats.wheel_invalid_stamp += bad
             stats.wheel_out_of_order += dropped
         if twist_t is not None and twist_t.size:
             stats.events_in += twist_t.size
             twist_t, (twist_v, twist_w) = self._finite_values(twist_t, twist_v, twist_w)
             bad, dropped, twist_t, (twist_v, twist_w) = _in_order(
-                twist_t, self._last_twist_t, limit, twist_v, twist_w)
+                twist_t, self._last_twist_t, (floor, limit), twist_v, twist_w)
             stats.twist_invalid_stamp += bad
             stats.twist_out_of_order += dropped
         motion = self._motion(wheel_t, ticks, twist_t, twist_v, twist_w)
@@ -712,8 +714,8 @@ class FusionPipeline(Lifecycle):
         if imu_t is not None and imu_t.size:
             stats.events_in += imu_t.size
             imu_t, (gyro, accel) = self._finite_values(imu_t, gyro, accel)
-            bad, dropped, imu_t, (gyro, accel) = _in_order(imu_t, self._last_imu_t, limit,
-                                                           gyro, accel)
+            bad, dropped, imu_t, (gyro, accel) = _in_order(imu_t, self._last_imu_t,
+                                                           (floor, limit), gyro, accel)
             stats.imu_invalid_stamp += bad
             stats.imu_out_of_order += dropped
             if imu_t.size:
@@ -1428,12 +1430,13 @@ def _add_up_columns(totals: tuple[float, ...], rows: NDArray[np.float64]) -> tup
     return tuple(_add_up(a, rows[:, j]) for j, a in enumerate(totals))
 
 
-def _in_order(t: NDArray[np.float64], last: float, limit: float,
+def _in_order(t: NDArray[np.float64], last: float, bounds: tuple[float, float],
               *cols: NDArray) -> tuple[int, int, NDArray, tuple]:
     """``(invalid, out_of_order, t, cols)``: the events of one source that pushing them one
     at a time accepts (:func:`_increasing`), with their columns, and how many were dropped
-    for an invalid stamp (NaN, infinite, after ``limit``) and for not increasing."""
-    finite = np.isfinite(t) & (t <= limit)
+    for an invalid stamp (NaN, infinite, outside ``bounds``: (first, last) s allowed) and for
+    not increasing."""
+    finite = np.isfinite(t) & (t >= bounds[0]) & (t <= bounds[1])
     keep = _increasing(t, last, finite)
     if keep.all():
         return 0, 0, t, cols
