@@ -778,3 +778,63 @@ def test_an_imu_stamped_late_or_early_is_moved_onto_the_odometry_clock(replayed,
     print(f"IMU {latency:+.1f} s: found {found:+.3f} s; fused GPS RMSE {on_time:.2f} m on time, "
           f"{moved.gps.rmse['fused']:.2f} m moved, {kept.gps.rmse['fused']:.2f} m kept")
     assert kept.gps.rmse["fused"] > moved.gps.rmse["fused"] + 0.1, (kept.gps.rmse, on_time)
+
+
+def _pose_reset_at(bag: Path, out: Path, at: float) -> None:
+    """Copy ``bag`` with its /odom poses re-zeroed from the first message stamped ``at`` s
+    after the first on (a driver restart: pose back at the origin, the twist goes on)."""
+    from reshaped_bag import rewrite_messages
+    from scipy.spatial.transform import Rotation
+
+    state = {}
+
+    def reset(msg, t):
+        s = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
+        state.setdefault("t0", s)
+        p, q = msg.pose.pose.position, msg.pose.pose.orientation
+        yaw = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_euler("ZYX")[0]
+        if s - state["t0"] >= at:
+            x0, y0, a0 = state.setdefault("ref", (p.x, p.y, yaw))
+            c, sn = np.cos(a0), np.sin(a0)
+            p.x, p.y = c * (p.x - x0) + sn * (p.y - y0), -sn * (p.x - x0) + c * (p.y - y0)
+            qx, qy, qz, qw = Rotation.from_euler("z", yaw - a0).as_quat()
+            q.x, q.y, q.z, q.w = qx, qy, qz, qw
+        return t
+
+    rewrite_messages(bag, out, "/odom", reset)
+
+
+def test_a_pose_reset_mid_bag_does_not_splice_two_tracks(replayed, tmp_path):
+    # A driver restarted 75 s in: its pose starts again at the origin while the robot is 40 m
+    # away. The bag's own odometry line continues across the jump (by the twist over that
+    # interval), so its figures are the untouched bag's; the fused track never used the pose.
+    from fusion.jobs.replay import replay_bag
+
+    bag = replayed[6]
+    kw = dict(imu_topic="/imu/data", odom_topic="/odom", fix_topic="/gps/fix",
+              imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    untouched = replay_bag(bag, tmp_path / "on_time.csv", **kw)
+    reset = tmp_path / "reset.bag"
+    _pose_reset_at(bag, reset, 75.0)
+    r = replay_bag(reset, tmp_path / "reset.csv", **kw)
+    assert not any("pose jumped" in n for n in untouched.notes), untouched.notes
+    (note,) = [n for n in r.notes if "pose jumped" in n]
+    t_reset = float(note.split(" at ")[1].split(" s")[0])
+    assert 75.0 <= t_reset - r.odom_t[0] < 75.2, note
+    # the raw poses did jump (tens of m), the spliced track did not
+    raw = np.hypot(np.diff(r.odom.x), np.diff(r.odom.y)).max()
+    assert raw > 10.0
+    # the splice knows that interval's turn only from its twist: the heading after it may be
+    # off by up to |w| dt (this skid-steer's twists turn unlike its poses), and the position by
+    # that angle over the path after the reset, plus one interval's travel
+    k = int(np.searchsorted(r.odom_t, t_reset))
+    dt = r.odom_t[k] - r.odom_t[k - 1]
+    turn = np.abs(r.odom.w[k - 1:k + 1]).max() * dt
+    dyaw = np.abs(r.own[k:, 2] - untouched.own[k:, 2])
+    assert dyaw.max() <= turn and np.ptp(dyaw) < 1e-9, (dyaw.max(), turn)  # one offset
+    after = np.hypot(*np.diff(untouched.own[k - 1:, :2], axis=0).T)
+    gap = np.hypot(*(r.own[:, :2] - untouched.own[:, :2]).T).max()
+    assert gap <= dyaw.max() * after.sum() + after[0], (gap, dyaw.max(), after.sum())
+    assert r.gps.rmse["bag odometry"] == pytest.approx(untouched.gps.rmse["bag odometry"],
+                                                      abs=0.05)
+    assert np.array_equal(r.table, untouched.table, equal_nan=True)  # (blank columns)

@@ -35,6 +35,7 @@ from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
 from fusion.io.imu_csv import imu_csv_lines
 from fusion.io.logdir import read_logdir
 from fusion.io.odometry_motion import OdometryMotion, odometry_motion
+from fusion.io.pose_track import own_track
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
 from fusion.jobs.engine import run_tasks
@@ -525,10 +526,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     table, pipe, stats, warnings, start = fuse_streams(robot, streams, output, tilt=tilt,
                                                        progress=progress, one_pass=one_pass,
                                                        checked=signs.warnings)
-    x0, y0, th0 = odom.x[0], odom.y[0], odom.yaw[0]
-    c, sn = math.cos(th0), math.sin(th0)
-    dx, dy = odom.x - x0, odom.y - y0
-    own = np.column_stack([c * dx + sn * dy, -sn * dx + c * dy, wrap_angle(odom.yaw - th0)])
+    spliced = own_track(odom.t, odom.x, odom.y, odom.yaw, odom.v, odom.w)
+    own = spliced.track
     gps, gps_note = None, ""
     if fixes is not None:
         fx = fixes
@@ -560,7 +559,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
     notes = [n for n in (bag.note, *bag.topic_notes, *signs.notes, lag.note, limit_note,
-                         fix_note, tilt and streams.level_note()) if n]
+                         fix_note, spliced.note, tilt and streams.level_note()) if n]
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, fixes, gps,
                      gps_note, motion, start, notes, coverage, lag.lag)
