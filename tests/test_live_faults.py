@@ -337,7 +337,7 @@ def test_ctrl_c_inside_a_batch_puts_the_rest_of_it_back(tmp_path):
         if len(seen) == 300:
             raise KeyboardInterrupt
 
-    # at 3 s: stamps from 1.5 s on (ROS time cannot be negative)
+    # at 3 s: stamps from 1.5 s on (the rig's time; its clock reads 1000 s more)
     rig = Rig(tmp_path, make_sources=lambda rig: [Burst(rig, 1000, 3.0)],
               pipeline_sources=("imu",), publish_rate_hz=10.0, speed=10.0)
     with pytest.raises(KeyboardInterrupt):

@@ -168,6 +168,10 @@ def test_cli_calibrate_odometry_puts_a_late_imu_on_the_wheels_clock(tmp_path, ca
     # as stamped (--imu-lag 0): no window's gyro and wheels agree on when the robot turned
     assert main(["calibrate", "odometry", str(d), "--level", "--imu-lag", "0"]) == 2
     assert "the separation is not observable" in capsys.readouterr().err
+    # a lag that moves the IMU off the wheels' span altogether is said as such
+    assert main(["calibrate", "odometry", str(d), "--imu-lag", "1000"]) == 2
+    err = capsys.readouterr().err
+    assert "they do not overlap" in err and "after moving the IMU's stamps by -1000.000 s" in err
 
 
 def test_cli_umbmark(tmp_path, capsys):

@@ -808,6 +808,7 @@ def test_a_pose_reset_mid_bag_does_not_splice_two_tracks(replayed, tmp_path):
     # A driver restarted 75 s in: its pose starts again at the origin while the robot is 40 m
     # away. The bag's own odometry line continues across the jump (by the twist over that
     # interval), so its figures are the untouched bag's; the fused track never used the pose.
+    from fusion.geometry.angles import wrap_angle
     from fusion.jobs.replay import replay_bag
 
     bag = replayed[6]
@@ -824,13 +825,13 @@ def test_a_pose_reset_mid_bag_does_not_splice_two_tracks(replayed, tmp_path):
     # the raw poses did jump (tens of m), the spliced track did not
     raw = np.hypot(np.diff(r.odom.x), np.diff(r.odom.y)).max()
     assert raw > 10.0
-    # the splice knows that interval's turn only from its twist: the heading after it may be
-    # off by up to |w| dt (this skid-steer's twists turn unlike its poses), and the position by
-    # that angle over the path after the reset, plus one interval's travel
+    # the splice takes that interval's turn from the poses' interval before: the heading after
+    # it may be off by up to the yaw rate times the interval, and the position by that angle
+    # over the path after the reset, plus one interval's travel
     k = int(np.searchsorted(r.odom_t, t_reset))
     dt = r.odom_t[k] - r.odom_t[k - 1]
     turn = np.abs(r.odom.w[k - 1:k + 1]).max() * dt
-    dyaw = np.abs(r.own[k:, 2] - untouched.own[k:, 2])
+    dyaw = np.abs(wrap_angle(r.own[k:, 2] - untouched.own[k:, 2]))
     assert dyaw.max() <= turn and np.ptp(dyaw) < 1e-9, (dyaw.max(), turn)  # one offset
     after = np.hypot(*np.diff(untouched.own[k - 1:, :2], axis=0).T)
     gap = np.hypot(*(r.own[:, :2] - untouched.own[:, :2]).T).max()

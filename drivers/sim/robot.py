@@ -80,8 +80,8 @@ class ScaledClock:
     def __init__(self, speed: float = 1.0, start: float = 0.0) -> None:
         if not (math.isfinite(speed) and speed > 0):
             raise ValueError(f"speed must be > 0, got {speed!r}")
-        if not math.isfinite(start):
-            raise ValueError(f"start must be finite, got {start!r}")
+        if not (math.isfinite(start) and start >= 0):
+            raise ValueError(f"start must be >= 0 s (a host clock's), got {start!r}")
         self.speed = float(speed)
         self.start = float(start)
         self._t0 = time.monotonic()

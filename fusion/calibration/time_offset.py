@@ -15,9 +15,9 @@ error drop out; a parabola through the peak refines it below the grid). The corr
 signed: ``up`` fixes which way the gyro turns, so a robot weaving at a steady period does not
 line up against its own mirror image half a period away. A peak on the edge of the search is
 no estimate (the lag is longer, or there is none). The run is also cut into pieces
-(:func:`piece_length`), each that turned :data:`PIECE_TURN` with its own lag: their range
-says whether one lag fits the whole run (a driver restarted with another lag, a weave whose
-period aliases).
+(:func:`piece_length`); each piece that turned at least :data:`PIECE_TURN` gets its own lag,
+and their range says whether one lag fits the whole run (a driver restarted with another
+lag, a weave whose period aliases).
 
 Each sample is taken as the rate at its stamp: a wheel frame or a twist that is the mean over
 the interval it closes reads as late by about half that interval.

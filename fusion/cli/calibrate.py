@@ -134,6 +134,9 @@ def run_odometry(args: argparse.Namespace) -> int:
                          log.robot.chassis, args.imu_lag)
     if lag.note:
         print(f"note: {lag.note}")
+    if lag.lag:
+        Streams(log.imu_t - lag.lag, wheel_t=log.wheel_t).check_overlap(
+            str(args.input), f"after moving the IMU's stamps by {-lag.lag:+.3f} s (--imu-lag)")
     cal = calibrate_odometry(
         log.imu_t - lag.lag, gyro_z, log.wheel_t, log.ticks, log.robot.chassis,
         distance=args.distance,

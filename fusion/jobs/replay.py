@@ -433,8 +433,9 @@ def check_plot_output(path: Path | None = None) -> None:
 @dataclass
 class BagReplay:
     """What :func:`replay_bag` did: the fused table (fused CSV columns), the pipeline, its
-    counters, the bag's own odometry pose moved to start at the origin ((K, 3) x m, y m, yaw
-    rad at ``odom_t``), the bag's IMU and odometry (:func:`fusion.io.bags.read_bag`), the
+    counters, the bag's own odometry pose moved to start at the origin and spliced across a
+    driver's pose reset (:mod:`fusion.io.pose_track`; (K, 3) x m, y m, yaw rad at
+    ``odom_t``), the bag's IMU and odometry (:func:`fusion.io.bags.read_bag`), the
     trust warnings (:mod:`fusion.evaluation.trust`) and, given a GPS topic, its fixes and the
     fused track, the bag's odometry and the gyro-at-stops baseline against them
     (:mod:`fusion.evaluation.gps`; tracks ``"fused"``, ``"bag odometry"``, ``"gyro at

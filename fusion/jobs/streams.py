@@ -149,9 +149,9 @@ class Streams:
         imu = (float(self.imu_t[0]), float(self.imu_t[-1]))
         odo = (float(odometry[0]), float(odometry[-1]))
         if imu[1] < odo[0] or odo[1] < imu[0]:
-            kind = "wheel frames" if self.has_wheels else "odometry"
+            kind = "wheel frames'" if self.has_wheels else "odometry's"
             raise LogFormatError(
-                f"{where}: the IMU's stamps span {imu[0]:.3f}-{imu[1]:.3f} s and the {kind}'s "
+                f"{where}: the IMU's stamps span {imu[0]:.3f}-{imu[1]:.3f} s and the {kind} "
                 f"{odo[0]:.3f}-{odo[1]:.3f} s: they do not overlap, so they are on different "
                 f"clocks ({hint})")
 

@@ -116,10 +116,10 @@ _log = logging.getLogger("fusion.pipeline")
 #: Why an input event was not fused (the keys of :meth:`FusionPipeline.ledger`'s
 #: ``dropped``): too late for the EKF; a stamp not after its source's previous one; a stamp
 #: that is NaN, infinite or, live, below 0 or ahead of the host clock by more than
-#: ``max_stamp_lead``; a NaN or
-#: infinite value; a gyro sample at full scale (saturated: not the rate); a gyro spike (a
-#: reading further from the predicted rate than any robot turns; a glitch); a wheel frame or
-#: twist with zero speed while the IMU shows motion (an encoder fault: flagged, not fused).
+#: ``max_stamp_lead``; a NaN or infinite value; a gyro sample at full scale (saturated: not
+#: the rate); a gyro spike (a reading further from the predicted rate than any robot turns;
+#: a glitch); a wheel frame or twist with zero speed while the IMU shows motion (an encoder
+#: fault: flagged, not fused).
 #: A gap drops no event: the EKF's gap policy forgets speeds (``speed_resets``), the attitude
 #: filters count theirs (``attitude_gaps``), and every event after a gap is fused.
 DROP_REASONS = ("late", "out_of_order", "invalid_stamp", "invalid_value", "gyro_saturated",
