@@ -141,6 +141,8 @@ def test_ros1_without_rospy_names_what_is_missing(capsys):
         (["--chassis", "/dev/ttyUSB7"], "give --config robot.toml"),
         (["--imu", "sim", "--chassis", "none"], "--imu sim needs --chassis sim"),
         (["--imu", "spi:0"], "--imu must be 'i2c:N'"),
+        (["--imu", "i2c:1"], "--imu i2c:1 is a real sensor: it does not move with the "
+                             "simulated chassis"),
         (["--imu", "none", "--chassis", "none"], "nothing to fuse"),
         (["--publish", "mcap"], "give a path"),
         (["--publish", "telepathy"], "unknown sink 'telepathy'"),

@@ -135,6 +135,12 @@ def _config(args: argparse.Namespace):
     if cfg.imu == "sim" and cfg.chassis != "sim":
         raise CommandError("--imu sim needs --chassis sim (the simulated IMU moves with the "
                            "simulated chassis)")
+    if cfg.imu.startswith("i2c:") and cfg.chassis == "sim":
+        # it would sit still while the simulated robot drives, its stamps on the host clock
+        # and the simulated wheels' on robot time: every sample ahead of that clock
+        raise CommandError(f"--imu {cfg.imu} is a real sensor: it does not move with the "
+                           "simulated chassis; give a real --chassis PORT, --imu sim, or "
+                           "--chassis none to fuse the real IMU alone")
     return cfg
 
 
