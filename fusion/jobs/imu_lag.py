@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fusion.calibration.time_offset import ImuLag, estimate_imu_lag
+from fusion.io.odometry_motion import message_period
 from fusion.jobs.streams import Streams
 
 __all__ = ["LAG_LIMIT", "LagChoice", "choose_imu_lag", "lag_limit", "shifted"]
@@ -108,10 +109,9 @@ def _apart(lag: float) -> str:
 
 
 def _period(t) -> float | None:
-    """s: the median interval of stamps ``t`` (None for fewer than two or not finite)."""
-    if t is None or t.size < 2:
-        return None
-    p = float(np.median(np.diff(t)))
+    """s: the message period of stamps ``t`` (:func:`fusion.io.odometry_motion.message_period`;
+    None for fewer than two)."""
+    p = message_period(t) if t is not None else 0.0
     return p if math.isfinite(p) and p > 0 else None
 
 
