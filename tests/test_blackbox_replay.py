@@ -220,13 +220,21 @@ def test_a_moving_start_takes_the_first_stops_bias_back_to_the_start(moving_run,
     (text, two), (text_one, one) = out["two"], out["one"]
     notes = [ln for ln in text.splitlines() if ln.startswith("note: moving start")]
     assert len(notes) == 1, text
-    assert "moving start" not in text_one
+    # one pass is not fused again; it says what the same stop taught and what it cost
+    (once,) = [ln for ln in text_one.splitlines() if ln.startswith("note: moving start")]
+    assert "fused once (--one-pass, as a live run)" in once, once
     said = re.search(r"drove ([0-9.]+) s before its first stop; the gyro bias learnt there, "
                      r"([-+0-9.]+) \+- ([0-9.]+) deg/s", notes[0])
     drove, bias, std = (float(g) for g in said.groups())
     imu_t = truth_run["imu"][0]
     true_start_bias = math.degrees(truth_run["bias_vert"][0])
     assert 30.0 < drove < 120.0
+    said_once = re.search(r"\(after ([0-9.]+) s\), ([-+0-9.]+) \+- [0-9.]+ deg/s, is "
+                          r"([-+0-9.]+) deg/s off the prior", once)
+    # the one pass's own first stop: where and what the two-pass run found, from a 0 prior
+    assert float(said_once.group(1)) == pytest.approx(drove, abs=1.0)
+    assert float(said_once.group(2)) == pytest.approx(bias, abs=0.05)
+    assert float(said_once.group(3)) == pytest.approx(float(said_once.group(2)), abs=1e-3)
     # the stop's bias as the prior at the start: within its stated uncertainty of the truth
     assert abs(bias - true_start_bias) < 3.0 * std, (bias, std, true_start_bias)
     # the bias state before the first stop, against the simulator's (warm-up drift included)

@@ -14,6 +14,7 @@ simulator's own sensor error, and still with the odometry stamped 0.2 s late.
 from __future__ import annotations
 
 import dataclasses
+import re
 import sys
 from decimal import Decimal
 from pathlib import Path
@@ -663,9 +664,20 @@ def test_a_run_that_never_stops_gets_the_bias_it_ended_with_from_the_start(repla
                            odom_topic="/odom", imu_mount_rpy=mount, one_pass=one_pass)
             assert r.stats.zupts < 5  # it never stops (a pause of a few frames)
             ends[name, one_pass] = r.table[-1, 1:3]
-            if name == "biased" and not one_pass:
-                assert r.moving_start is not None and "never stopped" in r.moving_start.note
+            if name == "biased":
+                assert r.moving_start is not None and r.moving_start.never_stopped
+                assert r.moving_start.fused_again is not one_pass
                 assert np.degrees(r.moving_start.bias) == pytest.approx(3.0, abs=0.5)
+            if name == "biased" and one_pass:  # said, with what it may have cost
+                said = re.search(r"fused once \(--one-pass, as a live run\): the gyro bias "
+                                 r"the filter ended with, .* is ([-+0-9.]+) deg/s off the "
+                                 r"prior the run started from; over ([0-9.]+) s of driving "
+                                 r"that turns the heading by up to ([0-9]+) deg",
+                                 r.moving_start.note)
+                assert float(said.group(1)) == pytest.approx(3.0, abs=0.5)
+                assert float(said.group(2)) == pytest.approx(40.0, abs=0.5)
+                assert float(said.group(3)) == pytest.approx(
+                    float(said.group(1)) * float(said.group(2)), abs=1.0)
     path = 40.0 * 1.0  # m: the robot drives at 1-2 m/s
     two = np.linalg.norm(ends["biased", False] - ends["clean", False])
     one = np.linalg.norm(ends["biased", True] - ends["clean", True])

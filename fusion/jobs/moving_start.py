@@ -62,7 +62,9 @@ class MovingStart:
     """A moving start and what its first stop tells: times in s on the log's clock, ``bias``
     and ``bias_std`` in rad/s (the prior for the start of the log); ``never_stopped``: the
     run has no stop, and the bias is the filter's at its end (:func:`last_estimate`; the
-    "stop" is then the last row)."""
+    "stop" is then the last row). ``prior``: rad/s, the bias the run was fused from first
+    (``EkfNoise.initial_bias``); ``fused_again``: False where ``--one-pass`` kept that first
+    pass (as a live run), whose start was then fused with the bias still being learnt."""
 
     start: float
     stop_begin: float
@@ -70,10 +72,24 @@ class MovingStart:
     bias: float
     bias_std: float
     never_stopped: bool = False
+    prior: float = 0.0
+    fused_again: bool = True
 
     @property
     def note(self) -> str:
         """One line for the user: what the replay did, and how to have it as live."""
+        if not self.fused_again:
+            where = ("the filter ended with" if self.never_stopped
+                     else f"its first stop taught (after {self.stop_begin - self.start:.1f} s)")
+            off = math.degrees(self.bias - self.prior)
+            drive = self.stop_begin - self.start
+            return (f"moving start fused once (--one-pass, as a live run): the gyro bias "
+                    f"{where}, {math.degrees(self.bias):+.3f} +- "
+                    f"{math.degrees(self.bias_std):.3f} deg/s, is {off:+.3f} deg/s off the "
+                    f"prior the run started from; over {drive:.1f} s of driving that turns "
+                    f"the heading by up to {abs(off) * drive:.0f} deg, less what the wheels "
+                    "taught the filter on the way (without --one-pass the run is fused again "
+                    "from that bias)")
         if self.never_stopped:
             return (f"moving start: the robot never stopped (for {MIN_STOP:g} s) in "
                     f"{self.stop_end - self.start:.1f} s; the gyro bias the filter ended with, "

@@ -112,7 +112,8 @@ class ReplayResult:
         gyro_scale: the EKF's final gyro scale error ``g`` (1; robot.toml's
             ``[ekf] gyro_scale`` unless an absolute yaw moved it).
         moving_start: where the robot drove off at once, the gyro bias its first stop
-            taught, taken as the prior from the start (:mod:`fusion.jobs.moving_start`).
+            taught, taken as the prior from the start (:mod:`fusion.jobs.moving_start`;
+            with ``one_pass`` not taken, only said: ``fused_again`` False).
         imu_lag: s taken off the IMU's stamps before fusing (:mod:`fusion.jobs.imu_lag`;
             the output's ``t`` is then on the wheel frames' clock, not imu.csv's).
     """
@@ -182,8 +183,9 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
     (:func:`fusion.jobs.status.pipeline_warnings`), also in a .jsonl output's last line, the
     status record (:func:`fusion.jobs.status.status_record`); where the robot drove off at
     once, the gyro bias its first stop taught (:mod:`fusion.jobs.moving_start`), which a
-    second pass took as the prior from the start (not with ``one_pass``: as a live run),
-    else None. ``progress`` sees the first pass as the first half of the work. An IMU whose
+    second pass took as the prior from the start (not with ``one_pass``: as a live run;
+    its ``fused_again`` is then False and its note says what the first pass cost), else
+    None. ``progress`` sees the first pass as the first half of the work. An IMU whose
     accelerometer does not read gravity (:meth:`Streams.level_note`: not provided, gravity
     removed, other units) is fused level (``tilt`` False): an attitude from the gyro alone
     drifts, and projecting the rates through it cost more than the tilt it compensates
@@ -195,22 +197,24 @@ def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
     first = _fuse_once(robot, streams, output, tilt, progress, 0.0 if one_pass else 0.5,
                        checked=checked)
     table, pipe = first[0], first[1]
-    start = None
-    if not one_pass:
-        var = pipe.state_rows[:, 1 + NX + 5]  # diag(P) of the bias
-        start = first_stop(table[:, 0], table[:, 5], table[:, 6], var, table[:, 19] > 0,
-                           robot.ekf.bias_psd) or last_estimate(
-            table[:, 0], table[:, 6], var, table[:, 19] > 0, robot.ekf.bias_psd)
-        if start is not None and start.bias_std < robot.ekf.initial_bias_std:
-            noise = dataclasses.replace(robot.ekf, initial_bias=start.bias,
-                                        initial_bias_std=start.bias_std)
-            second = _fuse_once(dataclasses.replace(robot, ekf=noise), streams, output, tilt,
-                                progress, 0.5, 0.5, checked)
-            return (*second, start)
+    var = pipe.state_rows[:, 1 + NX + 5]  # diag(P) of the bias
+    start = first_stop(table[:, 0], table[:, 5], table[:, 6], var, table[:, 19] > 0,
+                       robot.ekf.bias_psd) or last_estimate(
+        table[:, 0], table[:, 6], var, table[:, 19] > 0, robot.ekf.bias_psd)
+    if start is None or not start.bias_std < robot.ekf.initial_bias_std:
         start = None
-        if progress is not None:
-            t0, t1 = streams.span()
-            progress(t1 - t0, t1 - t0)
+    else:
+        start = dataclasses.replace(start, prior=robot.ekf.initial_bias,
+                                    fused_again=not one_pass)
+    if start is not None and not one_pass:
+        noise = dataclasses.replace(robot.ekf, initial_bias=start.bias,
+                                    initial_bias_std=start.bias_std)
+        second = _fuse_once(dataclasses.replace(robot, ekf=noise), streams, output, tilt,
+                            progress, 0.5, 0.5, checked)
+        return (*second, start)
+    if progress is not None and not one_pass:
+        t0, t1 = streams.span()
+        progress(t1 - t0, t1 - t0)
     return (*first, start)
 
 
