@@ -5,7 +5,8 @@ the IMU resampled to 30 Hz and mounted rolled +90 deg and yawed -90 deg, the odo
 The mount is applied with scipy's rotation (URDF roll-pitch-yaw: ``v_base = Rz Ry Rx v_imu``),
 independently of the library's own mount code; the bag is written with rosbags. Used by
 tests/test_replay_bag_shapes.py. And :func:`rewrite_messages`: a bag copied with one topic's
-messages edited (tests/test_terrain_bag.py, tests/test_odometry_motion.py).
+messages edited (tests/test_terrain_bag.py, tests/test_odometry_motion.py);
+:func:`with_static_transforms`: a bag copied with a ``/tf_static`` added (tests/test_bag_tf.py).
 """
 
 from __future__ import annotations
@@ -16,7 +17,8 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["IMU_TOPIC", "MOUNT_RPY", "ODOM_TOPIC", "reshape_jackal_bag", "rewrite_messages"]
+__all__ = ["IMU_TOPIC", "MOUNT_RPY", "ODOM_TOPIC", "reshape_jackal_bag", "rewrite_messages",
+           "with_static_transforms"]
 
 IMU_TOPIC = "/imu/data"
 ODOM_TOPIC = "/odom"
@@ -104,3 +106,37 @@ def rewrite_messages(source: Path, dest: Path, topic: str, edit) -> None:
                     continue
                 raw = store.serialize_ros1(msg, conn.msgtype)
             writer.write(conns[conn.id], t, raw)
+
+
+def with_static_transforms(source: Path, dest: Path,
+                           transforms: list[tuple[str, str, tuple[float, float, float, float]]]
+                           ) -> None:
+    """Copy the ROS 1 bag ``source`` to ``dest`` with one tf2_msgs/TFMessage on ``/tf_static``
+    recorded with its first message: ``transforms`` as ``(parent, child, (x, y, z, w))``,
+    the child's orientation in the parent (geometry_msgs/Transform's rotation), each
+    translated by 0.1 m on x (a mount plate's offset, which the mount does not use)."""
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)  # has no tf2_msgs: its one-line definition
+    store.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms",
+                                      "tf2_msgs/msg/TFMessage"))
+    t = store.types
+    with Reader(source) as reader, Writer(dest) as writer:
+        conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                 for c in reader.connections}
+        tf_conn = writer.add_connection("/tf_static", "tf2_msgs/msg/TFMessage", typestore=store)
+        first = True
+        for conn, ns, raw in reader.messages():
+            if first:
+                stamp = t["builtin_interfaces/msg/Time"](ns // 1_000_000_000, ns % 1_000_000_000)
+                msg = t["tf2_msgs/msg/TFMessage"]([
+                    t["geometry_msgs/msg/TransformStamped"](
+                        t["std_msgs/msg/Header"](0, stamp, parent), child,
+                        t["geometry_msgs/msg/Transform"](
+                            t["geometry_msgs/msg/Vector3"](0.1, 0.0, 0.0),
+                            t["geometry_msgs/msg/Quaternion"](*q)))
+                    for parent, child, q in transforms])
+                writer.write(tf_conn, ns, store.serialize_ros1(msg, "tf2_msgs/msg/TFMessage"))
+                first = False
+            writer.write(conns[conn.id], ns, raw)

@@ -285,7 +285,7 @@ def test_pose_jumps_and_non_finite_poses_are_left_out_and_said():
     x[150] = np.nan
     m = odometry_motion(_log(t, x, y, yaw))
     assert m.source == "pose"
-    assert "1 pose jumps" in m.note and "1 poses or stamps not finite" in m.note, m.note
+    assert "1 pose resets" in m.note and "1 poses or stamps not finite" in m.note, m.note
     # the path said is the base's: 0.6 m/s over 19.9 s less the jump's 0.1 s
     assert "a path of 11.9 m" in m.note, m.note
     np.testing.assert_allclose(m.v, 0.6, atol=1e-9)
@@ -551,3 +551,36 @@ def test_a_pose_with_a_non_finite_stamp_is_left_out_and_said():
     assert "intervals longer" not in m.note, m.note
     np.testing.assert_allclose(m.v, 0.6, atol=1e-9)
     assert np.all(np.isfinite(m.t))
+
+
+@pytest.mark.parametrize("speed, rate, scatter", [(1.2, 0.15, 0.0), (1.0, 0.0, 0.0),
+                                                 (1.2, 0.15, 0.02)])
+def test_a_pose_only_drivers_reset_is_no_motion(speed, rate, scatter):
+    # a driver publishing poses only (twist empty) restarts: its poses begin again at the
+    # origin while the robot drives on. Along the track that is no sideways jump; it had been
+    # taken as one interval of 144 m/s and 21 rad/s (the arc) or -249 m/s (the straight
+    # drive, re-zeroed 54 m out). With stamps that scatter (slopes), the same.
+    rng = np.random.default_rng(7)
+    t = 100.0 + 0.1 * np.arange(600)
+    x, y, yaw = _circle(t, speed, rate, x0=5.0, y0=0.0, yaw0=0.0)
+    k = 250
+    c, s = math.cos(yaw[k]), math.sin(yaw[k])
+    rx, ry, ryaw = x.copy(), y.copy(), yaw.copy()
+    rx[k:] = c * (x[k:] - x[k]) + s * (y[k:] - y[k])
+    ry[k:] = -s * (x[k:] - x[k]) + c * (y[k:] - y[k])
+    ryaw[k:] = np.angle(np.exp(1j * (yaw[k:] - yaw[k])))
+    stamps = np.sort(t + rng.normal(0.0, scatter, t.size)) if scatter else t
+    m = odometry_motion(_log(stamps, rx, ry, ryaw))
+    assert "1 pose resets" in m.note, m.note
+    clean = odometry_motion(_log(stamps, x, y, yaw))  # the same poses, never reset
+    assert "reset" not in clean.note
+    if not scatter:
+        np.testing.assert_allclose(m.v, speed, atol=1e-9)
+        np.testing.assert_allclose(m.w, rate, atol=1e-9)
+    # as without the reset away from it; next to it, no spike: the slope windows the reset
+    # cuts hold half their poses or more, as at a run's ends (up to sqrt(2)^3 the error)
+    far = np.abs(m.t - t[k]) > 1.0
+    assert np.array_equal(m.t[far], clean.t[np.abs(clean.t - t[k]) > 1.0])
+    for got, ref, true in ((m.v, clean.v, speed), (m.w, clean.w, rate)):
+        np.testing.assert_allclose(got[far], ref[np.abs(clean.t - t[k]) > 1.0], atol=1e-9)
+        assert np.max(np.abs(got - true)) <= math.sqrt(2) ** 3 * np.max(np.abs(ref - true))

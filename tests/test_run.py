@@ -71,7 +71,12 @@ def test_ctrl_c_stops_cleanly_with_complete_files(tmp_path):
     assert len(status) >= 2 and status[-1]["final"] and not any(s["final"] for s in status[:-1])
     led = status[-1]["ledger"]
     assert led["unaccounted"] == 0 and led["held"] == led["queued"] == 0
-    assert led["in"] == led["fused"] + sum(led["dropped"].values()) > 5 * len(recs) * 0.9
+    assert led["in"] == led["fused"] + sum(led["dropped"].values())
+    # about 5 events a record (4 IMU samples and a wheel frame), less those counted missing
+    # upstream (a FIFO that overflows while the host is starved; a suite run beside other
+    # heavy work once had 646 in for 159 records, the upstream counts not looked at then)
+    upstream = status[-1]["imu_lost_upstream"] + status[-1]["wheel_frames_missing_upstream"]
+    assert led["in"] + upstream > 5 * len(recs) * 0.9, status[-1]
     assert all(s["ledger"]["unaccounted"] == 0 for s in status)
     assert "unaccounted 0" in err.splitlines()[-1]  # the summary line on stderr
     counts = _mcap_counts(mcap)  # a readable MCAP with every record

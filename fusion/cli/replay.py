@@ -112,7 +112,8 @@ def register(subparsers) -> None:
                      default=None,
                      help="URDF roll pitch yaw (rad) taking IMU-frame vectors into the base "
                           "frame, for a bag or a log directory (default: imu_mount_rpy of "
-                          "--robot, else of the log's robot.toml, else 0 0 0)")
+                          "--robot, else of the log's robot.toml; for a bag, else the "
+                          "mount its /tf_static gives, else 0 0 0)")
     p.set_defaults(func=run)
 
 

@@ -39,6 +39,7 @@ __all__ = [
     "OdometryLog",
     "TwistLog",
     "bag_topics",
+    "open_bag",
     "read_bag",
     "read_bag_fixes",
     "read_bag_imu",
@@ -379,6 +380,13 @@ class _BagFile:
         for c, ns, raw in self._reader.messages(connections=conns):
             yield (c.topic, ns, self._reader.deserialize(raw, c.msgtype),
                    getattr(c.ext, "callerid", None))
+
+
+def open_bag(path: str | Path) -> _BagFile:
+    """A bag or MCAP file to read, as a context manager: ``topics`` (as :func:`bag_topics`)
+    and ``messages(topics)``, ``(topic, record time ns, message, publisher or None)`` in
+    record order (for topics :func:`read_bag` does not read, e.g. ``/tf_static``)."""
+    return _BagFile(Path(path))
 
 
 def bag_topics(path: str | Path) -> dict[str, tuple[str, int]]:

@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.geometry.dead_reckoning import motion_between
+from fusion.io.pose_track import own_track
 
 if TYPE_CHECKING:
     from fusion.io.bags import OdometryLog
@@ -179,6 +180,15 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     period = message_period(odom.t[finite])
     jitter = stamp_jitter(t, period)
     keep = dt <= MAX_GAP_PERIODS * period
+    # a driver's pose reset (back to its origin) is no motion: along the track it is no
+    # sideways jump, and was taken as one interval of -249 m/s (a straight drive re-zeroed
+    # 54 m out) or 144 m/s and 21 rad/s (an arc)
+    reset = np.zeros(dt.size, dtype=bool)
+    starts = own_track(t, x, y, yaw, np.zeros_like(t), np.zeros_like(t)).resets
+    reset[np.searchsorted(t, starts) - 1] = True
+    gaps = int(np.count_nonzero(~keep))
+    resets = int(np.count_nonzero(reset & keep))
+    keep &= ~reset
     # a differential drive never moves sideways: what its poses do is their noise, less the
     # step a driver's integration rule leaves in turns (Euler's: -d dtheta/2), robust to the
     # jumps it also finds; each sideways step holds two poses' noise
@@ -187,7 +197,6 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
     position_noise = sideways / np.sqrt(2.0)
     jumped = np.abs(lateral) > (JUMP_LATERAL_SHARE * np.abs(d) + JUMP_LATERAL_FLOOR
                                 + OUTLIER_SIGMAS * sideways)
-    gaps = int(np.count_nonzero(~keep))
     jumps = int(np.count_nonzero(jumped & keep))
     keep &= ~jumped
     heading_noise = _heading_noise(dtheta, keep)
@@ -197,6 +206,8 @@ def _pose_motion(odom: OdometryLog, name: str) -> OdometryMotion | None:
         left_out.append(f"{repeats} repeated stamps")
     if not np.all(finite):
         left_out.append(f"{int(np.count_nonzero(~finite))} poses or stamps not finite")
+    if resets:
+        left_out.append(f"{resets} pose resets (a jump further than the robot can move)")
     if jumps:
         left_out.append(f"{jumps} pose jumps (sideways, which the base cannot move)")
     if gaps:

@@ -496,6 +496,8 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     output_format(output)
     if plot is not None:
         check_plot_output(Path(plot))
+    given = ("--imu-mount-rpy" if imu_mount_rpy is not None
+             else "the robot's imu_mount_rpy" if robot is not None else None)
     if robot is None:
         robot = RobotConfig(DiffDriveParams(wheel_distance=0.5, speed_ratio=1e-4,
                                             encode_sampling_time=0.02))
@@ -504,6 +506,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     bag = read_bag(path, imu_topic=imu_topic, odom_topic=odom_topic, fix_topic=fix_topic,
                    stamps=stamps)
     imu, odom = bag.imu, bag.odometry
+    robot, mount_note = _mount_from_tf(path, robot, given, imu.frame_id, odom.child_frame_id)
     where = f"{path}: topics {imu_topic} and {odom_topic}"
     motion = odometry_motion(odom)
     Streams(imu.t, imu.gyro, imu.accel, twist_t=motion.t).check_overlap(
@@ -563,11 +566,40 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         plot_replay(Path(plot), path.name, table[:, 0], table[:, 1:4], odom.t, own, None,
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
-    notes = [n for n in (bag.note, *bag.topic_notes, *signs.notes, lag.note, limit_note,
+    notes = [n for n in (mount_note, bag.note, *bag.topic_notes, *signs.notes, lag.note,
+                         limit_note,
                          fix_note, spliced.note, tilt and streams.level_note()) if n]
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, fixes, gps,
                      gps_note, motion, start, notes, coverage, lag.lag)
+
+
+#: rad: a mount given for a bag further than this from its /tf_static one is said (a URDF's
+#: rounding and a levelling tweak stay inside; a forgotten axis swap is 90 deg).
+MOUNT_TF_TOLERANCE = math.radians(5.0)
+
+
+def _mount_from_tf(path: Path, robot: RobotConfig, given: str | None, imu_frame: str,
+                   base_frame: str) -> tuple[RobotConfig, str]:
+    """``(robot, note)``: with no mount ``given`` (its origin's name, e.g. "--imu-mount-rpy"),
+    the robot with the mount of the bag's ``/tf_static`` from ``base_frame`` to ``imu_frame``
+    (:mod:`fusion.io.bag_tf`) and a note saying so; with one given, the robot as it is and a
+    note where the bag's mount is more than :data:`MOUNT_TF_TOLERANCE` from it (the
+    ``mount`` trust check then says whether the accelerometer sides with it); "" otherwise."""
+    from fusion.io.bag_tf import mount_angle, read_static_mount
+
+    found = read_static_mount(path, base_frame, imu_frame)
+    if found is None:
+        return robot, ""
+    if given is None:
+        return (dataclasses.replace(robot, imu_mount_rpy=found.rpy),
+                f"IMU mount from the bag's {found.describe()} (--imu-mount-rpy overrides it)")
+    apart = mount_angle(found.rpy, robot.imu_mount_rpy)
+    if not apart > MOUNT_TF_TOLERANCE:
+        return robot, ""
+    r, p, y = robot.imu_mount_rpy
+    return robot, (f"the bag's {found.describe()}, is {math.degrees(apart):.1f} deg from "
+                   f"{given} (roll {r:.4f} pitch {p:.4f} yaw {y:.4f} rad), which was used")
 
 
 #: s: GPS header stamps whose offset from their record times differs from the odometry's by
