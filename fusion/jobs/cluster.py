@@ -216,12 +216,25 @@ class LogOutputs:
     plot: bytes | None = None
 
 
+def _scratch_dir() -> str | None:
+    """The Dask worker's own scratch folder when this runs on one (Dask removes a killed
+    worker's when the next starts; a folder of the system's temporary one stays for good),
+    else None (the system's)."""
+    try:
+        from distributed import get_worker
+
+        return get_worker().local_directory
+    except (ImportError, ValueError):  # no distributed, or not on a worker
+        return None
+
+
 def replay_batch(batch: list[LogJob]) -> list[LogOutputs]:
     """Replay logs into a private temporary folder and return their bytes (a worker runs
     this; it writes nothing at the jobs' own output paths)."""
     out: list[LogOutputs] = []
+    scratch = _scratch_dir()
     for job in batch:
-        tmp = Path(tempfile.mkdtemp(prefix="fusion-replay-"))
+        tmp = Path(tempfile.mkdtemp(prefix="fusion-replay-", dir=scratch))
         try:
             private = dataclasses.replace(
                 job, output=str(tmp / Path(job.output).name),
