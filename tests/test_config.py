@@ -100,6 +100,23 @@ def test_robot_tables_parse_like_a_log_directory_robot_toml(tmp_path):
     assert a == b
 
 
+def test_a_byte_order_mark_is_no_toml(tmp_path):
+    """A file saved by Notepad starts with a UTF-8 byte order mark (EF BB BF), which TOML does
+    not allow; both readers skip it (it had read "Invalid statement (at line 1, column 1)"),
+    and still name the line of a bad key."""
+    text = FULL.split("[imu]")[0]
+    for name, load in (("run.toml", load_config), ("robot.toml", read_robot_toml)):
+        plain, marked = tmp_path / f"plain_{name}", tmp_path / f"bom_{name}"
+        plain.write_text(text)
+        marked.write_bytes(b"\xef\xbb\xbf" + text.encode())
+        a, b = load(marked), load(plain)
+        assert getattr(a, "robot", a) == getattr(b, "robot", b)
+    marked.write_bytes(b"\xef\xbb\xbf[chassis]\nwheel_distance = 0.3\nspeed_ratio = 1e-4\n"
+                       b"encode_sampling_time = 0.04\nwheel_distanse = 0.3\n")
+    with pytest.raises(LogFormatError, match=r"bom_robot\.toml:5: .*wheel_distanse"):
+        read_robot_toml(marked)
+
+
 def test_empty_file_gives_the_defaults(tmp_path):
     cfg = load_config(write(tmp_path, "# nothing\n"))
     d = RunConfig()

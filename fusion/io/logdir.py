@@ -40,6 +40,7 @@ from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import read_imu_csv
 from fusion.io.read_progress import LineProgress, ReadProgress
 from fusion.io.robot_toml import read_robot_toml, write_robot_toml
+from fusion.io.stamp_units import check_imu_stamps, check_wheel_stamps
 from fusion.io.uart2 import read_uart2_capture
 from fusion.planar.robot import RobotConfig
 from fusion.types.constants import TICKS_MAX
@@ -217,6 +218,12 @@ def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True
         log.capture_stats = cap.stats
     if log.imu_t is None and log.wheel_t is None:
         raise LogFormatError(f"{path}: no imu.csv, wheels.csv or wheels.uart2 found")
+    # times in s, and a period that fits the frames (fusion.io.stamp_units)
+    if log.imu_t is not None:
+        check_imu_stamps(path / "imu.csv", log.imu_t)
+    if log.wheel_t is not None and log.capture_stats is None:
+        check_wheel_stamps(path / "wheels.csv", log.wheel_t,
+                           robot.chassis.encode_sampling_time)
     if truth and (path / "truth.csv").is_file():
         log.truth_t, log.truth = read_truth_csv(path / "truth.csv")
     return log

@@ -102,7 +102,7 @@ def read_robot_toml(path: str | Path) -> RobotConfig:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a BOM (Notepad) is no TOML
         doc = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:  # its message has the line and column
         raise LogFormatError(f"{path}: invalid TOML: {exc}") from exc

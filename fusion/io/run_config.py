@@ -403,7 +403,7 @@ def load_config(path: str | Path) -> RunConfig:
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")  # a BOM (Notepad) is no TOML
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: configuration file not found") from None
     except UnicodeDecodeError as exc:

@@ -97,6 +97,7 @@ from fusion.attitude.select import build_attitude_filter
 from fusion.geometry import quaternion as quat
 from fusion.geometry.kinematics import ticks_to_twist
 from fusion.geometry.mount import imu_to_base, vertical_rate
+from fusion.io.stamp_units import MAX_IMU_RATE_HZ, MIN_IMU_RATE_HZ
 from fusion.pipeline import _event_core as ev_core
 from fusion.pipeline.heading_frame import HeadingFrame
 from fusion.pipeline.records import _fast_record, _record_fields
@@ -143,10 +144,6 @@ _EV_TWIST = core.EV_TWIST
 _SOURCES = ("imu", "wheels", "twist")
 #: Kinds whose state rows :attr:`FusionPipeline.state_rows` can keep.
 TRACE_KINDS = {"imu": _EV_GYRO, "wheels": _EV_WHEELS, "twist": _EV_TWIST}
-#: Range of a plausible nominal IMU rate, Hz (its period must stay below the attitude
-#: filter's ``max_gap``, 0.25 s; the MPU6050 samples at 1 kHz at most).
-MIN_IMU_RATE_HZ = 4.0
-MAX_IMU_RATE_HZ = 10_000.0
 #: Events per call of the compiled core in :meth:`FusionPipeline.push_arrays` (bounds the
 #: memory of its outputs and sets how often ``on_progress`` is called).
 BATCH_CHUNK = 1 << 16
