@@ -474,8 +474,11 @@ class FilterpyReference:
                 if moving:
                     self.lin += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
                 linear = _linear_slope(self.lin) is not None
+                # no gyro fused for 0.5 s (none in the log, a gap): the wheels' yaw rate is
+                # all there is, fused without the slip gate (_ekf_core.GYRO_SILENT)
+                silent = self.gyro_t is None or not self.t - self.gyro_t <= 0.5
                 if (kind == WHEELS and moving and not accel_slip and n.calib_k_std > 0
-                        and n.wheel_scale_refit > 0):
+                        and n.wheel_scale_refit > 0 and not silent):
                     # the ticks' own fit since the last restart of k; k restarts at its slope
                     # once it holds wheel_rate_proof_time s of turns, correlates by 0.9 and is
                     # that many prior sigmas off, c at 0, both at their priors, and the fit
@@ -495,13 +498,17 @@ class FilterpyReference:
                         self.ticks_fit[:] = 0.0
                         self.ticks_turning = 0.0
                 H = model.wheel_jacobian(kf.x, L, z[0])
+                if silent:  # k and c are not measured without a gyro
+                    H[0, 7] = H[1, 6] = H[1, 7] = 0.0
                 S = H @ kf.P @ H.T + R
                 y = z - model.wheel_h(kf.x, L, z[0])
                 gated = y[1] ** 2 / S[1, 1] > n.slip_gate  # the yaw rate disagrees
                 slip = gated
-                # with the gyro saturated the wheels are all there is
+                # with the gyro saturated or silent the wheels are all there is
                 fuse_rate, disproven = True, False
-                if self.t - self.clipped_at >= n.wheel_rate_proof_time:
+                if silent:
+                    slip = gated = False
+                elif self.t - self.clipped_at >= n.wheel_rate_proof_time:
                     if turning:
                         w = min(1.0, interval / n.wheel_rate_trust_time)
                         self.slip_share += w * (float(slip) - self.slip_share)

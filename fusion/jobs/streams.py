@@ -250,8 +250,9 @@ def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
     with ``longest`` s the EKF's ``max_extrapolation``: odometry stamps more than that
     beyond the IMU's span (rows are written at IMU samples: a CSV ends at the IMU's last),
     IMU samples more than that beyond the odometry's (the pose stands still there: speeds
-    forgotten), and gaps longer than that in either (an odometry gap stops the pose; an IMU
-    gap leaves the heading without the gyro)."""
+    forgotten), and gaps longer than that in either (an odometry gap stops the pose; over an
+    IMU gap the odometry's yaw rate carries the heading unchecked:
+    :data:`fusion.planar._ekf_core.GYRO_SILENT`)."""
     out = []
     before, after = imu_t[0] - odom_t[0], odom_t[-1] - imu_t[-1]
     if before > longest or after > longest:
@@ -270,7 +271,9 @@ def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
         if gaps.size:
             i = int(gaps[np.argmax(dt[gaps])])
             over = ("the pose stopped (speeds forgotten)" if name == odometry
-                    else "the heading had no gyro")
+                    else f"the heading rested on the {odometry}'s yaw rate alone, with no "
+                         "gyro to check it for slip, and a CSV output has no rows (rows at "
+                         "IMU samples)")
             out.append(f"{name} gaps longer than {longest:g} s: {gaps.size}, "
                        f"{float(np.sum(dt[gaps])):.1f} s in all (the longest {dt[i]:.1f} s "
                        f"after {t[i]:.3f} s); over them {over}")

@@ -202,6 +202,13 @@ SPIKE_SIGMAS = 6.0
 #: A reading off by that much this many times in a row is the rate, not a spike: it is
 #: fused with w forgotten (an impact, a gyro that restarted with another offset).
 SPIKE_RUN = 3
+#: s: with no gyro sample fused for longer than this (none in the log, a gap in the IMU's
+#: feed), the wheels' yaw rate is all there is: fused without the slip gate, since the rate
+#: state it would be tested against is set by nothing but the wheels' own past. Twice the
+#: interval of the slowest IMU the pipeline takes (4 Hz). A wheels-only replay had flagged
+#: 993 of 11999 frames as slips (every turn's onset) and ended 44.7 % of its distance off
+#: with the yaw 97 deg off (RMS), where the same ticks dead-reckoned give 0.19 % and 0.35 deg.
+GYRO_SILENT = 0.5
 #: s: a forward specific force older than this drives v no more (the IMU feed stopped)
 ACCEL_HOLD = 0.1
 #: (rad/s)^2 added to w's variance before the first gyro sample (A_FIRST_GYRO): w is then
@@ -804,10 +811,18 @@ def _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip, stamp_w):
     moving = abs(z[0]) > par[P_TWIST_ZERO_V]
     turning = abs(z[1]) > TURN_RATE or abs(x[4]) > TURN_RATE
     linear = _rates_linear(aux, x[4] + x[5], z[1], moving)
-    if kind == EV_WHEELS and moving and not accel_slip:
+    silent = not aux[A_T] - aux[A_GYRO_T] <= GYRO_SILENT  # NaN: no gyro sample yet
+    if kind == EV_WHEELS and moving and not accel_slip and not silent:
         _refit_wheel_scale(x, P, aux, par, z[1], interval if turning else 0.0)
     L = par[P_WHEEL_DISTANCE]
     H = wheel_jacobian(x, L, z[0])
+    if silent:
+        # without a gyro the wheels' yaw-rate scale k and radius mismatch c are unobservable:
+        # they are not measured, and keep what a gyro taught them (a wheels-only replay had
+        # walked k to -0.45 and c to -0.15 rad/m, the heading 89 deg off in RMS)
+        H[0, 7] = 0.0
+        H[1, 6] = 0.0
+        H[1, 7] = 0.0
     y = wheel_h(x, L, z[0])
     y[0] = z[0] - y[0]
     y[1] = z[1] - y[1]
@@ -815,7 +830,11 @@ def _wheel_update(x, P, aux, par, z, R, interval, kind, accel_slip, stamp_w):
     d2 = y[1] * y[1] / s_w
     slip = d2 > par[P_GATE]
     gated = slip
-    if aux[A_T] - aux[A_CLIPPED] < par[P_PROOF_TIME]:
+    if silent:
+        # no gyro (GYRO_SILENT): nothing to test the wheels against
+        fuse_rate, disproven = True, False
+        slip = gated = False
+    elif aux[A_T] - aux[A_CLIPPED] < par[P_PROOF_TIME]:
         # the gyro is (or was just) saturated: the wheels are all there is, and the gyro's
         # rate state around the saturation is no test of them
         fuse_rate, disproven = True, False
