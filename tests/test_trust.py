@@ -426,6 +426,31 @@ def test_turn_counters_integrate_what_is_fused() -> None:
                                                                s.wheel_turn)
 
 
+def test_a_corrupt_wheel_frame_the_ekf_refuses_is_no_turn() -> None:
+    """One wheel frame of 100000 ticks (an independent probe's corrupt frame): the EKF refuses
+    it as implausible, and the turn counters leave it out as well; it had 'turned' the
+    odometry by -8498 deg, and heading_divergence called an untouched track untrustworthy."""
+    from fusion.evaluation.synthetic import EXAMPLE_ROBOT, degraded_mission
+    from fusion.jobs.status import pipeline_warnings
+    from fusion.pipeline.core import FusionPipeline
+    from fusion.planar.robot import RobotConfig
+
+    run = degraded_mission(seed=3, duration=60.0)
+    ticks = run.ticks.copy()
+    ticks[ticks.shape[0] // 2, 0] = 100_000
+    pipe = FusionPipeline(RobotConfig(chassis=EXAMPLE_ROBOT), tilt=False)
+    with pipe:
+        pipe.push_arrays(run.imu_t, run.gyro, run.accel, run.wheel_t, ticks)
+        warnings = [w.name for w in pipeline_warnings(pipe)]
+    s = pipe.finish_stats()
+    kept = np.delete(run.ticks, ticks.shape[0] // 2, axis=0)
+    assert s.wheel_turn == pytest.approx(float(np.sum(kept[:, 1] - kept[:, 0]))
+                                         * EXAMPLE_ROBOT.speed_ratio
+                                         / EXAMPLE_ROBOT.wheel_distance, abs=1e-9)
+    assert "heading_divergence" not in warnings
+    assert pipe.ekf.stats["invalid"] == 1
+
+
 @pytest.mark.parametrize(("stats", "bias", "gyro_alone"), [
     # most turning frames no longer fused for their yaw rate: the heading is the gyro's
     ({"twist_messages": 100, "slips": 10, "wheel_rate_distrusted": 70}, 0.0, True),

@@ -758,7 +758,12 @@ class FusionPipeline(Lifecycle):
             self._note_gaps(wheel_t)
             self._last_wheel_t = float(wheel_t[-1])
             stats.wheel_frames += wheel_t.size
-            covered = self._imu_covers(wheel_t)
+            # frames the EKF refuses as implausible (a corrupt frame: either wheel faster
+            # than max_speed) are no turn: one frame of 100000 ticks had 'turned' the
+            # odometry by -8498 deg and made heading_divergence call a good track untrustworthy
+            covered = self._imu_covers(wheel_t) & (
+                np.max(np.abs(ticks), axis=1) * self._m_per_s
+                <= self.ekf.noise.max_speed)
             stats.wheel_turn = _add_up(stats.wheel_turn, np.where(
                 covered, (ticks[:, 1] - ticks[:, 0]) * self._m_per_turn, 0.0))
             stats.wheel_travel = _add_up(stats.wheel_travel, np.where(
@@ -773,8 +778,11 @@ class FusionPipeline(Lifecycle):
         if twist_t is not None and twist_t.size:
             covered = self._imu_covers(twist_t) * _steps(
                 twist_t, self._last_twist_t, self.ekf.noise.max_extrapolation)
-            stats.twist_turn = _add_up(stats.twist_turn, twist_w * covered)
-            stats.twist_travel = _add_up(stats.twist_travel, twist_v * covered)
+            sane = ((np.abs(twist_v) <= self.ekf.noise.max_speed)
+                    & (np.abs(twist_w) <= self.ekf.noise.max_rate))  # as the EKF's
+            stats.twist_turn = _add_up(stats.twist_turn, np.where(sane, twist_w * covered, 0.0))
+            stats.twist_travel = _add_up(stats.twist_travel,
+                                         np.where(sane, twist_v * covered, 0.0))
             self._last_twist_t = float(twist_t[-1])
             stats.twist_messages += twist_t.size
             ref0 = self._n_twists
