@@ -27,8 +27,8 @@ from numpy.typing import NDArray
 from scipy.integrate import trapezoid
 
 from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
-from fusion.evaluation.trajectory import final_position_error_percent, path_length, yaw_rmse
 from fusion.evaluation.trust import TrustWarning
+from fusion.evaluation.truth_compare import compare_with_truth
 from fusion.geometry.angles import wrap_angle
 from fusion.io.errors import LogFormatError
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
@@ -381,11 +381,13 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
     if n_imu and streams.has_wheels:
         notes.extend(coverage_warnings(streams.imu_t, wheel_t, robot.ekf.max_extrapolation,
                                        "wheel frames"))
-    t_out, xy, yaw = table[:, 0], table[:, 1:3], table[:, 3]
+    t_out = table[:, 0]
     wheel = WheelOdometry(chassis).update_batch(ticks[:, 0], ticks[:, 1])
     truth_res = None
     if truth_t is not None and truth_t.size:
-        truth_res = _truth_errors(t_out, xy, yaw, wheel_t, wheel, truth_t, truth)
+        truth_res, truth_note = _truth_errors(t_out, table[:, 1:4], wheel_t, wheel, truth_t,
+                                              truth, str(path / "truth.csv"))
+        notes.extend([truth_note] if truth_note else [])
     if plot is not None:
         from fusion.jobs.plots import plot_replay
 
@@ -403,24 +405,21 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
         warnings=warnings, moving_start=start)
 
 
-def _truth_errors(t, xy, yaw, wheel_t, wheel, truth_t, truth) -> dict[str, float]:
-    """Final position error (% of the true distance) and yaw RMSE (deg) of the fused and the
-    wheel-only tracks inside the truth's span."""
-    tr = _truth_at(truth_t, truth, t)
-    dist = path_length(truth)
-    inside = (t >= truth_t[0]) & (t <= truth_t[-1])
-    wtruth = _truth_at(truth_t, truth, wheel_t)
-    w_in = (wheel_t >= truth_t[0]) & (wheel_t <= truth_t[-1])
-    nan = math.nan  # a robot that did not move has no error per distance
-    return {
-        "distance": dist,
-        "fused_pct": final_position_error_percent(xy[inside], tr[inside, :2], dist)
-        if dist > 0 else nan,
-        "fused_yaw_deg": math.degrees(yaw_rmse(yaw[inside], tr[inside, 2])),
-        "wheel_pct": final_position_error_percent(wheel[w_in, :2], wtruth[w_in, :2], dist)
-        if dist > 0 else nan,
-        "wheel_yaw_deg": math.degrees(yaw_rmse(wheel[w_in, 2], wtruth[w_in, 2])),
-    }
+def _truth_errors(t, poses, wheel_t, wheel, truth_t, truth, source: str
+                  ) -> tuple[dict[str, float] | None, str]:
+    """``(figures, note)``: final position error (% of the true distance) and yaw RMSE (deg)
+    of the fused and the wheel-only tracks at the truth's stamps inside their spans, the
+    truth aligned at each track's start (:func:`fusion.evaluation.truth_compare.
+    compare_with_truth`); None and why where the truth cannot be this log's."""
+    cmp = compare_with_truth({"fused": (t, poses), "wheel": (wheel_t, wheel)}, truth_t,
+                             truth, source)
+    if cmp.note:
+        return None, cmp.note
+    nan = {"pct": math.nan, "yaw_deg": math.nan}
+    fused, wheels = cmp.errors.get("fused", nan), cmp.errors.get("wheel", nan)
+    return {"distance": cmp.distance, "fused_pct": fused["pct"],
+            "fused_yaw_deg": fused["yaw_deg"], "wheel_pct": wheels["pct"],
+            "wheel_yaw_deg": wheels["yaw_deg"]}, ""
 
 
 def check_plot_output(path: Path | None = None) -> None:
