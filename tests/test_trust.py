@@ -274,11 +274,12 @@ def test_a_gyro_turning_the_other_way_makes_the_headings_diverge(logdir, tmp_pat
     printed = capsys.readouterr().out
     assert "warning: inputs disagree (heading_divergence)" in printed
     assert "warning: inputs disagree (gyro_axis)" in printed
-    assert "the gyro turns the other way" in printed
+    assert "one of the two turns the wrong way: the gyro (its vertical axis" in printed
     # the wheels' yaw rate was disproven (most turns disagree), so the heading followed the
     # gyro, which is the wrong one here: the verdict must say so
-    assert ("warning: the fused odometry above should not be trusted: the gyro's rates are "
-            "wrong" in printed)
+    assert ("warning: the fused odometry above should not be trusted: the gyro and the "
+            "odometry turn opposite ways (gyro_axis above) and the heading rests on the gyro"
+            in printed)
     assert main([*argv, "--strict"]) == STRICT_EXIT_STATUS
 
 

@@ -268,9 +268,10 @@ def _print_warnings(warnings) -> None:
                       slip is not None
                       and slip.figures["wheel_rate_distrusted"] > slip.figures["slips"])))
     if "gyro_axis" in names:
-        print("warning: the fused odometry above should not be trusted: the gyro's rates are "
-              "wrong (gyro_axis above) and the heading rests on them; fix the IMU's mount or "
-              "its driver and replay")
+        print("warning: the fused odometry above should not be trusted: the gyro and the "
+              "odometry turn opposite ways (gyro_axis above) and the heading rests on the "
+              "gyro; fix the one that is flipped (the IMU's mount or driver, or the "
+              "odometry's wheel columns or signs) and replay")
     elif gyro_alone:
         # the EKF already stopped fusing the odometry's yaw rate: say what the heading rests on
         print("warning: the fused odometry above should not be trusted unless the gyro is "

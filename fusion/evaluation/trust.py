@@ -285,7 +285,7 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
     slope = stats.get("odometry_rate_slope")
     corr = stats.get("odometry_rate_correlation")
     twists = int(stats.get("twist_messages", 0))
-    axis = _gyro_axis_warning(slope, corr)
+    axis = _gyro_axis_warning(slope, corr, stats)
     if axis is not None:
         out.append(axis)
     elif (twists and slope is not None and corr is not None and corr >= ODOMETRY_CORRELATION
@@ -343,13 +343,25 @@ def _within(value: float | None, limit: float) -> float:
     return max(-limit, min(limit, float(value)))
 
 
-def _gyro_axis_warning(slope: float | None, corr: float | None) -> TrustWarning | None:
+def _gyro_axis_warning(slope: float | None, corr: float | None,
+                       stats: Mapping[str, Any] | None = None) -> TrustWarning | None:
     """The ``gyro_axis`` check of the module docstring (None: passed or not applicable)."""
     if slope is None or corr is None or not abs(corr) >= ODOMETRY_CORRELATION:
         return None
     if abs(slope + 1.0) <= ACCEL_SCALE_TOLERANCE:
-        cause = ("the gyro turns the other way: its vertical axis points down (an IMU mounted "
-                 "upside down against imu_mount_rpy) or an axis sign is flipped in its driver")
+        n = int((stats or {}).get("imu_samples", 0))
+        total = (stats or {}).get("accel_sum")
+        upright = (n >= MOUNT_MIN_SAMPLES and total is not None
+                   and angle_from_vertical([float(v) / n for v in total]) < MOUNT_TILT_LIMIT)
+        # rates alone cannot tell which of the two is flipped: an independent probe's swapped
+        # or negated wheel columns had been blamed on the gyro alone
+        cause = ("one of the two turns the wrong way: the gyro (its vertical axis pointing "
+                 "down, or an axis sign flipped in its driver"
+                 + ("; the accelerometer reads the IMU upright as configured, so not the "
+                    "mount" if upright else "") +
+                 ") or the odometry (its left and right wheels swapped, both wheels' signs "
+                 "flipped, its speed then running backwards too, or its driver's yaw rate "
+                 "sign)")
     elif abs(slope * math.degrees(1.0) - 1.0) <= ACCEL_SCALE_TOLERANCE:
         cause = ("the gyro turns 57.3 times as fast: its rates look like deg/s, the inputs "
                  "take rad/s")

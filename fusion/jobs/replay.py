@@ -52,6 +52,7 @@ from fusion.jobs.streams import (
     with_gyro_limit,
     with_mount_estimate,
 )
+from fusion.jobs.wheel_checks import wheel_count_warnings
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.model import NX
 from fusion.planar.odometry import WheelOdometry
@@ -244,7 +245,8 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
         warnings = [*checked, *with_mount_estimate(pipeline_warnings(pipe), robot, streams),
                     *gyro_axes_warnings(streams, robot),
                     *stillness_warnings(streams, robot, pipe.finish_stats().zupts),
-                    *speed_scale_warnings(streams, robot)]
+                    *speed_scale_warnings(streams, robot),
+                    *wheel_count_warnings(streams, robot)]
         write_status(pipe, status_record(pipe, warnings))
     table = fused_table(pipe.state_rows, robot.chassis.speed_ratio
                          / robot.chassis.encode_sampling_time)
