@@ -277,7 +277,9 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
             f"the wheels' yaw rate is {100 * k:+.0f} % off the gyro's (the EKF's wheel "
             f"yaw-rate scale; more than {100 * WHEEL_SCALE_LIMIT:.0f} % means robot.toml's "
             "wheel_distance does not fit this base, e.g. a skid-steer base's geometric track): "
-            f"{cost}; correct wheel_distance (`fusion calibrate odometry`) and replay"
+            f"{cost}; correct wheel_distance (`fusion calibrate odometry`), or speed_ratio "
+            "if the distances are off by as much too (it scales the speeds and the turns "
+            "alike: a gear ratio left out), and replay"
             + ("" if refits else ", or let the EKF restart its scale at the fitted one "
                "(robot.toml [ekf] wheel_scale_refit = 3)"),
             {"wheel_rate_scale": k, "limit": WHEEL_SCALE_LIMIT,
