@@ -103,6 +103,19 @@ def test_imu_csv_errors_name_file_and_line(tmp_path, text, where):
     assert str(path) in str(info.value) and where in str(info.value)
 
 
+def test_gyro_and_accelerometer_columns_exchanged_are_refused(tmp_path):
+    # the documented header over rows in t,ax,ay,az,gx,gy,gz order: rates averaging gravity
+    rows = "".join(f"{0.01 * i},0.1,-0.2,9.79,0.001,0.002,-0.003\n" for i in range(50))
+    with pytest.raises(LogFormatError, match="columns are exchanged") as info:
+        read_imu_csv(write(tmp_path, "t,gx,gy,gz,ax,ay,az\n" + rows))
+    assert "a magnitude of 9.79" in str(info.value)
+    # the right order, and a driver that removed gravity (rates and accelerations small)
+    right = "".join(f"{0.01 * i},0.001,0.002,-0.003,0.1,-0.2,9.79\n" for i in range(50))
+    assert read_imu_csv(write(tmp_path, "t,gx,gy,gz,ax,ay,az\n" + right)).t.size == 50
+    removed = "".join(f"{0.01 * i},0.001,0.002,-0.003,0.1,-0.2,0.05\n" for i in range(50))
+    assert read_imu_csv(write(tmp_path, "t,gx,gy,gz,ax,ay,az\n" + removed)).t.size == 50
+
+
 def test_attitude_csv_is_replaced_atomically(tmp_path):
     out = tmp_path / "att.csv"
     write_attitude_csv(out, [0.0, 0.1], [[1, 0, 0, 0], [0, 1, 0, 0]])

@@ -101,6 +101,7 @@ def read_imu_csv(path: str | Path, progress: ReadProgress | None = None) -> ImuL
             f"{path}:{line}: timestamp {float(t[bad[0] + 1])!r} does not increase "
             f"(previous {float(t[bad[0]])!r})"
         )
+    _check_not_exchanged(path, data[:, 1:4], data[:, 4:7])
     has_mag = len(columns) == 10
     return ImuLog(
         t=t,
@@ -109,6 +110,28 @@ def read_imu_csv(path: str | Path, progress: ReadProgress | None = None) -> ImuL
         mag=np.ascontiguousarray(data[:, 7:10]) if has_mag else None,
         source=str(path),
     )
+
+
+#: m/s^2, and the share of it within which a mean vector is gravity's (_check_not_exchanged)
+_GRAVITY, _GRAVITY_SHARE = 9.80665, 0.25
+
+
+def _check_not_exchanged(path: Path, gyro: np.ndarray, accel: np.ndarray) -> None:
+    """Refuse rates that average gravity's magnitude while the accelerations do not: the
+    gyro's and the accelerometer's columns under each other's names (an independent probe's
+    log with data in t,ax,ay,az,gx,gy,gz order under the documented header was fused into six
+    warnings about gravity, slip and encoders, none naming the columns). No robot turns at
+    9.8 rad/s on average."""
+    if gyro.shape[0] == 0:
+        return
+    g, a = np.mean(gyro, axis=0), np.mean(accel, axis=0)
+    gn, an = float(np.linalg.norm(g)), float(np.linalg.norm(a))
+    if abs(gn - _GRAVITY) <= _GRAVITY_SHARE * _GRAVITY and an < _GRAVITY_SHARE * _GRAVITY:
+        raise LogFormatError(
+            f"{path}: the gyro columns gx,gy,gz average ({g[0]:.3g}, {g[1]:.3g}, {g[2]:.3g}), "
+            f"a magnitude of {gn:.3g}: gravity's, in m/s^2, while ax,ay,az average "
+            f"{an:.3g}: the gyro's and the accelerometer's columns are exchanged (the header "
+            "names what each column holds: t,gx,gy,gz,ax,ay,az in rad/s and m/s^2)")
 
 
 def _read_columns(path: Path, header: list[str], header_line: str) -> tuple[str, ...]:
