@@ -132,3 +132,17 @@ def test_first_read_after_configuration_is_in_the_configured_range():
     imu = MPU6050(sim, 0x68, gyro_range_dps=500, accel_range_g=4, sample_rate_hz=100,
                   clock=sim.clock)
     assert imu.read().accel[2] == pytest.approx(9.80665, abs=0.01)
+
+
+def test_the_readme_lists_every_trust_warning_the_code_raises():
+    """The README's `warning: inputs disagree (a | b | ...)` list against every
+    TrustWarning("name", ...) the package's source constructs."""
+    listed = re.search(r"`warning: inputs disagree \(([a-z_ |\n]+)\): \.\.\.`",
+                       README.read_text())
+    assert listed, "the README's list of trust warnings is gone"
+    readme = {n.strip() for n in listed.group(1).split("|")}
+    raised = set()
+    for path in (ROOT / "fusion").rglob("*.py"):
+        raised |= set(re.findall(r'TrustWarning\(\s*"([a-z_]+)"', path.read_text()))
+    assert len(raised) > 10
+    assert readme == raised, (sorted(readme - raised), sorted(raised - readme))
