@@ -29,6 +29,20 @@ def test_spans_and_gaps_beyond_the_extrapolation_limit_are_named():
     assert coverage_warnings(np.arange(-2.0, 100.0, 0.01), odom[odom < 101.0], 3.0) == []
 
 
+def test_one_recording_on_two_clocks_is_named():
+    # the same 300 s, the odometry's stamps 100 s later (an independent probe's wheels.csv on
+    # another clock: fused into a -19 deg/s bias, the clocks never named)
+    imu = np.arange(0.0, 300.0, 0.01)
+    odom = np.arange(0.04, 300.0, 0.04) + 100.0
+    shifted, *spans = coverage_warnings(imu, odom, 3.0, "wheel frames")
+    assert shifted.startswith("the wheel frames and the IMU span the same 300.0 s shifted by "
+                              "+100.040 s: their stamps are on two clocks"), shifted
+    assert len(spans) == 2
+    # a recording that only started late is no clock: its end is the IMU's
+    assert not any("two clocks" in w for w in coverage_warnings(imu, odom[odom < 300.0], 3.0))
+    assert not any("two clocks" in w for w in coverage_warnings(imu, odom - 100.0, 3.0))
+
+
 def test_a_gap_does_not_multiply_the_next_rate_into_the_turn_counters():
     # twists turning at 0.5 rad/s for 10 s, a 20 s gap, 10 s more: 10 rad turned, not 20
     robot = RobotConfig(EXAMPLE_ROBOT)

@@ -68,6 +68,9 @@ _FEW_ZUPTS = 0.2
 _REST_QUANTILE = 0.95
 _REST_MARGIN = 1.25
 
+#: Share of the IMU's span within which the odometry's start and end offsets from the IMU's
+#: are one shift (:func:`coverage_warnings`: two clocks).
+SAME_SHIFT = 0.01
 #: rad: odometry turns through which a gyro reading exactly 0 is refused
 #: (:meth:`Streams.check_gyro`).
 DEAD_GYRO_TURN = 1.0
@@ -255,6 +258,15 @@ def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
     :data:`fusion.planar._ekf_core.GYRO_SILENT`)."""
     out = []
     before, after = imu_t[0] - odom_t[0], odom_t[-1] - imu_t[-1]
+    shift = -before
+    if abs(shift) > longest and abs(after - shift) <= SAME_SHIFT * (imu_t[-1] - imu_t[0]):
+        # both ends moved by one offset: one recording on two clocks, not two recordings (an
+        # independent probe's wheels.csv 100 s off was fused into a -19 deg/s gyro bias and a
+        # wheel_scale warning, and nothing said the clocks)
+        out.append(f"the {odometry} and the IMU span the same {imu_t[-1] - imu_t[0]:.1f} s "
+                   f"shifted by {shift:+.3f} s: their stamps are on two clocks (a log's "
+                   "stamps must all be one host clock's); the fused result pairs samples "
+                   "that are that far apart")
     if before > longest or after > longest:
         out.append(f"the {odometry} spans {odom_t[0]:.3f}-{odom_t[-1]:.3f} s, the IMU "
                    f"{imu_t[0]:.3f}-{imu_t[-1]:.3f} s: {max(0.0, before):.1f} s before and "
