@@ -148,11 +148,22 @@ def test_heading_check_credits_the_calibration_up_to_its_estimates_never_against
     stats = {"twist_messages": 600, "gyro_time": 60.0, "twist_turn": math.radians(83.0),
              "gyro_turn": math.radians(86.0), "twist_travel": 74.0}
     assert trust_warnings(stats, 0.0, -0.05, 0.0144) == []
-    # each credited alone, anywhere between 0 and its estimate: the nearest corner counts
+    # each credited anywhere between 0 and its estimate: beyond the credits' range, its
+    # nearest end counts
     (w,) = trust_warnings({**stats, "twist_turn": math.radians(300.0)}, 0.0, -0.05, 0.0144)
     assert w.figures["predicted_turn"] == pytest.approx(math.radians(86.0) + 0.0144 * 74.0)
     assert w.figures["divergence"] == pytest.approx(
         math.radians(300.0 - 86.0) - 0.0144 * 74.0)
+    # and inside it no divergence at all: a turn between the corners is one the credits
+    # make (k halfway and c a third of the way, say), though no corner is within the
+    # allowance (a review found the corners alone flagged it)
+    gyro, dist = math.radians(400.0), 200.0
+    mid = (1.0 - 0.5 * 0.15) * gyro + 0.15 / 3.0 * dist
+    between = {"twist_messages": 600, "gyro_time": 60.0, "twist_turn": mid,
+               "gyro_turn": gyro, "twist_travel": dist}
+    corners = [(1.0 + k) * gyro + c * dist for k in (0.0, -0.15) for c in (0.0, 0.15)]
+    assert min(abs(mid - x) for x in corners) > math.radians(50.0)
+    assert trust_warnings(between, 0.0, -0.15, 0.15) == []
 
 
 def _unwrapped_turn(yaw: np.ndarray) -> float:

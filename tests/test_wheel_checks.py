@@ -53,6 +53,45 @@ def test_each_wheel_mistake_is_named_and_only_it(log, tmp_path, case):
         assert "a 16-bit counter that wraps" in w.message
 
 
+def test_per_period_counts_at_a_wrong_scale_are_not_called_totals(log, tmp_path):
+    # speed_ratio written in mm (1000 times too large): the counts exceed max_speed like
+    # running totals, but they return to 0 where the robot stops (a review's case)
+    bad = _edited(log, tmp_path / "mm", lambda l, r: (l, r))
+    toml = bad / "robot.toml"
+    text = toml.read_text()
+    ratio = float(text.split("speed_ratio = ")[1].split()[0])
+    toml.write_text(text.replace(f"speed_ratio = {ratio!r}", f"speed_ratio = {ratio * 1e3!r}"))
+    assert toml.read_text() != text
+    names = {w.name for w in replay_logdir(bad, tmp_path / "out.csv").warnings}
+    assert "wheel_totals" not in names and "speed_scale" in names, names
+
+
+def test_a_slow_scan_in_place_is_no_flipped_wheel(tmp_path):
+    # a healthy robot turning in place at 2 deg/s for a minute, its gyro biased by 1 deg/s:
+    # the wheels count opposite ways, and the gyro sees the turn they mean
+    from fusion.evaluation.synthetic import EXAMPLE_ROBOT
+    from fusion.jobs.streams import Streams
+    from fusion.jobs.wheel_checks import wheel_count_warnings
+    from fusion.planar.robot import RobotConfig
+
+    c = EXAMPLE_ROBOT
+    w = np.radians(2.0)
+    wheel_t = np.arange(c.encode_sampling_time, 60.0, c.encode_sampling_time)
+    per = w * c.wheel_distance / 2.0 * c.encode_sampling_time / c.speed_ratio  # ticks
+    ticks = np.column_stack([np.full(wheel_t.size, -per), np.full(wheel_t.size, per)])
+    ticks = np.rint(ticks).astype(np.int64)
+    assert np.all(np.abs(ticks) >= 2)
+    imu_t = np.arange(0.0, 60.0, 0.01)
+    gyro = np.column_stack([np.zeros(imu_t.size), np.zeros(imu_t.size),
+                            np.full(imu_t.size, w + np.radians(1.0))])
+    accel = np.tile([0.0, 0.0, 9.81], (imu_t.size, 1))
+    streams = Streams(imu_t, gyro, accel, wheel_t, ticks)
+    assert wheel_count_warnings(streams, RobotConfig(chassis=c)) == []
+    flipped = Streams(imu_t, np.zeros_like(gyro), accel, wheel_t, ticks)  # drove straight
+    assert [x.name for x in wheel_count_warnings(flipped, RobotConfig(chassis=c))] == [
+        "wheel_sign"]
+
+
 def test_swapped_wheels_are_not_blamed_on_the_gyro_alone(log, tmp_path):
     # the rates cannot tell which is flipped; the warning names both, and the accelerometer's
     # reading says the mount is not the cause

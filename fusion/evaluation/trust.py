@@ -316,8 +316,9 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
     # with the bias (c * v is a constant rate at a steady speed), and taken at face value they
     # predicted a turn further from the odometry's than the gyro's own (a moving start of 60 s
     # with a 3 deg/s bias: k -0.05, c +0.014 rad/m made +142 deg of +86 against +83)
-    predicted = min(((1.0 + kk) * gyro + cc * distance for kk in (0.0, k) for cc in (0.0, c)),
-                    key=lambda turn: abs(odometry - turn))
+    # (bilinear in the two credits: over the box their turns fill the corners' range)
+    corners = [(1.0 + kk) * gyro + cc * distance for kk in (0.0, k) for cc in (0.0, c)]
+    predicted = min(max(odometry, min(corners)), max(corners))
     divergence = abs(odometry - predicted)
     allowed = (HEADING_FLOOR + HEADING_FRACTION * max(abs(odometry), abs(gyro))
                + HEADING_RATE * gyro_time)

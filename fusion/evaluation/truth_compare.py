@@ -7,9 +7,10 @@ its room's frame (start at 10 m, 5 m, 30 deg: 26.5 % and 30 deg printed), a yaw 
 (81 deg), a truth at 1 Hz (1.82 deg: the truth was interpolated onto the fused rows, cutting
 the corners of every turn), a truth on another clock (100 s off: 21 % and 99 deg).
 
-:func:`compare_with_truth`: each track starts at the origin facing x, so the truth is put in
-the frame of its own pose at the track's first stamp (nothing changes for a truth that starts
-there); the track is interpolated onto the truth's stamps inside its span (a track's rows are
+:func:`compare_with_truth`: the truth is moved onto each track at the first stamp they
+share (a track starts at the origin facing x, so nothing changes for a truth in that frame
+that starts with it; one that starts later is put where the track is then); the track is
+interpolated onto the truth's stamps inside its span (a track's rows are
 far denser than any truth's); the final position error is taken at the last of them, as a
 percentage of the truth's path over them. No figures, and a note saying why, when fewer than
 half of the track's span has truth (:data:`MIN_OVERLAP`), when the truth turns about 57.3
@@ -33,6 +34,9 @@ __all__ = ["DEGREE_RATIO_RANGE", "MIN_OVERLAP", "MIN_RATE_CORRELATION", "TruthCo
 
 #: Share of a track's span the truth must cover for figures to be printed.
 MIN_OVERLAP = 0.5
+#: s: the window over which the truth's and a track's yaw rates are averaged for their
+#: correlation.
+RATE_WINDOW = 0.5
 #: Least correlation of the truth's yaw rate with the track's for the truth to be this run's
 #: on this clock (a right truth: 0.99 and more; one 100 s off: about 0).
 MIN_RATE_CORRELATION = 0.5
@@ -53,13 +57,18 @@ class TruthComparison:
 
 
 def _rate_correlation(t, yaw, truth_t, truth_yaw) -> float | None:
-    """Pearson correlation of the truth's yaw rate with the track's over the truth's
-    intervals, or None where the truth hardly turns (less than 90 deg in all)."""
+    """Pearson correlation of the truth's yaw rate with the track's, both as mean rates over
+    :data:`RATE_WINDOW` s (or the truth's interval, if longer: sample-to-sample rates of a
+    100 Hz truth are its noise), or None where the truth hardly turns (less than 90 deg in
+    all) or spans fewer than three windows."""
     if truth_t.size < 3 or _turn(truth_yaw) < math.radians(90.0):
         return None
-    dt = np.diff(truth_t)
-    a = np.diff(np.interp(truth_t, t, np.unwrap(yaw))) / dt
-    b = wrap_angle(np.diff(truth_yaw)) / dt
+    step = max(RATE_WINDOW, float(np.median(np.diff(truth_t))))
+    grid = np.arange(max(t[0], truth_t[0]), min(t[-1], truth_t[-1]), step)
+    if grid.size < 4:
+        return None
+    a = np.diff(np.interp(grid, t, np.unwrap(yaw)))
+    b = np.diff(np.interp(grid, truth_t, np.unwrap(truth_yaw)))
     if not (np.std(a) > 0 and np.std(b) > 0):
         return None
     return float(np.corrcoef(a, b)[0, 1])
@@ -69,13 +78,19 @@ def _turn(yaw: NDArray[np.float64]) -> float:
     return float(np.sum(np.abs(wrap_angle(np.diff(yaw))))) if yaw.size > 1 else 0.0
 
 
-def _relative(truth_t, truth, t0: float) -> NDArray[np.float64]:
-    """The truth (K, 3) in the frame of its own pose at ``t0`` (yaw unwrapped)."""
+def _aligned(truth_t, truth, t, poses) -> NDArray[np.float64]:
+    """The truth (K, 3) moved onto the track (``t``, ``poses``) at the first stamp they
+    share: there the truth's pose is the track's (yaw unwrapped). A truth that starts with
+    the track starts at the origin; one that starts later, at where the track is then."""
+    t0 = max(float(t[0]), float(truth_t[0]))
     yaw = np.unwrap(truth[:, 2])
     x0, y0, a0 = (float(np.interp(t0, truth_t, c)) for c in (truth[:, 0], truth[:, 1], yaw))
-    c, s = math.cos(a0), math.sin(a0)
+    px, py, pa = (float(np.interp(t0, t, c))
+                  for c in (poses[:, 0], poses[:, 1], np.unwrap(poses[:, 2])))
+    turn = pa - a0
+    c, s = math.cos(turn), math.sin(turn)
     dx, dy = truth[:, 0] - x0, truth[:, 1] - y0
-    return np.column_stack([c * dx + s * dy, -s * dx + c * dy, yaw - a0])
+    return np.column_stack([px + c * dx - s * dy, py + s * dx + c * dy, yaw + turn])
 
 
 def compare_with_truth(tracks: dict[str, tuple[NDArray[np.float64], NDArray[np.float64]]],
@@ -104,12 +119,12 @@ def compare_with_truth(tracks: dict[str, tuple[NDArray[np.float64], NDArray[np.f
     corr = _rate_correlation(t_a, poses_a[:, 2], truth_t[inside], truth[inside, 2])
     if corr is not None and corr < MIN_RATE_CORRELATION:
         return TruthComparison(note=(
-            f"{source}: its turns do not line up with the fused heading's (their rates "
-            f"correlate by {corr:.2f} at its stamps): its t on another clock, or another "
-            "robot's run? not compared"))
+            f"{source}: its turns do not line up with the fused heading's (their yaw rates "
+            f"over {RATE_WINDOW:g} s correlate by {corr:.2f}): its t on another clock, or "
+            "another robot's run? not compared"))
     out = TruthComparison()
     for name, (t, poses) in tracks.items():
-        rel = _relative(truth_t, truth, float(t[0]))
+        rel = _aligned(truth_t, truth, t, poses)
         at = (truth_t >= t[0]) & (truth_t <= t[-1])
         if np.count_nonzero(at) < 2:
             continue

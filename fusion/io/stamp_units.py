@@ -9,10 +9,10 @@ times too slow, silently (42.7 % final error against 0.05 %).
 
 :func:`check_imu_stamps`: the IMU's median sample interval must be a rate the fusion takes
 (:data:`MIN_IMU_RATE_HZ` to :data:`MAX_IMU_RATE_HZ`). :func:`check_wheel_stamps`: each wheel
-frame counts the ticks of one firmware period, so frames cannot come faster on average than one
-a period (:data:`FRAME_RATE_TOLERANCE` allows for the clocks' drift and a short log's
-rounding), and a log that lost nine in ten of them (:data:`MAX_PERIODS_PER_FRAME`) is no
-odometry. The errors say which unit would fit.
+frame counts the ticks of one firmware period, so frames cannot come faster than one a
+period over most of the log (:data:`FRAME_RATE_TOLERANCE` allows for the clocks' drift), and
+a log that lost nine in ten of them (:data:`MAX_PERIODS_PER_FRAME`) is no odometry. The
+errors say which unit would fit.
 """
 
 from __future__ import annotations
@@ -25,7 +25,8 @@ from numpy.typing import NDArray
 from fusion.io.errors import LogFormatError
 
 __all__ = ["FRAME_RATE_TOLERANCE", "MAX_IMU_RATE_HZ", "MAX_PERIODS_PER_FRAME",
-           "MIN_IMU_RATE_HZ", "check_imu_stamps", "check_wheel_stamps"]
+           "MIN_CHECKED_FRAMES", "MIN_IMU_RATE_HZ", "WINDOW_FRAMES", "check_imu_stamps",
+           "check_wheel_stamps"]
 
 #: Range of a plausible nominal IMU rate, Hz (its period must stay below the attitude
 #: filter's ``max_gap``, 0.25 s; the MPU6050 samples at 1 kHz at most).
@@ -38,15 +39,23 @@ FRAME_RATE_TOLERANCE = 0.1
 #: frames lost (or another time unit), too few to dead-reckon from.
 MAX_PERIODS_PER_FRAME = 10.0
 
+#: Frames over which a wheel log's interval is averaged before the median is taken.
+WINDOW_FRAMES = 10
+#: Wheel logs shorter than this many frames are not checked.
+MIN_CHECKED_FRAMES = 20
+
 _UNITS = (("ms", 1e-3), ("us", 1e-6), ("ns", 1e-9))
 
 
 def _unit_hint(interval: float, low: float, high: float) -> str:
-    """", in ms?"-like hint: the unit that would bring ``interval`` into [low, high] s."""
+    """A hint naming the unit that would bring ``interval`` into [low, high] s, where one does
+    and ``interval`` is a second or more (a slow sensor stamped in s is not told "ms")."""
+    if interval < 1.0:
+        return ""
     for name, factor in _UNITS:
         if low <= interval * factor <= high:
-            return (f"; t looks like {name} (times {factor:g} would make it "
-                    f"{interval * factor:.4g} s): t must be in s")
+            return (f"; if t is in {name}, the interval is {interval * factor:.4g} s: t "
+                    "must be in s")
     return ""
 
 
@@ -68,12 +77,15 @@ def check_imu_stamps(path: str | Path, t: NDArray[np.float64]) -> None:
 
 def check_wheel_stamps(path: str | Path, t: NDArray[np.float64], period: float) -> None:
     """Raise :class:`LogFormatError` naming ``path`` when the wheel frames stamped ``t`` (s)
-    come faster on average than one per ``period`` (robot.toml's ``encode_sampling_time``, s)
-    allows, or slower than one per :data:`MAX_PERIODS_PER_FRAME` periods; fewer than 3
-    frames are not checked."""
-    if t.size < 3:
+    come faster than one per ``period`` (robot.toml's ``encode_sampling_time``, s) allows,
+    or slower than one per :data:`MAX_PERIODS_PER_FRAME` periods, over most of the log: the
+    median of the mean interval over :data:`WINDOW_FRAMES` consecutive frames (a recorder's
+    pause, a backlog read in a burst and the host's jitter move it little); logs of fewer
+    than :data:`MIN_CHECKED_FRAMES` frames are not checked."""
+    if t.size < MIN_CHECKED_FRAMES:
         return
-    mean = float(t[-1] - t[0]) / (t.size - 1)
+    k = WINDOW_FRAMES
+    mean = float(np.median((t[k:] - t[:-k]) / k))
     ratio = mean / period
     if (1.0 - FRAME_RATE_TOLERANCE) <= ratio <= MAX_PERIODS_PER_FRAME:
         return
@@ -87,5 +99,5 @@ def check_wheel_stamps(path: str | Path, t: NDArray[np.float64], period: float) 
         why = (f"{1.0 - 1.0 / ratio:.1%} of the frames missing, or the times in another "
                f"unit{_unit_hint(mean, 0.5 * period, 2.0 * period)}")
     raise LogFormatError(
-        f"{path}: the frames are {mean:.6g} s apart on average, {ratio:.4g} times robot.toml's "
+        f"{path}: the frames are {mean:.6g} s apart (typically), {ratio:.4g} times robot.toml's "
         f"encode_sampling_time {period:g} s: {why}")
