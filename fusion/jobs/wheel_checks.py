@@ -5,8 +5,8 @@ and blamed something else (skid-steer, wheel_distance, "speeds in cm/s") or noth
 
 - ``wheel_dead``: one wheel's count is 0 in nearly every frame in which the other counts (an
   unplugged encoder: 21.7 % final error, the warnings pointed at skid-steer and the IMU);
-- ``wheel_sign``: the two wheels count in opposite directions, a spin the gyro does not see
-  (a mirrored motor whose count was not negated: 42.5 %);
+- ``wheel_sign``: the gyro's yaw rate follows the sum of the two wheels' counts, not their
+  difference (a mirrored motor whose count was not negated: 42.5 %);
 - ``wheel_totals``: the counts are running totals, not each period's (most frames beyond
   ``max_speed``, their differences plausible counts; a 16-bit counter's also wrap at 65536:
   470 % and 104 %, "speeds in cm/s?").
@@ -25,18 +25,22 @@ from fusion.geometry.mount import imu_to_base, mount_matrix
 from fusion.jobs.streams import Streams
 from fusion.planar.robot import RobotConfig
 
-__all__ = ["DEAD_SHARE", "MIN_FRAMES", "OPPOSITE_SHARE", "TOTALS_ONWARD", "TOTALS_SHARE",
-           "UNSEEN_SHARE", "wheel_count_warnings"]
+__all__ = ["DEAD_SHARE", "MIN_FRAMES", "MIN_WINDOWS", "SIGN_CORRELATION", "SIGN_MARGIN",
+           "SIGN_WINDOW", "TOTALS_ONWARD", "TOTALS_SHARE", "wheel_count_warnings"]
 
 #: Frames of evidence below which nothing is said.
 MIN_FRAMES = 50
 #: Share of the frames in which the other wheel counts (2 ticks or more) with this one at 0.
 DEAD_SHARE = 0.95
-#: The gyro's yaw rate (its bias at the stops taken out) below this share of the rate the
-#: wheels' opposite counts mean: a turn the gyro does not see.
-UNSEEN_SHARE = 0.25
-#: Share of the frames with opposite counts whose turn the gyro does not see.
-OPPOSITE_SHARE = 0.9
+#: s: the wheels' counts and the gyro's rate are compared per window this long ...
+SIGN_WINDOW = 1.0
+#: ... over at least this many windows in which both wheels count.
+MIN_WINDOWS = 30
+#: Least correlation of the gyro's yaw rate with the sum of the wheels' counts for one of
+#: them to have its sign flipped ...
+SIGN_CORRELATION = 0.7
+#: ... by this much more than with their difference (the turn, when both are right).
+SIGN_MARGIN = 0.3
 #: Share of the frames beyond ``max_speed`` whose differences are plausible counts.
 TOTALS_SHARE = 0.5
 #: Share of a running total's steps that go the same way as the step before (it reverses only
@@ -115,30 +119,39 @@ def _dead(ticks: NDArray[np.float64]) -> list[TrustWarning]:
 
 def _opposite(streams: Streams, ticks: NDArray[np.float64],
               robot: RobotConfig) -> list[TrustWarning]:
-    c = robot.chassis
     rate = imu_to_base(mount_matrix(robot.imu_mount_rpy), streams.gyro)[:, 2]
-    at = np.interp(np.asarray(streams.wheel_t) - 0.5 * c.encode_sampling_time,
+    at = np.interp(np.asarray(streams.wheel_t) - 0.5 * robot.chassis.encode_sampling_time,
                    streams.imu_t, rate)
-    stopped = (ticks[:, 0] == 0) & (ticks[:, 1] == 0)
-    at -= float(np.median(at[stopped])) if np.count_nonzero(stopped) >= MIN_FRAMES else 0.0
-    # the yaw rate the wheels' counts say: a mirrored wheel turns its straight driving into a
-    # fast turn the gyro does not see; a healthy spin in place (opposite counts too) is one
-    # the gyro does see, however slow (a review's slow scan had been called a flipped wheel)
-    wheels = (ticks[:, 1] - ticks[:, 0]) * c.speed_ratio / (c.encode_sampling_time
-                                                             * c.wheel_distance)
-    opposite = ((np.abs(ticks[:, 0]) >= 2) & (np.abs(ticks[:, 1]) >= 2)
-                & (np.sign(ticks[:, 0]) != np.sign(ticks[:, 1])))
-    n = int(np.count_nonzero(opposite))
-    if n < MIN_FRAMES:
+    # per second of driving: a frame's few ticks are mostly their quantisation (a healthy
+    # 20 s run correlated by 0.36 frame by frame)
+    bins = np.floor((np.asarray(streams.wheel_t) - streams.wheel_t[0]) / SIGN_WINDOW)
+    edges = np.flatnonzero(np.diff(bins)) + 1
+    left, right = (np.add.reduceat(ticks[:, k], np.r_[0, edges]) for k in (0, 1))
+    gyro = np.add.reduceat(at, np.r_[0, edges]) / np.diff(np.r_[0, edges, at.size])
+    moving = (np.abs(left) >= 2) & (np.abs(right) >= 2)
+    n = int(np.count_nonzero(moving))
+    if n < MIN_WINDOWS:
         return []
-    unseen = float(np.mean(np.abs(at[opposite]) < UNSEEN_SHARE * np.abs(wheels[opposite])))
-    if unseen < OPPOSITE_SHARE:
+    # the turn is right minus left; with one count negated it is their sum. Correlations
+    # leave out the gyro's bias and any scale (a wrong speed_ratio, a skid-steer's track):
+    # a first version compared rates and called a slow scan in place, and a speed_ratio in
+    # mm, flipped wheels (a review's cases)
+    left, right, gyro = left[moving], right[moving], gyro[moving]
+    diff, total = _correlation(gyro, right - left), _correlation(gyro, right + left)
+    if not (abs(total) >= SIGN_CORRELATION and abs(total) >= abs(diff) + SIGN_MARGIN):
         return []
+    side = "left" if total > 0 else "right"
     return [TrustWarning(
         "wheel_sign",
-        f"in {unseen:.0%} of the {n} frames in which the left and right wheels count in "
-        f"opposite directions, the gyro turns less than {UNSEEN_SHARE:.0%} as fast as such "
-        "counts mean: one wheel's count has its sign flipped (a mirrored motor or encoder; "
-        "the robot drove straight while its wheels said it spun); negate the column of the "
-        "wheel that counts backwards when the robot drives forward",
-        {"unseen_share": unseen, "frames": float(n)})]
+        f"the gyro's yaw rate follows the sum of the wheels' counts (correlation "
+        f"{abs(total):.2f}), not their difference ({abs(diff):.2f}), over {n} s of driving: "
+        f"one wheel's count has its sign flipped, the {side} one (a mirrored motor or "
+        f"encoder); negate its column",
+        {"sum_correlation": total, "difference_correlation": diff, "windows": float(n)})]
+
+
+def _correlation(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """Pearson correlation, 0 where either does not vary."""
+    if not (np.std(a) > 0 and np.std(b) > 0):
+        return 0.0
+    return float(np.corrcoef(a, b)[0, 1])
