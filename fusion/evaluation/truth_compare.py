@@ -30,7 +30,7 @@ from fusion.evaluation.trajectory import final_position_error_percent, path_leng
 from fusion.geometry.angles import wrap_angle
 
 __all__ = ["DEGREE_RATIO_RANGE", "MIN_OVERLAP", "MIN_RATE_CORRELATION", "TruthComparison",
-           "compare_with_truth"]
+           "aligned_truth", "compare_with_truth"]
 
 #: Share of a track's span the truth must cover for figures to be printed.
 MIN_OVERLAP = 0.5
@@ -78,7 +78,7 @@ def _turn(yaw: NDArray[np.float64]) -> float:
     return float(np.sum(np.abs(wrap_angle(np.diff(yaw))))) if yaw.size > 1 else 0.0
 
 
-def _aligned(truth_t, truth, t, poses) -> NDArray[np.float64]:
+def aligned_truth(truth_t, truth, t, poses) -> NDArray[np.float64]:
     """The truth (K, 3) moved onto the track (``t``, ``poses``) at the first stamp they
     share: there the truth's pose is the track's (yaw unwrapped). A truth that starts with
     the track starts at the origin; one that starts later, at where the track is then."""
@@ -124,7 +124,7 @@ def compare_with_truth(tracks: dict[str, tuple[NDArray[np.float64], NDArray[np.f
             "another robot's run? not compared"))
     out = TruthComparison()
     for name, (t, poses) in tracks.items():
-        rel = _aligned(truth_t, truth, t, poses)
+        rel = aligned_truth(truth_t, truth, t, poses)
         at = (truth_t >= t[0]) & (truth_t <= t[-1])
         if np.count_nonzero(at) < 2:
             continue

@@ -28,7 +28,7 @@ from scipy.integrate import trapezoid
 
 from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
 from fusion.evaluation.trust import TrustWarning
-from fusion.evaluation.truth_compare import compare_with_truth
+from fusion.evaluation.truth_compare import aligned_truth, compare_with_truth
 from fusion.geometry.angles import wrap_angle
 from fusion.io.errors import LogFormatError
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
@@ -393,8 +393,11 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
     if plot is not None:
         from fusion.jobs.plots import plot_replay
 
-        plot_replay(Path(plot), path.name, t_out, table[:, 1:4], wheel_t, wheel, truth_t,
-                    truth)
+        # the truth as compared (moved onto the fused track), or none where it was not
+        drawn = None if truth_res is None else aligned_truth(truth_t, truth, t_out,
+                                                             table[:, 1:4])
+        plot_replay(Path(plot), path.name, t_out, table[:, 1:4], wheel_t, wheel,
+                    None if drawn is None else truth_t, drawn)
     last = table[-1]
     return ReplayResult(
         source=str(path), output=str(output), span=t1 - t0, n_imu=n_imu,
