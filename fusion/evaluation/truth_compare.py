@@ -49,11 +49,13 @@ DEGREE_RATIO_RANGE = (40.0, 80.0)
 class TruthComparison:
     """``errors`` per track name: ``{"pct": final position error, % of distance, "yaw_deg":
     yaw RMSE, deg}``; ``distance``: the truth's path over the first track's span, m (NaN:
-    not compared); ``note``: why nothing was compared ("" when it was)."""
+    not compared); ``note``: why nothing was compared ("" when it was); ``aligned`` per track
+    name: the truth (K, 3) as compared with it (:func:`aligned_truth`)."""
 
     errors: dict[str, dict[str, float]] = field(default_factory=dict)
     distance: float = math.nan
     note: str = ""
+    aligned: dict[str, NDArray[np.float64]] = field(default_factory=dict)
 
 
 def _rate_correlation(t, yaw, truth_t, truth_yaw) -> float | None:
@@ -125,6 +127,7 @@ def compare_with_truth(tracks: dict[str, tuple[NDArray[np.float64], NDArray[np.f
     out = TruthComparison()
     for name, (t, poses) in tracks.items():
         rel = aligned_truth(truth_t, truth, t, poses)
+        out.aligned[name] = rel
         at = (truth_t >= t[0]) & (truth_t <= t[-1])
         if np.count_nonzero(at) < 2:
             continue

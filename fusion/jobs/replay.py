@@ -28,7 +28,7 @@ from scipy.integrate import trapezoid
 
 from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
 from fusion.evaluation.trust import TrustWarning
-from fusion.evaluation.truth_compare import aligned_truth, compare_with_truth
+from fusion.evaluation.truth_compare import compare_with_truth
 from fusion.geometry.angles import wrap_angle
 from fusion.io.errors import LogFormatError
 from fusion.io.fused_csv import FUSED_CSV_COLUMNS, write_fused_csv
@@ -387,15 +387,15 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
     wheel = WheelOdometry(chassis).update_batch(ticks[:, 0], ticks[:, 1])
     truth_res = None
     if truth_t is not None and truth_t.size:
-        truth_res, truth_note = _truth_errors(t_out, table[:, 1:4], wheel_t, wheel, truth_t,
-                                              truth, str(path / "truth.csv"))
+        truth_res, truth_note, drawn = _truth_errors(t_out, table[:, 1:4], wheel_t, wheel,
+                                                     truth_t, truth, str(path / "truth.csv"))
         notes.extend([truth_note] if truth_note else [])
+    else:
+        drawn = None
     if plot is not None:
         from fusion.jobs.plots import plot_replay
 
         # the truth as compared (moved onto the fused track), or none where it was not
-        drawn = None if truth_res is None else aligned_truth(truth_t, truth, t_out,
-                                                             table[:, 1:4])
         plot_replay(Path(plot), path.name, t_out, table[:, 1:4], wheel_t, wheel,
                     None if drawn is None else truth_t, drawn)
     last = table[-1]
@@ -411,20 +411,21 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
 
 
 def _truth_errors(t, poses, wheel_t, wheel, truth_t, truth, source: str
-                  ) -> tuple[dict[str, float] | None, str]:
-    """``(figures, note)``: final position error (% of the true distance) and yaw RMSE (deg)
-    of the fused and the wheel-only tracks at the truth's stamps inside their spans, the
-    truth aligned at each track's start (:func:`fusion.evaluation.truth_compare.
-    compare_with_truth`); None and why where the truth cannot be this log's."""
+                  ) -> tuple[dict[str, float] | None, str, NDArray[np.float64] | None]:
+    """``(figures, note, drawn)``: final position error (% of the true distance) and yaw
+    RMSE (deg) of the fused and the wheel-only tracks at the truth's stamps inside their
+    spans, the truth aligned at each track's start (:func:`fusion.evaluation.truth_compare.
+    compare_with_truth`), and the truth as aligned with the fused track (for the plot); None,
+    why, None where the truth cannot be this log's."""
     cmp = compare_with_truth({"fused": (t, poses), "wheel": (wheel_t, wheel)}, truth_t,
                              truth, source)
     if cmp.note:
-        return None, cmp.note
+        return None, cmp.note, None
     nan = {"pct": math.nan, "yaw_deg": math.nan}
     fused, wheels = cmp.errors.get("fused", nan), cmp.errors.get("wheel", nan)
-    return {"distance": cmp.distance, "fused_pct": fused["pct"],
-            "fused_yaw_deg": fused["yaw_deg"], "wheel_pct": wheels["pct"],
-            "wheel_yaw_deg": wheels["yaw_deg"]}, ""
+    return ({"distance": cmp.distance, "fused_pct": fused["pct"],
+             "fused_yaw_deg": fused["yaw_deg"], "wheel_pct": wheels["pct"],
+             "wheel_yaw_deg": wheels["yaw_deg"]}, "", cmp.aligned.get("fused"))
 
 
 def check_plot_output(path: Path | None = None) -> None:
