@@ -382,7 +382,7 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
             notes.append(f"capture parser counters: {bad}")
     if n_imu and streams.has_wheels:
         notes.extend(coverage_warnings(streams.imu_t, wheel_t, robot.ekf.max_extrapolation,
-                                       "wheel frames"))
+                                       "wheel frames", fused=table))
     t_out = table[:, 0]
     wheel = WheelOdometry(chassis).update_batch(ticks[:, 0], ticks[:, 1])
     truth_res = None
@@ -574,7 +574,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     notes = [n for n in (mount_note, bag.note, *bag.topic_notes, *signs.notes, lag.note,
                          limit_note,
                          fix_note, spliced.note, tilt and streams.level_note()) if n]
-    coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation)
+    coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation, fused=table)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, fixes, gps,
                      gps_note, motion, start, notes, coverage, lag.lag)
 

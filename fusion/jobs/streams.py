@@ -27,12 +27,14 @@ from fusion.types.constants import STANDARD_GRAVITY
 __all__ = [
     "DEAD_GYRO_TURN",
     "GYRO_AXES_LIMIT",
+    "JOINT_GAP",
     "MIN_STILL_ODOMETRY",
     "SPEED_SCALE_LIMIT",
     "Streams",
     "coverage_warnings",
     "gyro_axes_warnings",
     "gyro_plateau",
+    "joint_gap_warnings",
     "rest_vibration",
     "speed_scale_warnings",
     "stillness_warnings",
@@ -248,14 +250,17 @@ def gyro_axes_warnings(streams: Streams, robot: RobotConfig) -> list[TrustWarnin
 
 
 def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
-                      longest: float, odometry: str = "odometry") -> list[str]:
+                      longest: float, odometry: str = "odometry",
+                      fused: NDArray[np.float64] | None = None) -> list[str]:
     """What the fused output cannot cover, one sentence each (empty when nothing is missing),
     with ``longest`` s the EKF's ``max_extrapolation``: odometry stamps more than that
     beyond the IMU's span (rows are written at IMU samples: a CSV ends at the IMU's last),
     IMU samples more than that beyond the odometry's (the pose stands still there: speeds
-    forgotten), and gaps longer than that in either (an odometry gap stops the pose; over an
-    IMU gap the odometry's yaw rate carries the heading unchecked:
-    :data:`fusion.planar._ekf_core.GYRO_SILENT`)."""
+    forgotten), and gaps longer than that in either (an odometry gap stops the pose once
+    its speed has run on for ``longest`` s; over an IMU gap the odometry's yaw rate carries
+    the heading unchecked: :data:`fusion.planar._ekf_core.GYRO_SILENT`). With the ``fused``
+    table (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), also the motion the filter made up
+    where both were silent (:func:`joint_gap_warnings`)."""
     out = []
     before, after = imu_t[0] - odom_t[0], odom_t[-1] - imu_t[-1]
     shift = -before
@@ -282,14 +287,78 @@ def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
         gaps = np.flatnonzero(dt > longest)
         if gaps.size:
             i = int(gaps[np.argmax(dt[gaps])])
-            over = ("the pose stopped (speeds forgotten)" if name == odometry
-                    else f"the heading rested on the {odometry}'s yaw rate alone, with no "
-                         "gyro to check it for slip, and a CSV output has no rows (rows at "
-                         "IMU samples)")
+            if name == odometry:
+                over = (f"the speed ran on at its last value for {longest:g} s, then the "
+                        "pose stopped (speeds forgotten)")
+            else:
+                silent = sum(_longest_silence(odom_t, t[g], t[g + 1]) >= JOINT_GAP
+                             for g in gaps)
+                over = ("a CSV output has no rows (rows at IMU samples), and the heading "
+                        + (f"rested on the yaw rate of the {odometry} alone, with no gyro to check "
+                           "it for slip" if silent == 0 else
+                           f"ran on unmeasured where the {odometry} had no sample either (in "
+                           f"{silent} of them: below)"))
             out.append(f"{name} gaps longer than {longest:g} s: {gaps.size}, "
                        f"{float(np.sum(dt[gaps])):.1f} s in all (the longest {dt[i]:.1f} s "
                        f"after {t[i]:.3f} s); over them {over}")
+    if fused is not None:
+        out.extend(joint_gap_warnings(imu_t, odom_t, fused, longest, odometry))
     return out
+
+
+def _longest_silence(t: NDArray[np.float64], lo: float, hi: float) -> float:
+    """s: the longest stretch of ``[lo, hi]`` without one of the sorted stamps ``t``."""
+    inside = t[np.searchsorted(t, lo, side="right"):np.searchsorted(t, hi, side="left")]
+    return float(np.max(np.diff(np.concatenate([[lo], inside, [hi]]))))
+
+
+#: s: silences of both the IMU and the odometry from this long are looked at by
+#: :func:`joint_gap_warnings` (a serial read or a recorder's flush takes well under that).
+JOINT_GAP = 1.0
+#: What the filter may make up over the silences of a run before it is said: deg of heading,
+#: m of travel (one degree is the issue's yaw budget's scale; 5 cm a wheel frame's worth).
+MADE_UP_TURN_DEG = 1.0
+MADE_UP_TRAVEL = 0.05
+
+
+def joint_gap_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
+                       fused: NDArray[np.float64], longest: float,
+                       odometry: str = "odometry") -> list[str]:
+    """The motion the filter made up where neither the IMU nor the ``odometry`` has a sample
+    for :data:`JOINT_GAP` s or more, one sentence (empty below :data:`MADE_UP_TURN_DEG` and
+    :data:`MADE_UP_TRAVEL`). Over such a silence the pose runs on at the last speeds for up
+    to ``longest`` s (``max_extrapolation``) and then stands: that turn and travel are the
+    filter's guess, not a measurement, and a clock step makes the same silence while the
+    robot did not move at all (an independent probe's +5 s step in a turn at -0.91 rad/s:
+    -156 deg of heading, said only as two gaps). ``fused``: the output table
+    (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`: t, ..., v at 4, w at 5), rows in time
+    order; the speeds are the last row's at or before each silence's start."""
+    stamps = np.union1d(imu_t, odom_t)
+    if stamps.size < 2 or fused.shape[0] == 0:
+        return []
+    dt = np.diff(stamps)
+    starts = np.flatnonzero(dt >= JOINT_GAP)
+    if not starts.size:
+        return []
+    rows = np.searchsorted(fused[:, 0], stamps[starts], side="right") - 1
+    known = rows >= 0
+    run = np.minimum(dt[starts], longest)[known]
+    turn = np.degrees(fused[rows[known], 5]) * run
+    travel = np.abs(fused[rows[known], 4]) * run
+    total_turn = float(np.sum(np.abs(turn)))
+    total_travel = float(np.sum(travel))
+    if total_turn < MADE_UP_TURN_DEG and total_travel < MADE_UP_TRAVEL:
+        return []
+    k = int(np.argmax(np.abs(turn) + travel))
+    i = int(starts[known][k])
+    return [f"no IMU sample and nothing from the {odometry} over {starts.size} gap"
+            f"{'s' if starts.size > 1 else ''} of {JOINT_GAP:g} s or more "
+            f"({float(np.sum(dt[starts])):.1f} s in all; the largest {dt[i]:.1f} s after "
+            f"{stamps[i]:.3f} s): the pose ran on at the last speeds for up to {longest:g} s "
+            f"of each (max_extrapolation), {total_turn:.1f} deg of turn and "
+            f"{total_travel:.2f} m of travel that nothing measured (the largest "
+            f"{turn[k]:+.1f} deg, {travel[k]:.2f} m); a clock step makes such a gap while "
+            "the robot does not move"]
 
 
 def _zero_stretches(t: NDArray[np.float64], v: NDArray[np.float64], w: NDArray[np.float64],
