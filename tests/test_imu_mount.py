@@ -179,7 +179,13 @@ def test_the_trust_check_warns_beyond_its_tilt_limit_only():
 @pytest.mark.parametrize(("ratio", "cause"), [
     (1 / STANDARD_GRAVITY, "a log in g"), (2.0, "2 times: a driver scaling"),
     (0.5, "0.5 times: a driver scaling"), (1 / 3, "check the driver's scale factor"),
-    (0.02, "a driver that removes it")])
+    (0.02, "a driver that removes it"),
+    # raw counts: the datasheet's sensitivities (LSB/g) by range; an independent probe's
+    # 8192-per-g log had been put down to "1024 times: another full-scale range"
+    (8192 / STANDARD_GRAVITY, "raw MPU-6050 counts at +-4 g, 8192 per g"),
+    (1.03 * 16384 / STANDARD_GRAVITY, "raw MPU-6050 counts at +-2 g, 16384 per g"),
+    (2048 / STANDARD_GRAVITY, "raw MPU-6050 counts at +-16 g, 2048 per g"),
+    (1024.0, "check the driver's scale factor")])
 def test_an_accelerometer_not_in_si_is_named_instead_of_the_mount(ratio, cause):
     # sideways as well: a mean that is no gravity says nothing of the mount
     warned = trust_warnings(_stats([0.0, ratio * STANDARD_GRAVITY, 0.0]), None)

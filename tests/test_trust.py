@@ -301,6 +301,33 @@ def test_a_gyro_in_degrees_per_second_is_named(logdir, tmp_path, capsys) -> None
     assert "warning: inputs disagree (gyro_axis)" in printed
     assert "its rates look like deg/s" in printed
     assert "the other way" not in printed
+    # the verdict names the units, not a flipped axis (it had said "the gyro and the
+    # odometry turn opposite ways")
+    assert ("warning: the fused odometry above should not be trusted: the IMU's readings are "
+            "in other units (gyro_axis above)" in printed)
+    assert "opposite ways" not in printed
+    # a gyro 57 times too fast never looks still: where a check built on the IMU's motion
+    # fires, it says so (an independent probe's deg/s log: "check the wheel encoders")
+    for line in printed.splitlines():
+        if "(encoder_fault)" in line or "(stillness)" in line:
+            assert line.endswith("gyro_axis says the IMU is in other units: fix that first, "
+                                 "then look again)"), line
+
+
+def test_checks_read_from_the_imus_motion_are_marked_when_its_units_are_wrong() -> None:
+    from fusion.evaluation.trust import TrustWarning, units_first
+
+    fault = TrustWarning("encoder_fault", "zero ticks while the IMU moved", {})
+    slip = TrustWarning("slip", "most frames slip", {})
+    deg = TrustWarning("gyro_axis", "deg/s", {"odometry_rate_slope": 1 / math.degrees(1.0)})
+    flipped = TrustWarning("gyro_axis", "flipped", {"odometry_rate_slope": -1.0})
+    g_units = TrustWarning("accel_scale", "in g", {})
+    assert units_first([fault, slip, flipped]) == [fault, slip, flipped]
+    marked = units_first([fault, slip, deg, g_units])
+    assert marked[0].message == ("zero ticks while the IMU moved (but this reads the IMU's "
+                                 "motion, and gyro_axis and accel_scale say the IMU is in "
+                                 "other units: fix that first, then look again)")
+    assert marked[1:] == [slip, deg, g_units]
 
 
 def test_a_log_in_g_is_named_and_not_called_a_mount_error(logdir, tmp_path, capsys) -> None:

@@ -257,6 +257,8 @@ def _print_result(r, level_note: bool = True) -> None:
 
 def _print_warnings(warnings) -> None:
     """The trust warnings (:mod:`fusion.evaluation.trust`) of one replay."""
+    from fusion.evaluation.trust import imu_units_wrong
+
     for w in warnings:
         print(f"warning: inputs disagree ({w.name}): {w.message}")
     if not warnings:
@@ -267,7 +269,13 @@ def _print_warnings(warnings) -> None:
                   and ("odometry_scale" in names or (
                       slip is not None
                       and slip.figures["wheel_rate_distrusted"] > slip.figures["slips"])))
-    if "gyro_axis" in names:
+    units = [w.name for w in warnings if imu_units_wrong(w)]
+    if units:
+        print("warning: the fused odometry above should not be trusted: the IMU's readings "
+              f"are in other units ({' and '.join(dict.fromkeys(units))} above), which the "
+              "filter takes as SI; convert them (or fix the driver's scale) and replay")
+    elif any(w.name == "gyro_axis" and w.figures.get("odometry_rate_slope", 0.0) < 0.0
+             for w in warnings):
         print("warning: the fused odometry above should not be trusted: the gyro and the "
               "odometry turn opposite ways (gyro_axis above) and the heading rests on the "
               "gyro; fix the one that is flipped (the IMU's mount or driver, or the "

@@ -138,7 +138,9 @@ __all__ = [
     "SLIP_FRACTION_LIMIT",
     "WHEEL_SCALE_LIMIT",
     "TrustWarning",
+    "imu_units_wrong",
     "trust_warnings",
+    "units_first",
 ]
 
 #: Share of the inputs refused as implausible above which the ``implausible`` check fires.
@@ -415,6 +417,11 @@ def _mount_warning(stats: Mapping[str, Any]) -> TrustWarning | None:
          "accel_mean_z": mean[2]})
 
 
+#: The MPU-6050's accelerometer sensitivity, LSB per g, by full-scale range (g; AFS_SEL 0-3):
+#: an accelerometer whose mean magnitude is near one of these is logged in raw counts.
+RAW_ACCEL_LSB_PER_G = {2: 16384, 4: 8192, 8: 4096, 16: 2048}
+
+
 def _accel_scale_cause(ratio: float) -> str:
     """The likely cause of an accelerometer mean ``ratio`` times standard gravity."""
     if abs(ratio * STANDARD_GRAVITY - 1.0) <= ACCEL_SCALE_TOLERANCE:
@@ -422,8 +429,50 @@ def _accel_scale_cause(ratio: float) -> str:
     if ratio < 0.2:
         return ("nearly no gravity: a driver that removes it, where sensor_msgs/Imu and "
                 "imu.csv take the specific force with gravity (+9.81 up at rest)")
+    for g_range, lsb in RAW_ACCEL_LSB_PER_G.items():
+        if abs(ratio * STANDARD_GRAVITY / lsb - 1.0) <= ACCEL_SCALE_TOLERANCE:
+            # an independent probe's raw log had been put down to a full-scale range 1024
+            # times off, and its gyro's raw counts (3753 times rad/s) named nowhere
+            return (f"raw MPU-6050 counts at +-{g_range} g, {lsb} per g: divide by {lsb} and "
+                    f"multiply by {STANDARD_GRAVITY}; its gyro is then likely raw counts too "
+                    "(131, 65.5, 32.8 or 16.4 per deg/s at +-250, 500, 1000, 2000 deg/s: "
+                    "most of its rates beyond max_rate, refused)")
     power = round(math.log2(ratio))
-    if power and abs(ratio / 2.0 ** power - 1.0) <= ACCEL_SCALE_TOLERANCE:
+    # full-scale ranges of 2-16 g differ by at most 8 times
+    if power and abs(power) <= 3 and abs(ratio / 2.0 ** power - 1.0) <= ACCEL_SCALE_TOLERANCE:
         return (f"{2.0 ** power:g} times: a driver scaling by another full-scale range than "
                 "the chip's (MPU-6050 AFS_SEL: 2, 4, 8, 16 g)")
     return "check the driver's scale factor"
+
+
+#: Checks read from the IMU's motion (still or moving, from its gyro's and accelerometer's
+#: spread): an IMU in other units makes them say nothing of the wheels.
+IMU_MOTION_CHECKS = ("encoder_fault", "stillness")
+
+
+def imu_units_wrong(warning: TrustWarning) -> bool:
+    """Whether ``warning`` says the IMU's readings are in other units: ``accel_scale``, or
+    ``gyro_axis`` at the 57.3 times of deg/s."""
+    if warning.name == "accel_scale":
+        return True
+    slope = warning.figures.get("odometry_rate_slope")
+    return (warning.name == "gyro_axis" and slope is not None
+            and abs(slope * math.degrees(1.0) - 1.0) <= ACCEL_SCALE_TOLERANCE)
+
+
+def units_first(warnings: list[TrustWarning]) -> list[TrustWarning]:
+    """``warnings`` with the :data:`IMU_MOTION_CHECKS` marked as read through an IMU in other
+    units where another warning says so (:func:`imu_units_wrong`). An independent probe's
+    gyro in deg/s was named (``gyro_axis``), and beside it ``encoder_fault`` said to check
+    the wheel encoders' wiring: a gyro 57 times too fast never looks still, so every stop
+    read as a dead encoder. Marked, not dropped: a real fault may hide under it too."""
+    units = [w.name for w in warnings if imu_units_wrong(w)]
+    if not units:
+        return warnings
+    named = list(dict.fromkeys(units))
+    said = " and ".join(named) + (" say" if len(named) > 1 else " says")
+    return [TrustWarning(w.name, w.message + f" (but this reads the IMU's motion, and {said} "
+                         "the IMU is in other units: fix that first, then look again)",
+                         w.figures)
+            if w.name in IMU_MOTION_CHECKS else w for w in warnings]
+

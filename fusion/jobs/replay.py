@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from scipy.integrate import trapezoid
 
 from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
-from fusion.evaluation.trust import TrustWarning
+from fusion.evaluation.trust import TrustWarning, units_first
 from fusion.evaluation.truth_compare import compare_with_truth
 from fusion.geometry.angles import wrap_angle
 from fusion.io.errors import LogFormatError
@@ -242,11 +242,11 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
         pipe.push_arrays(streams.imu_t, streams.gyro, streams.accel, streams.wheel_t,
                          streams.ticks, twist_t=streams.twist_t, twist_v=streams.twist_v,
                          twist_w=streams.twist_w)
-        warnings = [*checked, *with_mount_estimate(pipeline_warnings(pipe), robot, streams),
-                    *gyro_axes_warnings(streams, robot),
-                    *stillness_warnings(streams, robot, pipe.finish_stats().zupts),
-                    *speed_scale_warnings(streams, robot),
-                    *wheel_count_warnings(streams, robot)]
+        warnings = units_first([
+            *checked, *with_mount_estimate(pipeline_warnings(pipe), robot, streams),
+            *gyro_axes_warnings(streams, robot),
+            *stillness_warnings(streams, robot, pipe.finish_stats().zupts),
+            *speed_scale_warnings(streams, robot), *wheel_count_warnings(streams, robot)])
         write_status(pipe, status_record(pipe, warnings))
     table = fused_table(pipe.state_rows, robot.chassis.speed_ratio
                          / robot.chassis.encode_sampling_time)
