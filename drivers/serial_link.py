@@ -45,6 +45,17 @@ import serial
 from drivers.chassis import FrameStamper, WheelFrameParser, encode_wheel_frame
 from fusion.types.samples import WheelTicks
 
+try:  # POSIX: pyserial's flush (tcdrain) raises termios.error, no OSError, on a dead port
+    from termios import error as _TermiosError
+except ImportError:  # Windows
+    class _TermiosError(Exception):  # type: ignore[no-redef]
+        """Never raised: no termios here."""
+
+#: What a port that went away raises (an independent probe's pty closed and reopened: the
+#: stop frame written at shutdown raised termios.error from tcdrain and ended the run with a
+#: traceback).
+PORT_ERRORS = (serial.SerialException, OSError, _TermiosError)
+
 __all__ = ["ChassisLink", "LinkEvent"]
 
 
@@ -249,7 +260,7 @@ class ChassisLink:
             try:
                 port.write(frame)
                 port.flush()
-            except (serial.SerialException, OSError) as exc:
+            except PORT_ERRORS as exc:
                 self._emit("write_failed", f"write to {self.url} failed: {exc}")
                 return False
         return True
@@ -365,7 +376,7 @@ class ChassisLink:
                 data = port.read(1)
                 if data and port.in_waiting:
                     data += port.read(port.in_waiting)
-            except (serial.SerialException, OSError, TypeError, AttributeError) as exc:
+            except (*PORT_ERRORS, TypeError, AttributeError) as exc:
                 # TypeError/AttributeError: pyserial racing a concurrent close()
                 if self._stop.is_set():
                     break

@@ -295,3 +295,24 @@ def test_cli_output_in_a_missing_folder_is_named(tmp_path: Path, capsys) -> None
     assert main(["chassis", "decode", str(cap), "-o", str(target)]) == 2
     err = capsys.readouterr().err
     assert f"{target}: cannot write it" in err and ".partial" not in err
+
+
+def test_a_device_or_fifo_is_refused_not_replaced(tmp_path: Path, capsys) -> None:
+    # an independent probe's `fusion run --publish csv:/dev/full` replaced the machine's
+    # /dev/full with a regular file (the output is renamed over its path)
+    from fusion.cli import main
+    from fusion.io.atomic import check_target
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    for open_it in (lambda: AtomicFile(fifo, "w"), lambda: create_temp_file(fifo),
+                    lambda: check_target(fifo), lambda: AtomicDirectory(fifo)):
+        with pytest.raises(FileExistsError, match="pipe: is a FIFO; .* would replace it"):
+            open_it()
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and _names(tmp_path) == ["pipe"]
+    with pytest.raises(FileExistsError, match="/dev/null: is a character device"):
+        check_target("/dev/null")
+    # the live command refuses it before the robot moves
+    assert main(["run", "--publish", f"csv:{fifo}", "--duration", "1"]) == 2
+    assert f"{fifo}: is a FIFO" in capsys.readouterr().err
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode)

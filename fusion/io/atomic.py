@@ -59,15 +59,36 @@ def check_target(path: str | Path, *, overwrite: bool = True, folder_ok: bool = 
         raise PermissionError(f"{path}: cannot write it, the folder {folder} is not writable")
     if path.is_dir() and not folder_ok:
         raise IsADirectoryError(f"{path}: is a folder, not a file path")
+    _refuse_special(path)
     if not overwrite and (path.exists() or path.is_symlink()):
         raise FileExistsError(f"{path}: exists; choose another path or allow overwriting")
     return path
 
 
+def _refuse_special(path: Path) -> None:
+    """Raise FileExistsError when ``path`` exists and is neither a regular file nor a folder
+    (a device, a FIFO, a socket): the output would be renamed over it. An independent probe's
+    ``csv:/dev/full`` replaced the machine's /dev/full with a regular file; as root,
+    ``csv:/dev/null`` would have replaced /dev/null."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return  # absent (or a dangling link): a new file
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        kind = ("a character device" if stat.S_ISCHR(mode) else "a block device"
+                if stat.S_ISBLK(mode) else "a FIFO" if stat.S_ISFIFO(mode) else "a socket"
+                if stat.S_ISSOCK(mode) else "not a regular file")
+        raise FileExistsError(f"{path}: is {kind}; an output is written next to its path and "
+                              "renamed over it, which would replace it: give a file path "
+                              "(for standard output: jsonl with no path)")
+
+
 def create_temp_file(path: str | Path) -> Path:
     """Create a fresh empty file next to ``path`` (``.<name>.<random>.partial``, O_EXCL) with
     the permissions an ordinary ``open(path, "w")`` would give a new file (0666 minus the
-    umask), and return its name; the caller renames or removes it."""
+    umask), and return its name; the caller renames or removes it. FileExistsError when
+    ``path`` is a device, a FIFO or a socket (:func:`_refuse_special`)."""
+    _refuse_special(Path(path))
     fd, name = _create_temp(Path(path))
     os.close(fd)
     return name
