@@ -104,6 +104,16 @@ def test_run_with_an_explicit_simulated_imu_on_a_real_chassis_is_refused(tmp_pat
     assert r.returncode == 2 and "--imu sim needs --chassis sim" in r.stderr
 
 
+def test_run_on_a_real_chassis_with_a_config_without_its_geometry_is_refused(tmp_path) -> None:
+    # an independent probe's config with only [link] ran a real port on the simulated robot's
+    # geometry; without --config the same command is refused for that
+    cfg = tmp_path / "run.toml"
+    cfg.write_text("[link]\nbaudrate = 115200\n")
+    r = fusion("run", "--config", str(cfg), "--chassis", "/dev/ttyUSB0", cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert f"{cfg}: has no [chassis] table" in r.stderr and "made-up geometry" in r.stderr
+
+
 def test_a_bad_robot_toml_is_named_with_its_line(tmp_path: Path) -> None:
     from fusion.io.errors import LogFormatError
     from fusion.io.robot_toml import read_robot_toml

@@ -178,6 +178,15 @@ def test_every_fusion_run_option_can_come_from_the_file():
         ("[chassis]\nwheel_distance = 0.3\nencode_sampling_time = 0.04\n", 1,
          ["[chassis] needs speed_ratio"]),
         ("[frames]\nodom = 'odom'\n", 1, ["need a [chassis] table"]),
+        # values 1000 times off (an independent probe: mm and ms ran, the odometry 1000 x off)
+        ("[chassis]\nwheel_distance = 300\nspeed_ratio = 5e-5\nencode_sampling_time = 0.04\n",
+         2, ["[chassis] wheel_distance = 300 m is outside 0.02-10 m", "looks like mm: 0.3 m"]),
+        ("[chassis]\nwheel_distance = 0.3\nspeed_ratio = 5e-5\nencode_sampling_time = 40\n",
+         4, ["encode_sampling_time = 40 s is outside", "looks like ms: 0.04 s"]),
+        ("[chassis]\nwheel_distance = 0.3\nspeed_ratio = 0.5\nencode_sampling_time = 0.04\n",
+         3, ["speed_ratio = 0.5 m/tick is outside", "looks like mm per tick: 0.0005 m/tick"]),
+        ("[chassis]\nwheel_distance = 0.003\nspeed_ratio = 5e-5\nencode_sampling_time = 0.04\n",
+         2, ["wheel_distance = 0.003 m is outside 0.02-10 m, no wheeled robot's"]),
     ],
 )
 def test_bad_content_names_file_line_and_key(tmp_path, text, line, words):

@@ -132,6 +132,13 @@ def _config(args: argparse.Namespace):
                            "robot.toml with its [chassis] table (wheel_distance, speed_ratio, "
                            "encode_sampling_time), or the odometry would use made-up "
                            "geometry")
+    if cfg.chassis not in ("sim", "none") and not cfg.chassis_given:
+        # an independent probe's config with only [link] ran a real port on the simulated
+        # robot's geometry, which the same command without --config refuses
+        raise CommandError(f"{args.config}: has no [chassis] table (wheel_distance, "
+                           f"speed_ratio, encode_sampling_time), and --chassis {cfg.chassis} "
+                           "is a real robot: without it the odometry would use made-up "
+                           "geometry")
     if cfg.imu == "sim" and cfg.chassis != "sim":
         raise CommandError("--imu sim needs --chassis sim (the simulated IMU moves with the "
                            "simulated chassis)")

@@ -116,6 +116,17 @@ def read_robot_toml(path: str | Path) -> RobotConfig:
     return robot_config_from_tables(path, doc, text)
 
 
+#: [chassis] key -> (least, largest plausible value, SI unit, the unit 1000 times smaller):
+#: an independent probe's wheel_distance = 300 (mm) and encode_sampling_time = 40 (ms) ran
+#: without a word, the odometry 1000 times off. Wide on purpose: a toy robot's 2 cm track, a
+#: tractor's 10 m; a 1 ms to a 1 s frame period; 0.1 um to 10 cm of travel per tick.
+PLAUSIBLE_CHASSIS = {
+    "wheel_distance": (0.02, 10.0, "m", "mm"),
+    "encode_sampling_time": (0.001, 1.0, "s", "ms"),
+    "speed_ratio": (1e-7, 0.1, "m/tick", "mm per tick"),
+}
+
+
 def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
                              text: str = "") -> RobotConfig:
     """:class:`RobotConfig` from the ``[chassis]``, ``[frames]``, ``[ekf]`` and ``[attitude]``
@@ -143,6 +154,14 @@ def robot_config_from_tables(path: str | Path, doc: dict[str, Any],
         if key not in chassis:
             raise LogFormatError(f"{at('chassis')}: [chassis] needs {key}")
     values = {k: _number(at("chassis", k), "chassis", k, v) for k, v in chassis.items()}
+    for key, (low, high, unit, smaller) in PLAUSIBLE_CHASSIS.items():
+        value = values[key]
+        if value > 0 and not low <= value <= high:
+            hint = (f"; {value:g} looks like {smaller}: {value / 1000:g} {unit}"
+                    if value > high else "")
+            raise LogFormatError(f"{at('chassis', key)}: [chassis] {key} = {value:g} {unit} "
+                                 f"is outside {low:g}-{high:g} {unit}, no wheeled robot's"
+                                 f"{hint}")
     try:
         params = DiffDriveParams(**values)
     except ValueError as exc:

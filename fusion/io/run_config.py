@@ -127,6 +127,9 @@ class RunConfig:
             (simulated chassis); status: s between status lines, 0 none; strict: exit
             with an error status when the trust checks fail (:mod:`fusion.evaluation.trust`).
         source: the file this came from, or None.
+        chassis_given: whether the file has a ``[chassis]`` table (else :attr:`robot` has
+            the simulated robot's geometry, :data:`DEMO_ROBOT`, which a real port must not
+            take).
 
     Raises:
         ConfigError: a field that the file's checks (:data:`SCHEMA`) refuse (NaN, infinite,
@@ -158,6 +161,7 @@ class RunConfig:
     speed: float = 1.0
     status: float = 10.0
     strict: bool = False
+    chassis_given: bool = False
     source: Path | None = None
 
     def __post_init__(self) -> None:
@@ -365,7 +369,8 @@ def parse_config(doc: dict[str, Any], path: str | Path = "<config>", text: str =
             raise ConfigError(str(exc)) from None
     else:
         robot = RunConfig().robot
-    values: dict[str, Any] = {"robot": robot, "source": path}
+    values: dict[str, Any] = {"robot": robot, "source": path,
+                              "chassis_given": "chassis" in doc}
     topics = dict(RunConfig().topics)
     for table, spec in SCHEMA.items():
         for key, value in doc.get(table, {}).items():
