@@ -152,6 +152,8 @@ class ChassisLink:
         self._target_time: float | None = None
         self._stale_sent = False
         self._last_frame_time: float | None = None
+        self._opened_time: float | None = None
+        self._bytes_at_last_frame = 0
         self._silent = False
         self._ever_connected = False
         self._stamper = FrameStamper(self.parser, baudrate=self.baudrate, period=self.period)
@@ -299,6 +301,8 @@ class ChassisLink:
             self._port = port
         self.parser = self._parser_factory()
         self._stamper = FrameStamper(self.parser, baudrate=self.baudrate, period=self.period)
+        self._opened_time = self._clock()
+        self._bytes_at_last_frame = 0
         if self._ever_connected:
             self.reconnects += 1
         self._ever_connected = True
@@ -331,6 +335,7 @@ class ChassisLink:
             sample = WheelTicks(t, int(lft), int(rgt))
             self.frames_received += 1
             self._last_frame_time = sample.t
+            self._bytes_at_last_frame = self.parser.stats.bytes_in
             if self._queue_size:
                 if self._frames.full():
                     with contextlib.suppress(queue.Empty):
@@ -346,9 +351,14 @@ class ChassisLink:
     def _housekeeping(self, now: float) -> None:
         # liveness
         ref = self._last_frame_time
+        if ref is None or (self._opened_time is not None and self._opened_time > ref):
+            ref = self._opened_time  # none yet on this connection: silent since it opened
         if ref is not None and not self._silent and now - ref > self.silence_periods * self.period:
             self._silent = True
-            self._emit("silent", f"no frame from {self.url} for {now - ref:.3f} s")
+            since = ("since it opened" if self._last_frame_time is None
+                     or self._last_frame_time < ref else "")
+            self._emit("silent", f"no frame from {self.url} for {now - ref:.3f} s"
+                       + (f" {since}" if since else "") + self._what_came())
         # a lone deferred frame on a quiet line
         self._deliver(self._stamper.poll(now))
         # stale command
@@ -364,6 +374,26 @@ class ChassisLink:
                 "command_stale",
                 f"no wheel target for {self.command_timeout} s: sent stop to {self.url}",
             )
+
+    def _what_came(self) -> str:
+        """What the port delivered since the last frame, for a ``"silent"`` event: nothing,
+        or bytes that are no DATA-uart2 frame (an independent probe's wrong-baud-rate
+        garbage, sign bytes of 2 and 5,000,000-tick frames had all gone unsaid)."""
+        st = self.parser.stats
+        got = st.bytes_in - self._bytes_at_last_frame
+        if got <= 0:
+            return ": nothing received (check the wiring and that the board is on)"
+        parts = []
+        if st.implausible:
+            parts.append(f"{st.implausible} checksum-valid frames refused as implausible "
+                         f"(more than {self.parser.max_ticks} ticks per period, or a sign "
+                         "byte other than 0 or 1)")
+        if st.checksum_failures:
+            parts.append(f"{st.checksum_failures} failed the checksum")
+        detail = "; ".join(parts) if parts else "no frame header FF FF with a valid checksum"
+        return (f": {got} bytes received, none a frame ({detail} on this connection): the "
+                "wrong --baudrate, another protocol on this port, or a board sending other "
+                "frames")
 
     def _run(self) -> None:
         while not self._stop.is_set():

@@ -244,3 +244,33 @@ def test_callback_only_and_bounded_queue(pty_pair):
         assert wait_for(lambda: link.frames_received == 5)
         assert [w.left for w in link.drain()] == [2, 3, 4]  # the oldest were dropped
         assert link.frames_dropped == 2
+
+
+def _seed_frame(sig1: int, val1: int, sig2: int, val2: int) -> bytes:
+    """A DATA-uart2 frame built from the seed's table (FF FF, sign byte, 24-bit big-endian
+    value, twice; checksum: the low byte of the sum of bytes 0-9), not by the driver."""
+    body = bytes([0xFF, 0xFF, sig1, *val1.to_bytes(3, "big"), sig2, *val2.to_bytes(3, "big")])
+    return body + bytes([sum(body) & 0xFF])
+
+
+@pytest.mark.parametrize(("sent", "said"), [
+    # nothing at all: a port that opens with no board behind it
+    (b"", "since it opened: nothing received"),
+    # what a wrong baud rate delivers: bytes that never make a frame
+    (bytes(range(7, 250, 3)) * 2, "bytes received, none a frame (no frame header"),
+    # sign bytes of 2 (the seed's host takes any non-zero as +; the firmware sends 0/1)
+    (_seed_frame(2, 10, 2, 10) * 6, "6 checksum-valid frames refused as implausible"),
+    # checksum-valid frames far beyond any wheel: 5,000,000 ticks per period
+    (_seed_frame(1, 5_000_000, 1, 5_000_000) * 6, "refused as implausible (more than"),
+])
+def test_a_port_that_gives_no_frame_is_said_and_what_it_gave(pty_pair, sent, said):
+    # an independent probe: all four ran fusion run to the end with "0 frames" and no word
+    # 0.5 s of silence: the bytes written at once are read well before it (a loaded machine)
+    with ChassisLink(pty_pair.link_path, period=0.02, silence_periods=25,
+                     command_timeout=None) as link:
+        if sent:
+            pty_pair.write(sent)
+        assert wait_for(lambda: "silent" in kinds(link))
+        (event,) = [e for e in link.events if e.kind == "silent"]
+        assert said in event.message, event.message
+        assert link.get(0.1) is None
