@@ -14,8 +14,12 @@ frames and stamps.
 
 Robustness (a robot runs for hours):
 
-- **Liveness**: no frame for ``silence_periods`` sampling periods raises a ``"silent"`` event;
-  the next frame raises ``"alive"``.
+- **Liveness**: no frame for ``silence_periods`` sampling periods (since the last frame, or
+  since the port opened) raises a ``"silent"`` event saying what came instead (nothing, or
+  bytes that make no frame); the next frame raises ``"alive"``.
+- **Frame period**: frames arriving on average more than :data:`PERIOD_TOLERANCE` off
+  ``period`` over the first :data:`PERIOD_CHECK_SPAN` s of a connection raise ``"period"``
+  once: the ticks of a frame are per the board's period, and the host divides by ``period``.
 - **Stale commands**: when no wheel target has been sent for ``command_timeout`` s and the last
   target was not zero, the link sends a stop frame (0, 0) and raises ``"command_stale"``; the
   firmware would otherwise keep driving at the last target for ever.
@@ -55,6 +59,13 @@ except ImportError:  # Windows
 #: stop frame written at shutdown raised termios.error from tcdrain and ended the run with a
 #: traceback).
 PORT_ERRORS = (serial.SerialException, OSError, _TermiosError)
+#: s of frames over which a connection's frame period is measured (after its first read,
+#: which may bring a backlog).
+PERIOD_CHECK_SPAN = 2.0
+#: Share of ``period`` the measured frame period may be off before ``"period"`` is raised (an
+#: independent probe's board at 20 and 80 ms against 40 configured: speeds read at half and
+#: twice, nothing said).
+PERIOD_TOLERANCE = 0.25
 
 __all__ = ["ChassisLink", "LinkEvent"]
 
@@ -154,6 +165,8 @@ class ChassisLink:
         self._last_frame_time: float | None = None
         self._opened_time: float | None = None
         self._bytes_at_last_frame = 0
+        self._period_window: tuple[float, int] | None = None
+        self._period_checked = False
         self._silent = False
         self._ever_connected = False
         self._stamper = FrameStamper(self.parser, baudrate=self.baudrate, period=self.period)
@@ -303,6 +316,8 @@ class ChassisLink:
         self._stamper = FrameStamper(self.parser, baudrate=self.baudrate, period=self.period)
         self._opened_time = self._clock()
         self._bytes_at_last_frame = 0
+        self._period_window: tuple[float, int] | None = None
+        self._period_checked = False
         if self._ever_connected:
             self.reconnects += 1
         self._ever_connected = True
@@ -347,6 +362,32 @@ class ChassisLink:
         if t_arr.size and self._silent:
             self._silent = False
             self._emit("alive", f"frames from {self.url} again")
+        if t_arr.size:
+            self._check_period(self._clock())
+
+    def _check_period(self, now: float) -> None:
+        """Raise ``"period"`` once per connection when its frames come on average more than
+        :data:`PERIOD_TOLERANCE` off ``period`` apart (module docstring)."""
+        if self._period_checked:
+            return
+        if self._period_window is None:
+            self._period_window = (now, self.frames_received)
+            return
+        start, first = self._period_window
+        if now - start < PERIOD_CHECK_SPAN:
+            return
+        self._period_checked = True
+        measured = (now - start) / max(self.frames_received - first, 1)
+        if abs(measured / self.period - 1.0) > PERIOD_TOLERANCE:
+            lost = self.parser.stats.checksum_failures + self.parser.stats.resyncs
+            self._emit("period", f"frames from {self.url} come every {measured:.3f} s on "
+                       f"average, the configured period (encode_sampling_time) is "
+                       f"{self.period:g} s: a frame's ticks are counted over the board's "
+                       f"period and divided by the configured one, so speeds read "
+                       f"{measured / self.period:.2g} times their true value"
+                       + (f" ({lost} frames were broken or skipped: lost frames lengthen "
+                          "it too)" if lost else
+                          "; set encode_sampling_time to the board's period"))
 
     def _housekeeping(self, now: float) -> None:
         # liveness

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import os
+import re
 import select
 import time
 import tty
@@ -274,3 +275,25 @@ def test_a_port_that_gives_no_frame_is_said_and_what_it_gave(pty_pair, sent, sai
         (event,) = [e for e in link.events if e.kind == "silent"]
         assert said in event.message, event.message
         assert link.get(0.1) is None
+
+
+@pytest.mark.parametrize(("every", "factor"), [(0.02, 0.5), (0.08, 2.0), (0.04, None)])
+def test_frames_at_another_period_than_configured_are_said(pty_pair, every, factor):
+    # an independent probe's board at 20 and 80 ms against 40 configured: the speeds were read
+    # at half and at twice their value, and nothing said so
+    with ChassisLink(pty_pair.link_path, period=0.04, silence_periods=50,
+                     command_timeout=None) as link:
+        start = time.monotonic()
+        for k in itertools.count():  # on a schedule: late writes do not add up
+            if time.monotonic() - start > 2.5:
+                break
+            pty_pair.write(_seed_frame(1, 10, 1, 10))
+            time.sleep(max(0.0, start + (k + 1) * every - time.monotonic()))
+        said = [e.message for e in link.events if e.kind == "period"]
+    if factor is None:
+        assert said == []
+    else:
+        (text,) = said
+        # the reads' timing jitters: the period is measured, not assumed
+        read = float(re.search(r"speeds read (\S+) times their true value", text).group(1))
+        assert read == pytest.approx(factor, rel=0.2), text
