@@ -311,7 +311,8 @@ def test_fused_mcap_output_reads_back_as_odometry(tmp_path) -> None:
         cov = np.diag([0.01 * (k + 1), 0.02, 99999, 99999, 99999, 0.003])
         cov[0, 5] = cov[5, 0] = 0.0001 * k
         recs.append(FusedOdometry(t=3.0 + 0.04 * k, x=0.1 * k, y=0.02 * k, yaw=3.0 - 0.5 * k,
-                                  v=0.25, w=-0.5, pose_covariance=cov))
+                                  v=0.25, w=-0.5, pose_covariance=cov,
+                                  linear_acceleration=[0.0, 0.0, 9.81]))
     out = tmp_path / "fused.mcap"
     with McapSink(out) as sink:
         for r in recs:
@@ -328,6 +329,7 @@ def test_fused_mcap_output_reads_back_as_odometry(tmp_path) -> None:
                                   recs[3].pose_covariance)
     imu = read_bag_imu(out, "/imu/data")
     assert imu.orientation is None  # the records had no attitude: covariance[0] = -1
+    # (an accelerometer, so an IMU; records with no IMU sample publish no /imu/data)
     assert imu.frame_id == "base_footprint"
 
 

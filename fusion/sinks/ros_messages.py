@@ -103,10 +103,13 @@ def ros_messages(
             "child_frame_id": record.child_frame_id,
             "transform": {"translation": position, "rotation": yaw_q},
         }]}))
-    if topics.imu:
+    has_q = record.orientation is not None
+    has_a = record.linear_acceleration is not None
+    # no IMU sample behind the record (wheels only, or none yet): no sensor_msgs/Imu, whose
+    # angular_velocity would be the wheels' yaw rate passed off as a gyro's (an independent
+    # probe's --imu none run published 0.4 rad/s on /imu/data)
+    if topics.imu and (has_q or has_a):
         unknown = [-1.0] + [0.0] * 8  # sensor_msgs/Imu: element 0 = -1 means "not provided"
-        has_q = record.orientation is not None
-        has_a = record.linear_acceleration is not None
         out.append(("imu", topics.imu, MESSAGE_TYPES["imu"], {
             "header": {"stamp": ns, "frame_id": record.imu_frame_id},
             "orientation": _quat(record.orientation if has_q else [0.0, 0.0, 0.0, 0.0]),
