@@ -58,8 +58,9 @@ def test_an_encode_sampling_time_in_ms_is_refused_with_the_value_in_s(log, tmp_p
     toml.write_text(text)
     assert main(["replay", str(bad), "-o", str(tmp_path / "out.csv")]) == 2
     err = capsys.readouterr().err
-    assert "cannot come faster than one a period" in err
-    assert f"in ms it would fit: encode_sampling_time = {period:g}" in err
+    # robot.toml's own range refuses it first, at its line (no wheeled robot's period is 40 s)
+    assert f"{toml}:5: [chassis] encode_sampling_time = {period * 1e3:g} s is outside" in err
+    assert f"looks like ms: {period:g} s" in err
     assert not (tmp_path / "out.csv").exists()
 
 
