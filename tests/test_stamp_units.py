@@ -64,6 +64,14 @@ def test_an_encode_sampling_time_in_ms_is_refused_with_the_value_in_s(log, tmp_p
     assert not (tmp_path / "out.csv").exists()
 
 
+def test_frames_faster_than_the_period_are_refused():
+    # a board at 20 ms against robot.toml's 40 (within robot.toml's own range): each frame
+    # counts 20 ms of ticks, which the filter would divide by 40
+    with pytest.raises(LogFormatError, match=r"w\.csv: the frames are 0\.02 s apart .* 0\.5 "
+                       r"times .* cannot come faster than one a period"):
+        check_wheel_stamps("w.csv", np.arange(0.0, 60.0, 0.02), 0.04)
+
+
 def test_lost_frames_and_rates_at_the_limits_pass():
     period = 0.04
     t = np.arange(0.0, 60.0, period)
