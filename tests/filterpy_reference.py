@@ -388,6 +388,8 @@ class FilterpyReference:
                 since = r.encode_sampling_time
                 if self.wheel_t is not None:
                     since = max(since, t - self.wheel_t)
+                if self.measured[3] is not None:  # or since v was last measured
+                    since = max(since, t - self.measured[3])
                 hard = abs(kf.x[3]) > n.stop_decel * since + 3 * math.sqrt(kf.P[3, 3])
                 self.wheel_t = t
                 creep = (2 * r.speed_ratio / r.encode_sampling_time if kind == WHEELS

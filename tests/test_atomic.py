@@ -307,7 +307,7 @@ def test_a_device_or_fifo_is_refused_not_replaced(tmp_path: Path, capsys) -> Non
     os.mkfifo(fifo)
     for open_it in (lambda: AtomicFile(fifo, "w"), lambda: create_temp_file(fifo),
                     lambda: check_target(fifo), lambda: AtomicDirectory(fifo)):
-        with pytest.raises(FileExistsError, match="pipe: is a FIFO; .* would replace it"):
+        with pytest.raises(FileExistsError, match=r"pipe: is a FIFO; .* would replace it"):
             open_it()
     assert stat.S_ISFIFO(os.stat(fifo).st_mode) and _names(tmp_path) == ["pipe"]
     with pytest.raises(FileExistsError, match="/dev/null: is a character device"):

@@ -234,7 +234,9 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
         out.append(TrustWarning(
             "encoder_fault",
             f"{100 * faults / frames:.1f} % of the {frames} odometry frames read zero speed "
-            "while the IMU showed motion (not fused: the pose coasted on the motion model); "
+            + ("while the IMU showed motion" if int(stats.get("imu_samples", 0)) else
+               "from a speed no braking within stop_decel could have ended (there is no IMU)")
+            + " (not fused: the pose coasted on the motion model); "
             f"more than {100 * ENCODER_FAULT_LIMIT:.0f} % means the odometry is missing, not "
             "faulty: check the wheel encoders and their wiring, or the odometry topic (a "
             "driver whose twist stays zero)",

@@ -1063,10 +1063,18 @@ def _relearn_bias_at_stop(x, P, aux, par, imu_still):
 @njit
 def _impossible_stop(x, P, aux, par, t):
     """True when zero wheel speed at ``t`` needs a harder braking than ``stop_decel`` since
-    the last wheel frame (three standard deviations of v allowed on top)."""
+    the last wheel frame, or since v was last measured (three standard deviations of v
+    allowed on top). The latter ends a run of zero frames that no IMU calls motion (none, or
+    one that cannot tell): once braking from the last measured speed since then fits
+    ``stop_decel``, they are a stop. Judged over each frame's own period alone, an
+    independent probe's wheels-only robot stopping from 0.3 m/s within one frame coasted on
+    for 1.8 s (0.53 m), until v's own variance grew to cover it. (An IMU that shows motion
+    keeps v measured at every such frame: for it nothing changes.)"""
     dt = par[P_PERIOD]
     if not math.isnan(aux[A_WHEEL_T]) and t - aux[A_WHEEL_T] > dt:
         dt = t - aux[A_WHEEL_T]
+    if not math.isnan(aux[A_V_T]) and t - aux[A_V_T] > dt:
+        dt = t - aux[A_V_T]
     return abs(x[3]) > par[P_STOP_DECEL] * dt + 3.0 * math.sqrt(P[3, 3])
 
 
