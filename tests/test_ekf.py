@@ -185,6 +185,27 @@ def test_core_equals_filterpy_coasting_through_an_encoder_fault(short_run):
     assert dead.sum() >= 45
 
 
+def test_a_hard_stop_without_an_imu_is_a_stop_once_braking_fits():
+    # wheels only, 0.3 m/s straight, then zero ticks from one 40 ms frame to the next: harder
+    # than stop_decel (3 m/s^2) allows, so the first zero frames are encoder faults; from
+    # 0.1 s after the last moving frame (0.3 / 3) braking fits and they are a stop. An
+    # independent probe's such run had coasted on 1.8 s (0.53 m): each frame was judged over
+    # its own period until v's variance covered the speed.
+    period = ROBOT.encode_sampling_time
+    wheel_t = np.arange(1, 151) * period
+    per_frame = round(0.3 * period / ROBOT.speed_ratio)  # 120 ticks
+    ticks = np.where((wheel_t <= 3.0)[:, None], per_frame, 0).astype(np.int64) * np.ones(
+        (1, 2), dtype=np.int64)
+    kinds, t, a, b, _ = merge_events(np.empty(0), np.empty(0), wheel_t, ticks, period)
+    fast, _, status = _core_and_reference(EkfNoise(), kinds, t, a, b)
+    faults = int((status == 7).sum())
+    # 0.1 s of braking is 2.5 frames; v's 3 standard deviations may end it a frame earlier
+    assert 1 <= faults <= 3, faults
+    assert fast.stats["zupts"] > 30
+    travelled = ticks[:, 0].sum() * ROBOT.speed_ratio
+    assert fast.x[0] == pytest.approx(travelled, abs=0.3 * period * (faults + 1)), fast.x[0]
+
+
 def _central_difference(f, x, step=1e-6):
     """d f / d x (m, n) by central differences, the step relative to each component."""
     cols = []
