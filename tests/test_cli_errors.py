@@ -98,3 +98,32 @@ def test_every_sinks_close_error_is_reported():
     assert fine.closed  # the others are closed all the same
     assert [s.name for s, _ in info.value.errors] == ["a", "b"]
     assert is_user_error(info.value)  # disk full: one line, naming both
+
+
+def test_a_full_disk_is_one_line_naming_the_output(tmp_path):
+    # a real write error with no file name (the kernel's EFBIG at a file-size limit, as ENOSPC
+    # at a full disk): an independent probe's full disk printed three tracebacks and a final
+    # "error: [Errno 28] No space left on device" naming no file
+    import os
+    import subprocess
+    import sys
+    import textwrap
+
+    out = tmp_path / "fused.csv"
+    script = textwrap.dedent(f"""
+        import resource, signal, sys
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # the write fails with EFBIG instead
+        resource.setrlimit(resource.RLIMIT_FSIZE, (20_000, 20_000))
+        from fusion.cli import main
+        sys.exit(main(["run", "--duration", "30", "--speed", "10", "--status", "0",
+                       "--publish", "csv:{out}"]))
+    """)
+    # interpreted: no compiled core to cache (its files would hit the limit on a cold cache)
+    env = {**os.environ, "FUSION_DISABLE_JIT": "1"}
+    r = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                       timeout=300, env=env)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr, r.stderr
+    assert f"sink CsvSink('{out}') failed: [Errno 27] File too large; the others go on" \
+        in r.stderr, r.stderr
+    assert f"error: [Errno 27] File too large: '{out}'" in r.stderr, r.stderr

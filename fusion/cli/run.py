@@ -410,6 +410,11 @@ def _sink_failed(sink, exc: BaseException, text: str, err) -> None:
     head``) is no error to report: the run ends quietly (exit status 1)."""
     if isinstance(exc, BrokenPipeError):
         return
+    if isinstance(exc, OSError):
+        # the machine's, not the code's (a full disk, a lost mount): the error names it, a
+        # traceback would only bury it (an independent probe's full disk printed three)
+        err(f"sink {sink!r} failed: {exc}; the others go on")
+        return
     err(f"sink {sink!r} failed; the others go on:\n{text}")
 
 

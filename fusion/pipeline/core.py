@@ -565,7 +565,12 @@ class FusionPipeline(Lifecycle):
             except Exception as exc:  # close every sink, then report
                 errors.append((sink, exc))
         if len(errors) == 1:
-            raise errors[0][1]
+            sink, exc = errors[0]
+            path = getattr(sink, "path", None)
+            if isinstance(exc, OSError) and exc.errno and exc.filename is None and path:
+                # a full disk's flush names no file: the user's output path is the one
+                raise type(exc)(exc.errno, exc.strerror, str(path)) from exc
+            raise exc
         if errors:
             raise SinkFailures(errors) from errors[0][1]
 
