@@ -192,6 +192,33 @@ def test_single_lost_wheel_frames_are_counted_and_stamp_jitter_is_not():
     assert s.gap_count == 1 and s.gaps[0].missing == 5  # k = 300 .. 304
 
 
+@pytest.mark.parametrize("case", ["late", "drift", "backlog"])
+def test_frames_that_all_came_count_none_missing(case):
+    # every frame arrives, but not on the period's grid: each 4th one 1.25 periods late (an
+    # independent probe's frames split in two writes 50 ms apart: 80 counted missing), a
+    # firmware clock 0.1 % slow over 2000 frames, or a host that stalls for 10 periods and
+    # then reads the backlog in one burst, 1 ms apart
+    T = EXAMPLE_ROBOT.encode_sampling_time
+    k = np.arange(1, 2002, dtype=float)  # the last on time (a late last one looks lost)
+    if case == "late":  # a serial stream keeps order: the next frame queues behind it
+        stamps = np.maximum.accumulate(k * T + np.where(k % 4 == 0, 1.25 * T, 0.0))
+        stamps += 0.001 * (np.diff(stamps, prepend=0.0) == 0.0)
+    elif case == "drift":
+        stamps = k * T * 1.001
+    else:
+        stamps = k * T
+        stall = (k > 500) & (k <= 510)
+        stamps[stall] = 510 * T + 0.001 * (k[stall] - 500)
+    g, a = np.zeros(3), np.array([0.0, 0.0, 9.80665])
+    with FusionPipeline(RobotConfig(chassis=EXAMPLE_ROBOT)) as pipe:
+        for t in stamps:
+            pipe.push(ImuSample(float(t) - 0.001, g, a))
+            pipe.push(WheelTicks(float(t), 0, 0))
+    s = pipe.finish_stats()
+    assert s.wheel_frames == k.size
+    assert s.frames_missing == 0
+
+
 def test_out_of_order_inputs_are_dropped_and_counted_and_gaps_reported():
     robot = RobotConfig(chassis=EXAMPLE_ROBOT)
     recs = []
