@@ -253,8 +253,8 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
             f"{invalid} of the {inputs} inputs (IMU samples and odometry frames) were refused "
             "as implausible or not finite (a rate above max_rate, a speed above max_speed; "
             f"more than {100 * IMPLAUSIBLE_LIMIT:.0f} % is a stream in other units, e.g. "
-            "speeds in cm/s, not a corrupt value now and then): the rest of that stream was "
-            "fused as it reads",
+            "speeds in cm/s, or a corrupt one, not a corrupt value now and then): the rest "
+            "of that stream was fused as it reads, values short of those limits included",
             {"invalid": float(invalid), "inputs": float(inputs)}))
     gyro_time = float(stats.get("gyro_time", 0.0))
     if gyro_bias is None or not gyro_time > 0:
