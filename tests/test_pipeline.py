@@ -192,12 +192,12 @@ def test_single_lost_wheel_frames_are_counted_and_stamp_jitter_is_not():
     assert s.gap_count == 1 and s.gaps[0].missing == 5  # k = 300 .. 304
 
 
-@pytest.mark.parametrize("case", ["late", "drift", "backlog"])
+@pytest.mark.parametrize("case", ["late", "drift", "slow", "backlog"])
 def test_frames_that_all_came_count_none_missing(case):
     # every frame arrives, but not on the period's grid: each 4th one 1.25 periods late (an
     # independent probe's frames split in two writes 50 ms apart: 80 counted missing), a
-    # firmware clock 0.1 % slow over 2000 frames, or a host that stalls for 10 periods and
-    # then reads the backlog in one burst, 1 ms apart
+    # firmware clock 0.1 % slow over 2000 frames, a board whose period is 10 % long, or a
+    # host that stalls for 10 periods and then reads the backlog in one burst, 1 ms apart
     T = EXAMPLE_ROBOT.encode_sampling_time
     k = np.arange(1, 2002, dtype=float)  # the last on time (a late last one looks lost)
     if case == "late":  # a serial stream keeps order: the next frame queues behind it
@@ -205,6 +205,8 @@ def test_frames_that_all_came_count_none_missing(case):
         stamps += 0.001 * (np.diff(stamps, prepend=0.0) == 0.0)
     elif case == "drift":
         stamps = k * T * 1.001
+    elif case == "slow":  # a board 10 % slower than its nominal period (a grid took 200)
+        stamps = k * T * 1.1
     else:
         stamps = k * T
         stall = (k > 500) & (k <= 510)
@@ -217,6 +219,19 @@ def test_frames_that_all_came_count_none_missing(case):
     s = pipe.finish_stats()
     assert s.wheel_frames == k.size
     assert s.frames_missing == 0
+
+
+def test_lost_frames_of_a_board_faster_than_its_nominal_period_are_counted():
+    # 3 % fast, every 10th frame lost in the second half (99): a grid that could not follow
+    # the period had counted 54 (a review)
+    T = EXAMPLE_ROBOT.encode_sampling_time
+    k = np.arange(1, 2001, dtype=float)
+    kept = ~((k > 1000) & (k % 10 == 0))
+    kept[-1] = True
+    stamps = (k * T * 0.97)[kept]
+    with FusionPipeline(RobotConfig(chassis=EXAMPLE_ROBOT), sources=("wheels",)) as pipe:
+        pipe.push_arrays(wheel_t=stamps, ticks=np.zeros((stamps.size, 2), np.int64))
+    assert pipe.finish_stats().frames_missing == int((~kept).sum()) == 99
 
 
 def test_out_of_order_inputs_are_dropped_and_counted_and_gaps_reported():
