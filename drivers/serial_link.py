@@ -14,12 +14,14 @@ frames and stamps.
 
 Robustness (a robot runs for hours):
 
-- **Liveness**: no frame for ``silence_periods`` sampling periods (since the last frame, or
-  since the port opened) raises a ``"silent"`` event saying what came instead (nothing, or
-  bytes that make no frame); the next frame raises ``"alive"``.
-- **Frame period**: frames arriving on average more than :data:`PERIOD_TOLERANCE` off
-  ``period`` over the first :data:`PERIOD_CHECK_SPAN` s of a connection raise ``"period"``
-  once: the ticks of a frame are per the board's period, and the host divides by ``period``.
+- **Liveness**: no frame for ``silence_periods`` sampling periods since the last frame (or
+  for :data:`STARTUP_SILENCE` s since the port opened) raises a ``"silent"`` event saying
+  what came instead (nothing, or bytes that make no frame); the next frame raises
+  ``"alive"``.
+- **Frame period**: frames whose median interval over the first :data:`PERIOD_CHECK_SPAN` s
+  of a connection is more than :data:`PERIOD_TOLERANCE` off ``period`` raise ``"period"``
+  once per connection: the ticks of a frame are per the board's period, and the host
+  divides by ``period``.
 - **Stale commands**: when no wheel target has been sent for ``command_timeout`` s and the last
   target was not zero, the link sends a stop frame (0, 0) and raises ``"command_stale"``; the
   firmware would otherwise keep driving at the last target for ever.
@@ -44,9 +46,10 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import numpy as np
 import serial
 
-from drivers.chassis import FrameStamper, WheelFrameParser, encode_wheel_frame
+from drivers.chassis import FRAME_LEN, FrameStamper, WheelFrameParser, encode_wheel_frame
 from fusion.types.samples import WheelTicks
 
 try:  # POSIX: pyserial's flush (tcdrain) raises termios.error, no OSError, on a dead port
@@ -62,6 +65,9 @@ PORT_ERRORS = (serial.SerialException, OSError, _TermiosError)
 #: s of frames over which a connection's frame period is measured (after its first read,
 #: which may bring a backlog).
 PERIOD_CHECK_SPAN = 2.0
+#: s a new connection may wait for its first frame before ``"silent"``: boards that reset
+#: when the port opens (a USB adapter's DTR) start sending a second or so later.
+STARTUP_SILENCE = 2.0
 #: Share of ``period`` the measured frame period may be off before ``"period"`` is raised (an
 #: independent probe's board at 20 and 80 ms against 40 configured: speeds read at half and
 #: twice, nothing said).
@@ -165,7 +171,7 @@ class ChassisLink:
         self._last_frame_time: float | None = None
         self._opened_time: float | None = None
         self._bytes_at_last_frame = 0
-        self._period_window: tuple[float, int] | None = None
+        self._period_stamps: list[float] | None = None  # frames of the period check
         self._period_checked = False
         self._silent = False
         self._ever_connected = False
@@ -316,7 +322,8 @@ class ChassisLink:
         self._stamper = FrameStamper(self.parser, baudrate=self.baudrate, period=self.period)
         self._opened_time = self._clock()
         self._bytes_at_last_frame = 0
-        self._period_window: tuple[float, int] | None = None
+        self._silent = False  # a new connection: silent again only by its own frames
+        self._period_stamps: list[float] | None = None  # frames of the period check
         self._period_checked = False
         if self._ever_connected:
             self.reconnects += 1
@@ -363,38 +370,47 @@ class ChassisLink:
             self._silent = False
             self._emit("alive", f"frames from {self.url} again")
         if t_arr.size:
-            self._check_period(self._clock())
+            self._check_period(t_arr.tolist())
 
-    def _check_period(self, now: float) -> None:
-        """Raise ``"period"`` once per connection when its frames come on average more than
-        :data:`PERIOD_TOLERANCE` off ``period`` apart (module docstring)."""
+    def _check_period(self, stamps: list[float]) -> None:
+        """Raise ``"period"`` once per connection when the median interval of its frames
+        over :data:`PERIOD_CHECK_SPAN` s (from the second read on: the first may bring a
+        backlog) is more than :data:`PERIOD_TOLERANCE` off ``period`` (module docstring).
+        The median, not the mean: a stall and the burst that follows it move it little."""
         if self._period_checked:
             return
-        if self._period_window is None:
-            self._period_window = (now, self.frames_received)
+        if self._period_stamps is None:
+            self._period_stamps = []  # after the first read
             return
-        start, first = self._period_window
-        if now - start < PERIOD_CHECK_SPAN:
+        self._period_stamps.extend(stamps)
+        window = self._period_stamps
+        if window[-1] - window[0] < PERIOD_CHECK_SPAN:
             return
         self._period_checked = True
-        measured = (now - start) / max(self.frames_received - first, 1)
-        if abs(measured / self.period - 1.0) > PERIOD_TOLERANCE:
-            lost = self.parser.stats.checksum_failures + self.parser.stats.resyncs
-            self._emit("period", f"frames from {self.url} come every {measured:.3f} s on "
-                       f"average, the configured period (encode_sampling_time) is "
-                       f"{self.period:g} s: a frame's ticks are counted over the board's "
-                       f"period and divided by the configured one, so speeds read "
-                       f"{measured / self.period:.2g} times their true value"
-                       + (f" ({lost} frames were broken or skipped: lost frames lengthen "
-                          "it too)" if lost else
-                          "; set encode_sampling_time to the board's period"))
+        measured = float(np.median(np.diff(window)))
+        if abs(measured / self.period - 1.0) <= PERIOD_TOLERANCE:
+            return
+        st = self.parser.stats
+        broken = st.checksum_failures + st.resyncs
+        self._emit("period", f"frames from {self.url} come every {measured:.3f} s (median), "
+                   f"the configured period (encode_sampling_time) is {self.period:g} s: a "
+                   "frame's ticks are counted over the board's period and divided by the "
+                   f"configured one, so speeds read {measured / self.period:.2g} times their "
+                   "true value; set encode_sampling_time to the board's period"
+                   + (f" (or {broken} frames broken or skipped on this connection were lost "
+                      "frames, which lengthen it)"
+                      if measured > self.period and broken > 0.05 * len(window) else ""))
 
     def _housekeeping(self, now: float) -> None:
         # liveness
         ref = self._last_frame_time
+        limit = self.silence_periods * self.period
         if ref is None or (self._opened_time is not None and self._opened_time > ref):
-            ref = self._opened_time  # none yet on this connection: silent since it opened
-        if ref is not None and not self._silent and now - ref > self.silence_periods * self.period:
+            # none yet on this connection: silent since it opened, after a board's start-up
+            # (many reset when the port opens)
+            ref = self._opened_time
+            limit = max(limit, STARTUP_SILENCE)
+        if ref is not None and not self._silent and now - ref > limit:
             self._silent = True
             since = ("since it opened" if self._last_frame_time is None
                      or self._last_frame_time < ref else "")
@@ -424,6 +440,8 @@ class ChassisLink:
         got = st.bytes_in - self._bytes_at_last_frame
         if got <= 0:
             return ": nothing received (check the wiring and that the board is on)"
+        if got < FRAME_LEN and self._last_frame_time is not None:
+            return f": {got} bytes received since, a frame cut short (the board stopped)"
         parts = []
         if st.implausible:
             parts.append(f"{st.implausible} checksum-valid frames refused as implausible "

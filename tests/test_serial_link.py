@@ -297,3 +297,38 @@ def test_frames_at_another_period_than_configured_are_said(pty_pair, every, fact
         # the reads' timing jitters: the period is measured, not assumed
         read = float(re.search(r"speeds read (\S+) times their true value", text).group(1))
         assert read == pytest.approx(factor, rel=0.2), text
+
+
+def test_a_stall_at_the_start_or_a_late_board_is_no_false_alarm(pty_pair):
+    # a 0.6 s stall in the first 2 s then its backlog in one burst (a review: the mean
+    # interval had said "speeds read 1.4 times"), and a board that starts 1 s after the port
+    # opens (many reset then): no period to report, and no silence but the stall's
+    with ChassisLink(pty_pair.link_path, period=0.04, command_timeout=None) as link:
+        time.sleep(1.0)
+        start = time.monotonic()
+        for k in itertools.count():
+            now = time.monotonic() - start
+            if now > 3.0:
+                break
+            if not 0.5 <= now < 1.1:  # the stall; its frames then come at once
+                pty_pair.write(_seed_frame(1, 10, 1, 10) * (16 if 1.1 <= now < 1.14 else 1))
+            time.sleep(max(0.0, start + (k + 1) * 0.04 - time.monotonic()))
+        assert link.frames_received > 60
+        assert not [e for e in link.events if e.kind == "period"]
+        # the stall is a silence (0.6 s, 15 periods), the board's late start is not
+        (silent,) = [e.message for e in link.events if e.kind == "silent"]
+        assert "since it opened" not in silent, silent
+
+
+def test_a_reconnected_port_that_stays_mute_is_said_again(pty_pair):
+    with ChassisLink(pty_pair.link_path, period=0.02, silence_periods=5,
+                     reconnect_interval=0.05, command_timeout=None) as link:
+        pty_pair.write(_seed_frame(1, 1, 1, 1))
+        assert link.get(TIMEOUT) is not None
+        assert wait_for(lambda: "silent" in kinds(link))
+        pty_pair.vanish()
+        pty_pair.open()  # back, and mute
+        assert wait_for(lambda: kinds(link).count("connected") == 2)
+        assert wait_for(lambda: kinds(link).count("silent") == 2)
+        assert link.events[-1].message.endswith("since it opened: nothing received (check the "
+                                                "wiring and that the board is on)")
