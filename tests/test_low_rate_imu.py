@@ -17,7 +17,9 @@ the midpoint's rate (1 rad/s x 0.04 s / 8 off at a ramp's end). Over a ramp up a
 down these cancel when both ramps meet the merged grid at the same phase; 10 Hz and 0.04 s
 make a grid of period 0.2 s, which the ramps (starting at 0, 0.5, 1.5, 2 s) meet at two
 phases, so about 0.12 deg is left per turn, and since every turn starts at a multiple of 6 s
-(a whole number of periods of both streams) it is left the same way 19 times. With the turns'
+(a whole number of periods of both streams, its kinks on sample instants of both) it is left
+the same way 19 times. (Turns locked at other phases leave other amounts: -0.5 to +0.6 deg,
+a review found.) With the turns'
 starts spread over a second (any robot whose motion is not locked to its sensors' clocks) the
 residues do not add up: final errors over four motions -0.48 to +0.03 deg at 10 Hz, -0.42 to
 +0.08 at 20, -0.55 to +0.11 at 30 (the 100 Hz gyro: -0.27 to +0.14, the gyro bias and k

@@ -323,6 +323,9 @@ def test_checks_read_from_the_imus_motion_are_marked_when_its_units_are_wrong() 
     flipped = TrustWarning("gyro_axis", "flipped", {"odometry_rate_slope": -1.0})
     g_units = TrustWarning("accel_scale", "in g", {})
     assert units_first([fault, slip, flipped]) == [fault, slip, flipped]
+    # gravity removed by the driver: the accelerometer's scale may well be m/s^2
+    no_gravity = TrustWarning("accel_scale", "no gravity", {"gravity_ratio": 0.01})
+    assert units_first([fault, no_gravity]) == [fault, no_gravity]
     marked = units_first([fault, slip, deg, g_units])
     assert marked[0].message == ("zero ticks while the IMU moved (but this reads the IMU's "
                                  "motion, and gyro_axis and accel_scale say the IMU is in "

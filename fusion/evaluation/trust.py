@@ -234,7 +234,8 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
         out.append(TrustWarning(
             "encoder_fault",
             f"{100 * faults / frames:.1f} % of the {frames} odometry frames read zero speed "
-            + ("while the IMU showed motion" if int(stats.get("imu_samples", 0)) else
+            + ("while the IMU showed motion or could not rule it out"
+               if int(stats.get("imu_samples", 0)) else
                "from a speed no braking within stop_decel could have ended (there is no IMU)")
             + " (not fused: the pose coasted on the motion model); "
             f"more than {100 * ENCODER_FAULT_LIMIT:.0f} % means the odometry is missing, not "
@@ -424,11 +425,16 @@ def _mount_warning(stats: Mapping[str, Any]) -> TrustWarning | None:
 RAW_ACCEL_LSB_PER_G = {2: 16384, 4: 8192, 8: 4096, 16: 2048}
 
 
+#: An accelerometer mean below this share of standard gravity is one whose driver removed
+#: gravity (its units may well be m/s^2), not one in other units.
+NO_GRAVITY_RATIO = 0.2
+
+
 def _accel_scale_cause(ratio: float) -> str:
     """The likely cause of an accelerometer mean ``ratio`` times standard gravity."""
     if abs(ratio * STANDARD_GRAVITY - 1.0) <= ACCEL_SCALE_TOLERANCE:
         return f"a log in g: multiply by {STANDARD_GRAVITY}"
-    if ratio < 0.2:
+    if ratio < NO_GRAVITY_RATIO:
         return ("nearly no gravity: a driver that removes it, where sensor_msgs/Imu and "
                 "imu.csv take the specific force with gravity (+9.81 up at rest)")
     for g_range, lsb in RAW_ACCEL_LSB_PER_G.items():
@@ -453,10 +459,11 @@ IMU_MOTION_CHECKS = ("encoder_fault", "stillness")
 
 
 def imu_units_wrong(warning: TrustWarning) -> bool:
-    """Whether ``warning`` says the IMU's readings are in other units: ``accel_scale``, or
-    ``gyro_axis`` at the 57.3 times of deg/s."""
+    """Whether ``warning`` says the IMU's readings are in other units: ``accel_scale`` (but
+    for gravity removed by the driver, below :data:`NO_GRAVITY_RATIO`: the units may be
+    right), or ``gyro_axis`` at the 57.3 times of deg/s."""
     if warning.name == "accel_scale":
-        return True
+        return not warning.figures.get("gravity_ratio", 1.0) < NO_GRAVITY_RATIO
     slope = warning.figures.get("odometry_rate_slope")
     return (warning.name == "gyro_axis" and slope is not None
             and abs(slope * math.degrees(1.0) - 1.0) <= ACCEL_SCALE_TOLERANCE)

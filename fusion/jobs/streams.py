@@ -293,11 +293,12 @@ def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
             else:
                 silent = sum(_longest_silence(odom_t, t[g], t[g + 1]) >= JOINT_GAP
                              for g in gaps)
+                alone = (f"rested on the yaw rate of the {odometry} alone, with no gyro to "
+                         "check it for slip")
+                unmeasured = f"ran on unmeasured where the {odometry} had no sample either"
                 over = ("a CSV output has no rows (rows at IMU samples), and the heading "
-                        + (f"rested on the yaw rate of the {odometry} alone, with no gyro to check "
-                           "it for slip" if silent == 0 else
-                           f"ran on unmeasured where the {odometry} had no sample either (in "
-                           f"{silent} of them: below)"))
+                        + (alone if silent == 0 else unmeasured if silent == gaps.size
+                           else f"{alone}, and {unmeasured} (in {silent} of them)"))
             out.append(f"{name} gaps longer than {longest:g} s: {gaps.size}, "
                        f"{float(np.sum(dt[gaps])):.1f} s in all (the longest {dt[i]:.1f} s "
                        f"after {t[i]:.3f} s); over them {over}")

@@ -18,7 +18,8 @@ topic                  type                    content
                                                base_footprint)
 ``/imu/data``          sensor_msgs/Imu         attitude (if known, else orientation covariance
                                                [0] = -1), body rate rad/s, specific force m/s^2
-                                               (if known, else its covariance [0] = -1)
+                                               (if known, else its covariance [0] = -1);
+                                               only with an IMU sample behind the record
 ``/wheel_left_speed``  std_msgs/Float32        left wheel rim speed, m/s (when the record has it)
 ``/wheel_right_speed`` std_msgs/Float32        right wheel rim speed, m/s
 =====================  ======================  =================================================
