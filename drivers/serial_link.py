@@ -391,15 +391,20 @@ class ChassisLink:
         if abs(measured / self.period - 1.0) <= PERIOD_TOLERANCE:
             return
         st = self.parser.stats
-        broken = st.checksum_failures + st.resyncs
-        self._emit("period", f"frames from {self.url} come every {measured:.3f} s (median), "
-                   f"the configured period (encode_sampling_time) is {self.period:g} s: a "
-                   "frame's ticks are counted over the board's period and divided by the "
+        broken = st.checksum_failures + st.resyncs + st.implausible
+        said = (f"frames from {self.url} come every {measured:.3f} s (median), the configured "
+                f"period (encode_sampling_time) is {self.period:g} s")
+        misread = ("a frame's ticks are counted over the board's period and divided by the "
                    f"configured one, so speeds read {measured / self.period:.2g} times their "
-                   "true value; set encode_sampling_time to the board's period"
-                   + (f" (or {broken} frames broken or skipped on this connection were lost "
-                      "frames, which lengthen it)"
-                      if measured > self.period and broken > 0.05 * len(window) else ""))
+                   "true value")
+        if measured > self.period and broken > 0.05 * len(window):
+            self._emit("period", f"{said}: {broken} frames were broken, refused as "
+                       "implausible or skipped on this connection, which lengthens it; if the "
+                       f"board does send every {self.period:g} s they are the cause, if not "
+                       f"{misread}")
+        else:
+            self._emit("period", f"{said}: {misread}; set encode_sampling_time to the "
+                       "board's period")
 
     def _housekeeping(self, now: float) -> None:
         # liveness

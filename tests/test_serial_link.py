@@ -332,3 +332,19 @@ def test_a_reconnected_port_that_stays_mute_is_said_again(pty_pair):
         assert wait_for(lambda: kinds(link).count("silent") == 2)
         assert link.events[-1].message.endswith("since it opened: nothing received (check the "
                                                 "wiring and that the board is on)")
+
+
+def test_refused_frames_that_lengthen_the_period_are_named_first(pty_pair):
+    # every other frame refused (a sign byte of 2): the accepted ones come every 80 ms; an
+    # independent probe's such stream was told to change encode_sampling_time
+    with ChassisLink(pty_pair.link_path, period=0.04, silence_periods=50,
+                     command_timeout=None) as link:
+        start = time.monotonic()
+        for k in itertools.count():
+            if time.monotonic() - start > 2.5:
+                break
+            pty_pair.write(_seed_frame(1, 10, 1, 10) if k % 2 else _seed_frame(2, 10, 2, 10))
+            time.sleep(max(0.0, start + (k + 1) * 0.04 - time.monotonic()))
+        (text,) = [e.message for e in link.events if e.kind == "period"]
+    assert "frames were broken, refused as implausible or skipped on this connection" in text
+    assert "if the board does send every 0.04 s they are the cause" in text
