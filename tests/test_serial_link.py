@@ -348,3 +348,21 @@ def test_refused_frames_that_lengthen_the_period_are_named_first(pty_pair):
         (text,) = [e.message for e in link.events if e.kind == "period"]
     assert "frames were broken, refused as implausible or skipped on this connection" in text
     assert "if the board does send every 0.04 s they are the cause" in text
+
+
+def test_what_the_parser_refused_is_in_the_live_status(pty_pair):
+    # refused frames mid-run had been said nowhere but the missing count
+    from fusion.evaluation.synthetic import EXAMPLE_ROBOT
+    from fusion.pipeline import FusionPipeline
+    from fusion.pipeline.live import LiveRunner
+    from fusion.planar.robot import RobotConfig
+
+    bad_sum = bytearray(_seed_frame(1, 5, 1, 5))
+    bad_sum[-1] ^= 0x01
+    with ChassisLink(pty_pair.link_path, command_timeout=None) as link:
+        runner = LiveRunner(FusionPipeline(RobotConfig(chassis=EXAMPLE_ROBOT)), link=link)
+        pty_pair.write(_seed_frame(1, 1, 1, 1) + bytes(bad_sum) + _seed_frame(2, 9, 2, 9)
+                       + _seed_frame(1, 2, 1, 2) + _seed_frame(1, 3, 1, 3))
+        assert wait_for(lambda: link.frames_received == 3)
+        counts = runner.status()["link_parser"]
+    assert counts == {"checksum_failures": 1, "implausible": 1, "bytes_skipped": 22}

@@ -448,6 +448,11 @@ def _status(pipe, runner) -> str:
         faults = {n: h for n, h in runner.health.items() if h.faults}
         parts.extend(f"source {n}: {h.faults} faults, {h.restarts} restarts"
                      for n, h in faults.items())
+    refused = runner.link_parser_counts() if runner is not None else {}
+    if any(refused.values()):
+        parts.append(f"chassis link: {refused['checksum_failures']} checksum failures, "
+                     f"{refused['implausible']} frames refused as implausible, "
+                     f"{refused['bytes_skipped']} bytes skipped on this connection")
     if runner is not None and (runner.imu_errors or runner.imu_lost):
         parts.append(f"{runner.imu_errors} failed IMU reads, {runner.imu_lost} samples lost")
     for sink, exc, missed in pipe.sink_failures:

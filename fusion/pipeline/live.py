@@ -416,6 +416,19 @@ class LiveRunner:
                     self._q.extendleft(reversed(taken))
                 break
 
+    def link_parser_counts(self) -> dict[str, int]:
+        """What the chassis link's frame parser refused on the current connection (bytes,
+        :class:`drivers.chassis.ParserStats`): ``checksum_failures``, ``implausible``
+        (checksum-valid frames beyond its bound or with a sign byte other than 0/1) and
+        ``bytes_skipped``; empty without a link. Frames refused mid-run were said nowhere
+        but the missing count (an independent probe's frames of 0xFFFFFF ticks)."""
+        parser = getattr(self.link, "parser", None)
+        st = getattr(parser, "stats", None)
+        if st is None:
+            return {}
+        return {"checksum_failures": int(st.checksum_failures),
+                "implausible": int(st.implausible), "bytes_skipped": int(st.bytes_skipped)}
+
     def status(self) -> dict[str, Any]:
         """A status record: the ledger, per-source health, what is known missing upstream
         (IMU samples the driver lost, wheel frames missing, singly or in gaps, frames the
@@ -429,4 +442,5 @@ class LiveRunner:
                 "wheel_frames_missing_upstream": self.pipeline.stats.frames_missing,
                 "link_queue_dropped_upstream": sum(
                     getattr(s.link, "frames_dropped", 0) for s in self._unwrapped(LinkSource)),
+                "link_parser": self.link_parser_counts(),
                 "latency_p50": p50, "latency_p99": p99, "wall_time": time.time()}
