@@ -169,11 +169,7 @@ class ChassisLink:
         self._target_time: float | None = None
         self._stale_sent = False
         self._last_frame_time: float | None = None
-        self._opened_time: float | None = None
-        self._bytes_at_last_frame = 0
-        self._period_stamps: list[float] | None = None  # frames of the period check
-        self._period_checked = False
-        self._silent = False
+        self._new_connection_checks(None)
         self._ever_connected = False
         self._stamper = FrameStamper(self.parser, baudrate=self.baudrate, period=self.period)
 
@@ -320,11 +316,7 @@ class ChassisLink:
             self._port = port
         self.parser = self._parser_factory()
         self._stamper = FrameStamper(self.parser, baudrate=self.baudrate, period=self.period)
-        self._opened_time = self._clock()
-        self._bytes_at_last_frame = 0
-        self._silent = False  # a new connection: silent again only by its own frames
-        self._period_stamps: list[float] | None = None  # frames of the period check
-        self._period_checked = False
+        self._new_connection_checks(self._clock())
         if self._ever_connected:
             self.reconnects += 1
         self._ever_connected = True
@@ -334,6 +326,15 @@ class ChassisLink:
         if self._target != (0, 0) and not self._command_is_stale(self._clock()):
             self._write(encode_wheel_frame(*self._target))
         return True
+
+    def _new_connection_checks(self, opened: float | None) -> None:
+        """Start the liveness and period checks afresh for a connection opened at ``opened``
+        (None: none yet): it is silent, or off its period, only by its own frames."""
+        self._opened_time = opened
+        self._bytes_at_last_frame = 0
+        self._silent = False
+        self._period_stamps: list[float] | None = None  # frames of the period check
+        self._period_checked = False
 
     def _drop_port(self, reason: str) -> None:
         with self._lock:
