@@ -135,6 +135,55 @@ def test_the_fused_track_ends_closer_than_both_baselines(dead_run, blackbox):
 
 
 
+def test_the_readmes_gyro_scale_calibration_brings_the_dead_feed_within_issue_11s_bound(
+        dead_run, blackbox, tmp_path):
+    """Issue 11 asks for a yaw RMSE of at most 1.5 deg with an 8 s dead encoder feed while
+    driving; this simulator's gyro has a scale error of 0.3-1 % that nothing on the robot
+    observes, so uncalibrated it is out of reach (here 1.69 deg, its reference 1.67). The
+    README's remedy, done here as a user would on the same simulated robot and IMU: 10 turns
+    in place each way back to a mark (the robot stopped within 0.5 deg of it, as by eye),
+    ``fusion calibrate gyro-scale ... --write``, then ``fusion replay --robot`` with the
+    written robot.toml. Nothing was chosen on these runs (the procedure's numbers are the
+    README's). Measured when written: g -0.753 +- 0.021 %, the simulated gyro's -0.762 %
+    about the accelerometer's vertical (-0.663 % about the base's true vertical: the
+    accelerometer's bias tilts the vertical by 2.2 deg, and the pipeline's rate carries the
+    same tilt); yaw RMSE 0.58 deg, final error 0.16 % (gyro at stops with the same
+    calibration 0.45 deg, 2.88 %). Held out, seeds 417-424 (run_all.py --calibrate): "dead"
+    0.18-0.94 deg on all eight, "all" 0.22-0.95."""
+    sim, run_all = blackbox
+    truth_run, folder, files = dead_run
+    config = sim.make_config("dead", SEED)
+    rng = np.random.default_rng(20_000 + SEED)
+    runs = []
+    for name, turns in (("ccw", 10), ("cw", -10)):
+        calibration, mark_error = run_all.calibration_run(config, truth_run["gyro_matrix"],
+                                                          turns, rng)
+        assert abs(mark_error) < 1.5  # degrees off the mark: the 1 deg --mark-std's range
+        runs.append(str(sim.write_run(calibration, tmp_path / name)))
+    written = tmp_path / "robot-gyro.toml"
+    printed = io.StringIO()
+    with redirect_stdout(printed):
+        assert main(["calibrate", "gyro-scale", *runs, "--turns", "10", "-10",
+                     "--write", str(written)]) == 0
+        assert main(["replay", str(folder), "--robot", str(written),
+                     "-o", str(tmp_path / "fused.csv")]) == 0
+    g, g_std = run_all.read_gyro_scale(written)
+    true_g = run_all.scale_about_accel_vertical(calibration)
+    assert abs(g - true_g) < 3.0 * g_std, (g, g_std, true_g)
+    truth = files["truth"]
+    distance = run_all.path_length(truth)
+
+    def yaw_rmse(fused):
+        pose = np.column_stack([fused["x"], fused["y"], fused["yaw"]])
+        return run_all.errors(fused["t"], pose, truth, distance)[:2]
+
+    final, yaw = yaw_rmse(run_all.read_csv_cols(tmp_path / "fused.csv"))
+    _, yaw_uncalibrated = yaw_rmse(files["fused"])
+    assert yaw <= 1.5, yaw
+    assert yaw < 0.5 * yaw_uncalibrated, (yaw, yaw_uncalibrated)
+    assert final <= 0.5, final
+
+
 def _yaw_with_horizontal_gyro_bias(blackbox, tmp_path, bias_x: float, bias_y: float):
     """(fused yaw RMSE, reference yaw RMSE), deg, of ``fusion replay`` on scenario "all" of
     seed SEED with the simulated gyro's x and y biases set to ``bias_x``, ``bias_y`` deg/s

@@ -19,10 +19,11 @@ Scenarios: plain (white noise, constant bias), all (every error), dead (all + 8 
 while driving), moving (all, driving from the first sample, first stop after ~70 s).
 
 usage: python benchmarks/blackbox/run_all.py [--seeds N] [--first-seed S]
-    [--scenarios plain,all,dead,moving] [--out DIR]
+    [--scenarios plain,all,dead,moving] [--out DIR] [--calibrate]
 Results: DIR/<scenario>_<seed>/{robot.toml,imu.csv,wheels.csv,truth.csv,fused.csv,
 replay.txt,metrics.json} (~30 MB a run) and the table DIR/RESULTS_table.md (default DIR:
-./blackbox-runs). 6 seeds x 4 scenarios take about 15 min.
+./blackbox-runs). 6 seeds x 4 scenarios take about 15 min. With --calibrate also
+calib_ccw/, calib_cw/, robot-gyro.toml, fused_cal.csv per run and DIR/RESULTS_calibrated.md.
 
 Measured on 2026-11-26 (seeds 1-6; final error % of distance / yaw RMSE deg, means): fused
 0.07/0.20, 1.20/2.68, 1.03/2.06, 1.16/3.09; gyro at stops 0.07/0.24, 1.10/2.58, 2.57/2.71,
@@ -99,12 +100,43 @@ gyro's own z axis before the first stop (the unknown x, y biases no longer leak 
 tilt; the whole leak learnt at rest removed from the first stop on): moving starts, 101-106
 and 301-308 together, 3.88 -> 3.58 deg (moving 303: 5.05 -> 2.47); all 3.28 and dead 3.21
 unchanged.
+
+With the gyro's scale calibrated as README says (``--calibrate``, 2026-11-29): for each run,
+the same simulated robot and IMU (scale, cross-axis matrix, tilt, biases, vibration) turn 10
+times in place each way back to a mark, stopped within a random 0.5 deg of it; ``fusion
+calibrate gyro-scale ... --write`` on those two logs, then ``fusion replay --robot`` with the
+written robot.toml, and the gyro-at-stops baseline with the same scale. Nothing was chosen on
+these runs. Seeds 417-424, never run before; mean (range over the 8 seeds):
+
+| yaw RMSE, deg | fused, calibrated | gyro at stops, calibrated | fused, uncalibrated |
+|---|---|---|---|
+| all | 0.50 (0.22-0.95) | 0.95 (0.36-1.92) | 1.86 (0.94-4.01) |
+| dead | 0.57 (0.18-0.94) | 0.97 (0.21-1.83) | 1.78 (0.53-4.58) |
+| moving | 1.38 (0.42-2.75) | 38.6 (16.2-58.5) | 3.01 (0.88-6.75) |
+
+| final error, % | fused, calibrated | gyro at stops, calibrated | fused, uncalibrated |
+|---|---|---|---|
+| all | 0.20 (0.02-0.77) | 0.35 (0.12-0.69) | 0.55 (0.01-0.92) |
+| dead | 0.49 (0.20-0.68) | 3.13 (2.09-4.89) | 1.13 (0.46-3.87) |
+| moving | 0.47 (0.01-1.16) | 13.7 (2.8-21.9) | 1.09 (0.07-2.44) |
+
+Issue 11's bound of 1.5 deg yaw RMSE holds on all 16 runs that start at rest, and 0.5 % of
+the distance on 11 of them ("all" 422 0.77 %; "dead" 418, 420, 421, 424 0.55-0.68 %); not on
+three of the eight moving starts (2.0-2.8 deg: the bias before the first stop is learnt from
+the wheels alone). The calibrated baseline is better on yaw on 3 of the 8 "all" runs and 1
+of the 8 "dead" runs, by 0.2-0.5 deg. ``fusion calibrate gyro-scale`` measures the scale
+about the vertical the accelerometer shows (the one the pipeline projects the gyro on,
+tilted by the accelerometer's bias: 2-3 deg here): there its error is within 0.4 of its
+stated standard deviation (0.021-0.030 %) on all 24 runs; about the base's true vertical it
+is 0.00-0.15 % lower. Pose NEES inside its 95 % bounds on 57-99 % of the rows (at least 85 %
+on 19 of 24).
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -354,16 +386,10 @@ def parse_replay(text):
     return d
 
 
-def run_one(scenario, seed):
-    rd = RUNS / f"{scenario}_{seed}"
-    t0 = time.time()
-    cfg = sim.make_config(scenario, seed)
-    sm = sim.simulate(cfg)
-    sim.write_run(sm, rd)
-    t_sim = time.time() - t0
-    t0 = time.time()
-    p = subprocess.run(
-        [sys.executable, "-m", "fusion", "replay", str(rd), "-o", str(rd / "fused.csv")],
+def _fusion(*args):
+    """``python -m fusion ARGS`` on this checkout, as a user runs it."""
+    return subprocess.run(
+        [sys.executable, "-m", "fusion", *args],
         cwd=REPO,
         env={
             **os.environ,
@@ -372,6 +398,17 @@ def run_one(scenario, seed):
         capture_output=True,
         text=True,
     )
+
+
+def run_one(scenario, seed, calibrate=False):
+    rd = RUNS / f"{scenario}_{seed}"
+    t0 = time.time()
+    cfg = sim.make_config(scenario, seed)
+    sm = sim.simulate(cfg)
+    sim.write_run(sm, rd)
+    t_sim = time.time() - t0
+    t0 = time.time()
+    p = _fusion("replay", str(rd), "-o", str(rd / "fused.csv"))
     t_rep = time.time() - t0
     text = p.stdout + ("\n[stderr]\n" + p.stderr if p.stderr.strip() else "")
     (rd / "replay.txt").write_text(f"returncode {p.returncode}\n" + text)
@@ -423,8 +460,123 @@ def run_one(scenario, seed):
         res["fused"] = fused_metrics(f, truth, dist, sm)
     else:
         res["fused"] = None
+    if calibrate and scenario != "plain":  # plain's gyro has no scale error
+        res["calibrated"] = calibrate_and_replay(rd, cfg, sm, truth, wheels, imu, dist, sr,
+                                                 period)
     (rd / "metrics.json").write_text(json.dumps(res, indent=1))
     return res
+
+
+# ------------------------------------------------------------------ gyro-scale calibration
+CAL_TURNS = 10  # full turns in place each way, as README's "Calibrating the gyro's scale"
+CAL_RATE = 1.0  # rad/s commanded
+CAL_REST = 5.0  # s still on the mark before and after
+CAL_MARK_STD = 0.5  # deg: how far from the mark the robot really stops (a careful user)
+
+
+def calibration_run(cfg, gyro_matrix, turns, rng):
+    """The README's calibration on the mission's robot and IMU (same scale, cross-axis matrix,
+    tilt, biases, vibration; a fresh warm-up): rest, ``turns`` full turns in place, rest. The
+    commanded rate is raised or lowered until the robot (whose firmware turns with
+    the wrong wheel distance, on skidding tyres) ends within 0.01 deg of the mark plus a
+    random mark error, as a user stops it by eye. Returns the simulation and the true angle
+    turned minus ``turns`` * 360, deg."""
+    target = turns * 2 * math.pi + math.radians(rng.normal(0.0, CAL_MARK_STD))
+    turn_time = round(abs(target) / CAL_RATE, 3)  # the physics' 1 ms step
+    rate = math.copysign(CAL_RATE, turns)  # then adjusted: continuous, unlike the time
+    for _ in range(6):
+        legs = [(CAL_REST, 0.0, 0.0, "stop"), (turn_time, 0.0, rate, "turn"),
+                (CAL_REST + 1.0, 0.0, 0.0, "stop")]
+        c = dataclasses.replace(
+            cfg, scenario="calib_ccw" if turns > 0 else "calib_cw", legs=legs,
+            duration=sum(leg[0] for leg in legs), gyro_matrix=gyro_matrix, slip_episodes=0,
+            dead_encoder=0.0, start_moving=False)
+        sm = sim.simulate(c)
+        turned = float(np.unwrap(sm["TH"])[-1] - sm["TH"][0])
+        if abs(turned - target) < math.radians(0.01):
+            break
+        rate *= target / turned
+    else:
+        raise RuntimeError(f"calibration turn of seed {cfg.seed} did not reach its mark "
+                           f"({math.degrees(turned - target):+.3f} deg off)")
+    return sm, math.degrees(turned - turns * 2 * math.pi)
+
+
+def scale_about_accel_vertical(csm):
+    """The gyro's true scale error about the vertical its accelerometer shows at the
+    calibration's first rest (``g``, 1): what ``fusion calibrate gyro-scale`` measures, and the
+    vertical the pipeline projects the gyro on. It differs from the scale about the base's
+    true vertical (``gyro_scale_eff``) by about ``-tilt^2/2`` for the accelerometer bias's
+    tilt of that vertical (this simulator: up to 3.3 deg, 0.17 %), which the pipeline's rate
+    carries alike."""
+    it, _, acc = csm["imu"]
+    up = acc[it < CAL_REST - 1.0].mean(axis=0)
+    up /= np.linalg.norm(up)
+    unit_turn = csm["imu_to_base"].T @ np.array([0.0, 0.0, 1.0])  # in the IMU frame
+    return float((csm["gyro_matrix"] @ unit_turn) @ up - 1.0)
+
+
+def read_gyro_scale(toml_path):
+    import tomllib
+
+    ekf = tomllib.loads(Path(toml_path).read_text())["ekf"]
+    return ekf["gyro_scale"], ekf["gyro_scale_std"]
+
+
+def calibrate_and_replay(rd, cfg, sm, truth, wheels, imu, dist, sr, period):
+    """Both calibration runs into rd/calib_ccw, rd/calib_cw; ``fusion calibrate gyro-scale``
+    on them as a user would (``--write``); the mission replayed with that robot.toml, and the
+    gyro-at-stops baseline with the same calibrated scale."""
+    rng = np.random.default_rng(20_000 + cfg.seed)
+    mark_err = {}
+    for name, turns in (("calib_ccw", CAL_TURNS), ("calib_cw", -CAL_TURNS)):
+        csm, mark_err[name] = calibration_run(cfg, sm["gyro_matrix"], turns, rng)
+        sim.write_run(csm, rd / name)
+    toml = rd / "robot-gyro.toml"
+    p = _fusion("calibrate", "gyro-scale", str(rd / "calib_ccw"), str(rd / "calib_cw"),
+                "--turns", str(CAL_TURNS), str(-CAL_TURNS), "--write", str(toml))
+    (rd / "calibrate.txt").write_text(f"returncode {p.returncode}\n{p.stdout}{p.stderr}")
+    out = dict(true_g=sm["gyro_scale_eff"] - 1.0, true_g_accel=scale_about_accel_vertical(csm),
+               mark_error_deg=mark_err, returncode=p.returncode)
+    if p.returncode != 0:
+        return out
+    g, g_std = read_gyro_scale(toml)
+    out.update(g=g, g_std=g_std)
+    p = _fusion("replay", str(rd), "--robot", str(toml), "-o", str(rd / "fused_cal.csv"))
+    (rd / "replay_cal.txt").write_text(f"returncode {p.returncode}\n{p.stdout}{p.stderr}")
+    out["replay_returncode"] = p.returncode
+    if p.returncode == 0:
+        out["fused"] = fused_metrics(read_csv_cols(rd / "fused_cal.csv"), truth, dist, sm)
+    imu_cal = dict(imu, gz=imu["gz"] / (1.0 + g))
+    (gt, gpose), _ = gyro_at_stops(wheels, imu_cal, sr, period, find_stops(wheels, imu_cal))
+    out["gyro_stops"] = dict(zip(("final_pct", "yaw_rmse"), errors(gt, gpose, truth, dist)[:2]))
+    return out
+
+
+def calibrated_table(results):
+    lines = [
+        "| scen | seed | true g % about the base's vertical (the accel's) | calibrated g % (std) | "
+        "fused fin% | fused yawRMSE | gyro@stops fin% | gyro@stops yawRMSE | "
+        "uncalibrated fused yawRMSE | NEES in95 (above) |",
+        "|" + "---|" * 10,
+    ]
+    for r in results:
+        cal = r.get("calibrated")
+        if not cal:
+            continue
+        f = cal.get("fused") or {}
+        gs = cal.get("gyro_stops") or {}
+        g = cal.get("g")
+        lines.append(
+            f"| {r['scenario']} | {r['seed']} | {100 * cal['true_g']:.3f} "
+            f"({100 * cal['true_g_accel']:.3f}) | "
+            + (f"{100 * g:.3f} ({100 * cal['g_std']:.3f})" if g is not None else "failed")
+            + f" | {fmt(f.get('final_pct'))} | {fmt(f.get('yaw_rmse'))} | "
+            f"{fmt(gs.get('final_pct'))} | {fmt(gs.get('yaw_rmse'))} | "
+            f"{fmt((r['fused'] or {}).get('yaw_rmse'))} | {fmt(f.get('nees_in95'))} "
+            f"({fmt(f.get('nees_above'))}) |"
+        )
+    return "\n".join(lines)
 
 
 def fmt(v, n=2):
@@ -465,13 +617,17 @@ def main():
     ap.add_argument("--seeds", type=int, default=6)
     ap.add_argument("--first-seed", type=int, default=1)
     ap.add_argument("--scenarios", default="plain,all,dead,moving")
+    ap.add_argument("--calibrate", action="store_true",
+                    help="also calibrate each run's gyro scale as README says (10 turns each "
+                         "way back to a mark, `fusion calibrate gyro-scale`) and replay with "
+                         "it: DIR/RESULTS_calibrated.md")
     a = ap.parse_args()
     RUNS = a.out
     RUNS.mkdir(parents=True, exist_ok=True)
     results = []
     for sc in a.scenarios.split(","):
         for seed in range(a.first_seed, a.first_seed + a.seeds):
-            r = run_one(sc, seed)
+            r = run_one(sc, seed, calibrate=a.calibrate)
             results.append(r)
             f = r["fused"] or {}
             print(
@@ -483,6 +639,18 @@ def main():
                 f"sim {r['t_sim']:.0f}s replay {r['t_replay']:.0f}s",
                 flush=True,
             )
+            cal = r.get("calibrated")
+            if cal:
+                fc, gc = cal.get("fused") or {}, cal.get("gyro_stops") or {}
+                print(
+                    f"  calibrated g {100 * cal.get('g', math.nan):.3f} % (true "
+                    f"{100 * cal['true_g_accel']:.3f} % about the accelerometer's vertical, "
+                    f"{100 * cal['true_g']:.3f} % about the base's): fused "
+                    f"{fmt(fc.get('final_pct'))}% "
+                    f"{fmt(fc.get('yaw_rmse'))}deg | gyro@stops {fmt(gc.get('final_pct'))}% "
+                    f"{fmt(gc.get('yaw_rmse'))}deg",
+                    flush=True,
+                )
     # merge with all metrics.json present
     allres = [
         json.loads(p.read_text())
@@ -493,6 +661,9 @@ def main():
     allres.sort(key=lambda r: (order.get(r["scenario"], 9), r["seed"]))
     (RUNS / "RESULTS_table.md").write_text(table(allres) + "\n")
     print(table(allres))
+    if any(r.get("calibrated") for r in allres):
+        (RUNS / "RESULTS_calibrated.md").write_text(calibrated_table(allres) + "\n")
+        print(calibrated_table(allres))
 
 
 if __name__ == "__main__":

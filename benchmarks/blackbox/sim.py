@@ -77,6 +77,11 @@ class SimConfig:
     start_moving: bool = False
     motor_ripple: float = 0.0
     quantize: bool = True
+    # a given mission instead of a planned one: [(duration s, v m/s, w rad/s, kind), ...]
+    legs: list | None = None
+    # the gyro's 3x3 scale and cross-axis matrix instead of a drawn one (the same chip on
+    # another run: a calibration of the unit a mission was driven with)
+    gyro_matrix: np.ndarray | None = None
 
 
 def make_config(scenario: str, seed: int) -> SimConfig:
@@ -198,11 +203,14 @@ def _friction_circle(fx: float, fy: float, limit: float) -> tuple[float, float]:
 
 def simulate(c: SimConfig) -> dict:
     rng = np.random.default_rng(
-        c.seed * 7919 + {"plain": 1, "all": 2, "dead": 3, "moving": 4}[c.scenario]
+        c.seed * 7919
+        + {"plain": 1, "all": 2, "dead": 3, "moving": 4, "calib_ccw": 5, "calib_cw": 6}[
+            c.scenario
+        ]
     )
     n = round(c.duration / c.dt) + 1
     t = np.arange(n) * c.dt
-    legs = plan_mission(c, rng)
+    legs = plan_mission(c, rng) if c.legs is None else c.legs
     v_cmd, w_cmd = command_profile(c, legs, n)
 
     R_nom = c.radius
@@ -391,6 +399,8 @@ def simulate(c: SimConfig) -> dict:
     acc = np.empty((3, n))
     M = np.eye(3) + c.gyro_cross * rng.uniform(-1, 1, (3, 3)) * (1 - np.eye(3))
     M[2, 2] += c.gyro_scale_z
+    if c.gyro_matrix is not None:
+        M = np.array(c.gyro_matrix, dtype=float)
     gw = M @ w_i
     bias_all = []
     for k in range(3):
@@ -456,6 +466,7 @@ def simulate(c: SimConfig) -> dict:
         bias_vert=bias_vert,
         imu_to_base=R_bi,
         gyro_scale_eff=float((R_bi @ M @ R_ib)[2, 2]),
+        gyro_matrix=M,
         slips=slip_list,
         dead=dead,
         lost=lost,
