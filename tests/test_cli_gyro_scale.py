@@ -56,3 +56,37 @@ def test_bad_invocations_say_what_to_fix(tmp_path, capsys):
     assert "--scenario turns needs --simulator physics" in capsys.readouterr().err
     assert main(["synth", str(tmp_path / "m"), "--simulator", "physics", "--turns", "3"]) != 0
     assert "--turns applies to --scenario turns only" in capsys.readouterr().err
+
+
+def _write_turns_log(folder, turns=3, nan_row=None):
+    """A log directory of ``turns`` in place (rest, 1 rad/s, rest) at 200 Hz, with zero-tick
+    wheel frames throughout (the wheels are not what is calibrated here)."""
+    import math
+
+    import numpy as np
+
+    folder.mkdir()
+    (folder / "robot.toml").write_text("[chassis]\nwheel_distance = 0.2\nspeed_ratio = 1e-4\n"
+                                       "encode_sampling_time = 0.04\n")
+    spin = 2 * math.pi * abs(turns)
+    t = np.arange(0.0, 10.0 + spin, 0.005)
+    gz = np.where((t >= 5.0) & (t < 5.0 + spin), math.copysign(1.0, turns), 0.0)
+    rows = [f"{ti:.4f},0,0,{g:.6f},0,0,9.80665" for ti, g in zip(t, gz, strict=True)]
+    if nan_row is not None:
+        rows[nan_row] = rows[nan_row].replace(",0,0,", ",nan,0,", 1)
+    (folder / "imu.csv").write_text("t,gx,gy,gz,ax,ay,az\n" + "\n".join(rows) + "\n")
+
+
+def test_a_nan_row_is_named_by_file_and_line(tmp_path, capsys):
+    _write_turns_log(tmp_path / "ccw", nan_row=1000)
+    assert main(["calibrate", "gyro-scale", str(tmp_path / "ccw"), "--turns", "3"]) != 0
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'ccw' / 'imu.csv'}:1002: not a finite number (1 such rows)" in err
+
+
+def test_the_same_run_given_twice_is_refused(tmp_path, capsys):
+    _write_turns_log(tmp_path / "ccw")
+    assert main(["calibrate", "gyro-scale", str(tmp_path / "ccw"),
+                 str(tmp_path / "x" / ".." / "ccw"), "--turns", "3", "3"]) != 0
+    assert "given twice" in capsys.readouterr().err
+    assert main(["calibrate", "gyro-scale", str(tmp_path / "ccw"), "--turns", "3"]) == 0

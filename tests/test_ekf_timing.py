@@ -18,7 +18,7 @@ from fusion.evaluation.synthetic import (
     stop,
     straight,
 )
-from fusion.io.logdir import read_robot_toml
+from fusion.io.robot_toml import read_robot_toml
 from fusion.planar import model
 from fusion.planar.ekf import EkfNoise, fuse
 from fusion.planar.model import NX

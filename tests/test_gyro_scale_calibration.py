@@ -74,15 +74,29 @@ def test_too_short_a_rest_is_refused():
 
 
 def test_combined_runs_are_the_inverse_variance_mean():
+    # 1.0 and 1.1 %, standard deviations 0.080 and 0.027 % (a 0.01 rad mark over 2 and 6
+    # turns): 1.2 standard deviations apart, which the agreement test lets through
+    t, gyro, accel, angle = _turns_stream(2, 0.010, 0.0, 0.0)
+    a = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), mark_std=0.01)
+    t, gyro, accel, angle = _turns_stream(-6, 0.011, 0.0, 0.0)
+    b = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), mark_std=0.01)
+    c = combine_gyro_scales([a, b])
+    wa, wb = a.scale_error_std ** -2, b.scale_error_std ** -2
+    assert c.scale_error == pytest.approx((wa * 0.010 + wb * 0.011) / (wa + wb), abs=1e-9)
+    assert c.scale_error_std == pytest.approx((wa + wb) ** -0.5)
+    assert c.declared_turns == pytest.approx(8.0, abs=0.01)
+
+
+def test_runs_that_disagree_beyond_their_uncertainties_are_refused_naming_each():
+    # 1 % and 2 % with the same 0.01 rad mark: 12 standard deviations apart (an independent
+    # probe's two gyros, or one run a few degrees off its mark): the mean of the two would
+    # be stated to 0.02 % and be wrong for both
     t, gyro, accel, angle = _turns_stream(2, 0.01, 0.0, 0.0)
     a = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), mark_std=0.01)
     t, gyro, accel, angle = _turns_stream(-6, 0.02, 0.0, 0.0)
     b = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), mark_std=0.01)
-    c = combine_gyro_scales([a, b])
-    wa, wb = a.scale_error_std ** -2, b.scale_error_std ** -2
-    assert c.scale_error == pytest.approx((wa * 0.01 + wb * 0.02) / (wa + wb), abs=1e-9)
-    assert c.scale_error_std == pytest.approx((wa + wb) ** -0.5)
-    assert c.declared_turns == pytest.approx(8.0, abs=0.01)
+    with pytest.raises(ValueError, match=r"disagree.*\+1\.000 % \+- 0\.080 %, \+2\.000 %"):
+        combine_gyro_scales([a, b])
 
 
 def _effective_vertical_scale(sensors, vertical):
@@ -134,3 +148,90 @@ def test_calibrated_ekf_meets_issue_11_targets_on_every_seed(scenario):
         assert yaw <= 1.5, (seed, final, yaw)
         if scenario == "all":
             assert final <= 0.5, (seed, final, yaw)
+
+
+# -- what an independent probe of the command found (2026-11-29): each once a traceback or a
+# -- silent wrong scale, now a refusal that says what happened
+
+
+def test_a_three_percent_gyro_over_ten_turns_and_one_and_a_half_over_twenty_are_measured():
+    # the datasheet's +-3 %: 10 turns read 10.3; the former 0.25-turn tolerance refused them
+    # as miscounts ("count the turns again")
+    for turns, scale in ((10, 0.03), (20, 0.015), (-10, -0.03)):
+        t, gyro, accel, angle = _turns_stream(turns, scale, math.radians(0.5), 0.0)
+        cal = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi))
+        assert cal.scale_error == pytest.approx(scale, abs=1e-9)
+        # beyond 2 % the report says what else gives it: a robot off its mark
+        assert ("caution" in cal.report()) == (abs(scale) > 0.02)
+
+
+def test_a_miscount_by_one_of_up_to_nineteen_turns_is_refused():
+    for made, declared in ((18, 19), (20, 19), (5, 6)):
+        t, gyro, accel, _ = _turns_stream(made, 0.0, 0.0, 0.0)
+        with pytest.raises(ValueError, match=f"but \\+{declared} were declared, a scale error"):
+            calibrate_gyro_scale(t, gyro, accel, declared)
+
+
+def test_no_rest_at_either_end_is_refused_not_an_index_error():
+    # turning from the first sample to the last: the end's rest length was 0 and
+    # t[t.size - 0] raised IndexError
+    t = np.arange(0.0, 30.0, 0.005)
+    gyro = np.column_stack([np.zeros_like(t), np.zeros_like(t),
+                            1.0 + 0.1 * t])
+    accel = np.tile([0.0, 0.0, G], (t.size, 1))
+    with pytest.raises(ValueError, match=r"found 0\.0 s at the start"):
+        calibrate_gyro_scale(t, gyro, accel, 5)
+    still = np.zeros_like(gyro)
+    with pytest.raises(ValueError, match="no turn in this run"):
+        calibrate_gyro_scale(t, still, accel, 5)
+
+
+def test_a_gyro_in_degrees_per_second_is_named():
+    t, gyro, accel, _ = _turns_stream(10, 0.01, math.radians(0.5), 0.0)
+    with pytest.raises(ValueError, match=r"reads up to 58\.4 rad/s.*deg/s"):
+        calibrate_gyro_scale(t, np.degrees(gyro), accel, 10)
+    # turning slowly (0.3 rad/s: 17 'rad/s' in deg/s, within a full scale): the count says it
+    t, gyro, accel, _ = _turns_stream(2, 0.0, 0.0, 0.0, rate=0.3)
+    with pytest.raises(ValueError, match="180/pi's: the gyro is in deg/s"):
+        calibrate_gyro_scale(t, np.degrees(gyro), accel, 2)
+
+
+def test_a_gap_during_the_turns_is_refused_naming_it():
+    # 1.8 s without a sample over the deceleration: the trapezoid drew a straight line
+    # across it and the probe's +1.2 % gyro came out +0.11 % +- 0.03 %
+    t, gyro, accel, _ = _turns_stream(3, 0.012, 0.0, 0.0)
+    keep = (t < 14.0) | (t > 15.8)
+    with pytest.raises(ValueError, match=r"no IMU sample for 1\.8.* s after t = 13\.99"):
+        calibrate_gyro_scale(t[keep], gyro[keep], accel[keep], 3)
+
+
+def test_a_non_finite_sample_is_named_by_its_index_and_time():
+    t, gyro, accel, _ = _turns_stream(3, 0.0, 0.0, 0.0)
+    gyro[3000, 2] = np.nan
+    with pytest.raises(ValueError, match=r"IMU sample 3000 \(t = 15\.0 s\) is not finite"):
+        calibrate_gyro_scale(t, gyro, accel, 3)
+
+
+def test_wheels_turning_during_a_rest_are_refused():
+    # the robot creeping at 0.3 deg/s through its "rests" reads as bias; the probe's +1.2 %
+    # gyro came out +0.78 % without a word. Its wheels, where logged, tell.
+    t, gyro, accel, angle = _turns_stream(3, 0.01, 0.0, 0.0)
+    wheel_t = np.arange(0.02, t[-1], 0.04)
+    ticks = np.zeros((wheel_t.size, 2), dtype=np.int64)
+    assert calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), wheel_t=wheel_t,
+                                ticks=ticks).scale_error == pytest.approx(0.01, abs=1e-9)
+    creeping = ticks.copy()
+    creeping[wheel_t < 4.0, 1] = 1
+    with pytest.raises(ValueError, match="wheels turned during the rest before the turns"):
+        calibrate_gyro_scale(t, gyro, accel, 3, wheel_t=wheel_t, ticks=creeping)
+
+
+def test_an_encoder_toggling_on_an_edge_is_no_motion():
+    t, gyro, accel, angle = _turns_stream(3, 0.01, 0.0, 0.0)
+    wheel_t = np.arange(0.02, t[-1], 0.04)
+    ticks = np.zeros((wheel_t.size, 2), dtype=np.int64)
+    ticks[5:40:2, 0] = 1  # +1, -1, +1, ...: net 0 or 1
+    ticks[6:40:2, 0] = -1
+    cal = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), wheel_t=wheel_t,
+                               ticks=ticks)
+    assert cal.scale_error == pytest.approx(0.01, abs=1e-9)

@@ -71,6 +71,31 @@ def test_hand_written_robot_toml(tmp_path):
     assert read_robot_toml(tmp_path / "again.toml") == cfg
 
 
+def test_a_fusion_run_configuration_is_a_logs_robot_toml(tmp_path):
+    # README's calibration recipe copies the robot's configuration into each log directory
+    # (`cp robot.toml ccw/`); for `fusion run` that file also has [link] and [run], which an
+    # independent probe's `fusion calibrate gyro-scale` refused as unknown tables
+    d = _logdir(tmp_path)
+    text = (d / "robot.toml").read_text()
+    (d / "robot.toml").write_text(text + '\n[link]\nport = "/dev/ttyUSB0"\n\n'
+                                  '[run]\nduration = 60\n')
+    assert read_logdir(d).robot == read_robot_toml(_robot_only(tmp_path, text))
+    # its run tables are still checked: a typo is named, not ignored
+    (d / "robot.toml").write_text(text + '\n[link]\nprot = "/dev/ttyUSB0"\n')
+    with pytest.raises(LogFormatError, match=r"robot\.toml:\d+: \[link\] unknown key 'prot'"):
+        read_logdir(d)
+    # and a table neither knows is refused as before
+    (d / "robot.toml").write_text(text + "\n[wheels]\nleft = 1\n")
+    with pytest.raises(LogFormatError, match=r"unknown table\(s\) \['wheels'\]"):
+        read_logdir(d)
+
+
+def _robot_only(tmp_path, text):
+    path = tmp_path / "robot_only.toml"
+    path.write_text(text)
+    return path
+
+
 def test_imu_mount_rotation_is_applied(tmp_path):
     # IMU mounted upside down (roll = pi about x): its y and z axes point right and down, so a
     # CCW yaw rate of the robot (+z in base) reads -z in the IMU, and gravity's reaction (+g up)

@@ -36,10 +36,23 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import trapezoid
+from scipy.stats import chi2
 
 __all__ = ["GyroScaleCalibration", "calibrate_gyro_scale", "combine_gyro_scales"]
 
 _DEG = math.pi / 180.0
+
+#: rad/s: the MPU6050's largest full-scale range (2000 deg/s). A gyro reading beyond it is in
+#: other units (deg/s: a turn at 1 rad/s reads 57.3).
+GYRO_FULL_SCALE_MAX = 2000.0 * _DEG
+#: rad/s: above this spread over the first second (standard deviation) the gyro cannot be at
+#: rest in rad/s (an MPU6050 at rest: about 0.001)
+REST_SPREAD_MAX = 0.02
+#: Above this |g| a result is reported with a caution: the datasheet allows 3 %, but a robot
+#: a quarter turn off its mark after 10 turns gives 2.5 % too.
+LARGE_SCALE_ERROR = 0.02
+#: The combined runs must agree with each other at this chi-square probability.
+AGREEMENT_PROBABILITY = 0.999
 
 
 @dataclass(frozen=True)
@@ -91,6 +104,11 @@ class GyroScaleCalibration:
             f"({self.rest_before:.1f} s at rest), {math.degrees(self.bias_after):+.4f} deg/s "
             f"after ({self.rest_after:.1f} s)\n"
             f"IMU z axis {math.degrees(self.mount_tilt):.2f} deg from the vertical"
+            + (f"\ncaution: a scale error of {100 * self.scale_error:+.2f} % is large (the "
+               f"datasheet allows 3 %); it is also what a robot "
+               f"{abs(self.scale_error * self.declared_turns) * 360.0:.0f} deg off its mark "
+               "would give: check that it ended on the mark"
+               if abs(self.scale_error) > LARGE_SCALE_ERROR else "")
         )
 
 
@@ -112,7 +130,10 @@ def calibrate_gyro_scale(
     min_rest: float = 3.0,
     turn_threshold: float = 0.05,
     margin: float = 0.5,
-    max_scale_error: float = 0.1,
+    max_scale_error: float = 0.05,
+    max_gap: float = 0.1,
+    wheel_t: ArrayLike | None = None,
+    ticks: ArrayLike | None = None,
 ) -> GyroScaleCalibration:
     """Gyro scale error from one run of turns in place (see the module docstring).
 
@@ -125,12 +146,20 @@ def calibrate_gyro_scale(
         min_rest: least time at rest before and after the turns, s.
         turn_threshold: a rate this far (rad/s) from the rest's median ends a rest.
         margin: time trimmed off each rest next to the turning, s.
-        max_scale_error: a larger ``|g|`` is refused as a miscount (the datasheet allows 3 %).
+        max_scale_error: a larger ``|g|`` is refused as a miscount (the datasheet allows 3 %;
+            with up to 19 turns a miscount by one gives more than 5 %).
+        max_gap: the longest interval without an IMU sample between the rests, s (or five
+            sample periods, if longer): the angle turned across a gap is unknown.
+        wheel_t, ticks: optional wheel frames of the same run ((M,) stamps on the IMU's
+            clock, s; (M, 2) left and right ticks per frame): a rest during which a wheel
+            turned is refused (a slow turn there would be taken for the gyro's bias).
 
     Raises:
-        ValueError: inputs of the wrong shape, non-finite or not increasing; ``turns`` zero or
-            not finite; a rest shorter than ``min_rest`` at either end; a measured turn count
-            that does not match ``turns`` (the message gives both).
+        ValueError: inputs of the wrong shape, non-finite (naming the first such sample) or
+            not increasing; ``turns`` zero or not finite; a gyro beyond the MPU6050's full
+            scale (other units); a rest shorter than ``min_rest`` at either end, or one the
+            wheels turned in; a gap in the samples during the turns; a measured turn count
+            whose scale error exceeds ``max_scale_error`` (the message gives both counts).
     """
     t = np.asarray(imu_t, dtype=float).reshape(-1)
     g = np.asarray(gyro, dtype=float)
@@ -138,9 +167,14 @@ def calibrate_gyro_scale(
     if g.shape != (t.size, 3) or a.shape != (t.size, 3):
         raise ValueError(f"gyro and accel must be ({t.size}, 3) like the stamps, got "
                          f"{g.shape} and {a.shape}")
-    if t.size < 3 or not (np.isfinite(t).all() and np.isfinite(g).all() and
-                          np.isfinite(a).all()):
-        raise ValueError("need at least 3 finite IMU samples")
+    if t.size < 3:
+        raise ValueError(f"need at least 3 IMU samples, got {t.size}")
+    finite = np.isfinite(t) & np.isfinite(g).all(axis=1) & np.isfinite(a).all(axis=1)
+    if not finite.all():
+        i = int(np.flatnonzero(~finite)[0])
+        raise ValueError(f"IMU sample {i} (t = {float(t[i])!r} s) is not finite "
+                         f"({int(np.sum(~finite))} such samples): the angle turned across "
+                         "them is unknown")
     if np.any(np.diff(t) <= 0):
         i = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
         raise ValueError(f"IMU stamps must increase: sample {i} at {t[i]!r} s")
@@ -151,36 +185,66 @@ def calibrate_gyro_scale(
     up = a[first].mean(axis=0)
     up /= np.linalg.norm(up)
     rate = g @ up
+    peak = float(np.max(np.linalg.norm(g, axis=1)))
+    if peak > GYRO_FULL_SCALE_MAX:
+        raise ValueError(
+            f"the gyro reads up to {peak:.3g} rad/s, beyond an MPU6050's largest full scale "
+            f"({GYRO_FULL_SCALE_MAX:.3g} rad/s = 2000 deg/s): the rates are in other units "
+            "(deg/s?); imu.csv's gyro columns are in rad/s")
     n_before = _rest_length(rate, t, turn_threshold)
     n_after = _rest_length(rate[::-1], -t[::-1], turn_threshold)
-    before = t < t[max(n_before - 1, 0)] - margin
-    after = t > t[t.size - n_after] + margin
+    if n_before == t.size:
+        raise ValueError(
+            "the rate about the vertical never departs from its first second's by "
+            f"{math.degrees(turn_threshold):g} deg/s: no turn in this run")
+    before = (t < t[n_before - 1] - margin) if n_before else np.zeros(t.size, bool)
+    after = (t > t[t.size - n_after] + margin) if n_after else np.zeros(t.size, bool)
     rest_b = float(np.ptp(t[before])) if before.sum() > 1 else 0.0
     rest_a = float(np.ptp(t[after])) if after.sum() > 1 else 0.0
     if rest_b < min_rest or rest_a < min_rest:
+        spread = float(np.std(rate[t <= t[0] + 1.0]))
+        hint = ""
+        if spread > REST_SPREAD_MAX:
+            hint = (f"; over the first second the rate spreads by {spread:.3g} rad/s, "
+                    f"{spread / 0.001:.0f} times an MPU6050's at rest: the robot moved, or the "
+                    "gyro is not in rad/s (deg/s?)")
         raise ValueError(
             f"the robot must stand still for at least {min_rest:g} s before and after the "
             f"turns: found {rest_b:.1f} s at the start and {rest_a:.1f} s at the end (a rest "
             f"ends where the rate about the vertical departs by {math.degrees(turn_threshold):g} "
-            "deg/s)")
+            f"deg/s){hint}")
+    if wheel_t is not None and ticks is not None:
+        _refuse_turning_wheels(np.asarray(wheel_t, dtype=float).reshape(-1),
+                               np.asarray(ticks), t[before], t[after])
     b0, b1 = float(rate[before].mean()), float(rate[after].mean())
     tb0, tb1 = float(t[before].mean()), float(t[after].mean())
     bias = b0 + (b1 - b0) * (t - tb0) / (tb1 - tb0)  # linear drift between the rests
     span = slice(int(np.flatnonzero(before)[-1]), int(np.flatnonzero(after)[0]) + 1)
     ts, rs = t[span], rate[span] - bias[span]
+    period = float(np.median(np.diff(t)))
+    gaps = np.diff(ts)
+    worst = int(np.argmax(gaps))
+    if gaps[worst] > max(max_gap, 5.0 * period):
+        raise ValueError(
+            f"no IMU sample for {gaps[worst]:.3g} s after t = {float(ts[worst])!r} s, during the "
+            "turns: the angle turned across the gap is unknown; record the run again")
     angle = float(trapezoid(rs, ts))
     declared = 2.0 * math.pi * turns
     measured_turns = angle / (2.0 * math.pi)
     scale = angle / declared - 1.0
-    if abs(measured_turns - turns) > 0.25 or abs(scale) > max_scale_error:
+    if abs(scale) > max_scale_error:
+        ratio = angle / declared
+        units = (" The ratio is 180/pi's: the gyro is in deg/s, not rad/s."
+                 if abs(ratio / (180.0 / math.pi) - 1.0) < 0.1 else "")
         raise ValueError(
             f"the gyro measured {measured_turns:+.3f} turns ({math.degrees(angle):+.1f} deg) "
-            f"but {turns:+g} were declared: count the turns again (CCW positive), check that "
-            "the robot turned in place back to the mark and that the gyro did not saturate")
+            f"but {turns:+g} were declared, a scale error of {100 * scale:+.1f} % where an "
+            f"MPU6050's is within 3 %: count the turns again (CCW positive), check that "
+            f"the robot turned in place back to the mark and that the gyro did not "
+            f"saturate.{units}")
     duration = float(ts[-1] - ts[0])
     # uncertainty of the angle: the mark, the bias over the turning time, the white noise
     noise = np.concatenate([rate[before] - b0, rate[after] - b1])
-    period = float(np.median(np.diff(t)))
     bias_std = math.sqrt(np.var(noise) / noise.size + ((b1 - b0) / (2.0 * math.sqrt(3.0))) ** 2)
     var_angle = mark_std ** 2 + (bias_std * duration) ** 2 + np.var(noise) * period * duration
     return GyroScaleCalibration(
@@ -190,18 +254,54 @@ def calibrate_gyro_scale(
         vertical=(float(up[0]), float(up[1]), float(up[2])))
 
 
+#: ticks: a rest whose net count on either wheel exceeds this is no rest (an encoder sitting
+#: on an edge may toggle by one tick back and forth)
+REST_TICKS_MAX = 2
+
+
+def _refuse_turning_wheels(wheel_t: NDArray[np.float64], ticks: ArrayLike,
+                           rest_before: NDArray[np.float64],
+                           rest_after: NDArray[np.float64]) -> None:
+    """Raise if the wheel frames stamped within a rest (stamps ``rest_*``, s) add up to
+    more than :data:`REST_TICKS_MAX` ticks on either wheel."""
+    ticks = np.asarray(ticks).reshape(-1, 2)
+    for name, rest in (("before", rest_before), ("after", rest_after)):
+        inside = (wheel_t >= rest[0]) & (wheel_t <= rest[-1])
+        net = np.abs(ticks[inside].sum(axis=0))
+        if net.max() > REST_TICKS_MAX:
+            moving = inside & np.any(ticks != 0, axis=1)
+            raise ValueError(
+                f"the wheels turned during the rest {name} the turns (left {int(net[0])}, "
+                f"right {int(net[1])} ticks net between t = {rest[0]:.2f} and {rest[-1]:.2f} "
+                f"s, from {float(wheel_t[moving][0]):.3f} s on): the robot must stand still "
+                "there, or the rate it turns at is taken for the gyro's bias")
+
+
 def combine_gyro_scales(runs: Sequence[GyroScaleCalibration]) -> GyroScaleCalibration:
     """Inverse-variance mean of several runs (e.g. one clockwise, one counter-clockwise:
     a bias error then cancels). The turn counts (unsigned) and times add up; the rests are the
     shortest.
 
     Raises:
-        ValueError: no runs.
+        ValueError: no runs; runs that disagree beyond their uncertainties (chi-square above
+            its :data:`AGREEMENT_PROBABILITY` quantile: a miscount, a robot off its mark, a
+            rest that was no rest), naming each run's value.
     """
     if not runs:
         raise ValueError("combine_gyro_scales needs at least one run")
     w = np.array([1.0 / r.scale_error_std ** 2 for r in runs])
     g = np.array([r.scale_error for r in runs])
+    mean = float(np.sum(w * g) / np.sum(w))
+    spread = float(np.sum(w * (g - mean) ** 2))
+    if len(runs) > 1 and spread > chi2.ppf(AGREEMENT_PROBABILITY, len(runs) - 1):
+        values = ", ".join(f"{100 * r.scale_error:+.3f} % +- {100 * r.scale_error_std:.3f} %"
+                           for r in runs)
+        raise ValueError(
+            f"the runs disagree beyond their uncertainties ({values}; chi-square "
+            f"{spread:.1f} on {len(runs) - 1} degree{'s' if len(runs) > 2 else ''} of "
+            "freedom): one was miscounted, did "
+            "not end on its mark or did not stand still in a rest; check each, or give a "
+            "larger --mark-std if the marks were rough")
     return GyroScaleCalibration(
         scale_error=float(np.sum(w * g) / np.sum(w)), scale_error_std=float(1.0 / math.sqrt(
             np.sum(w))),

@@ -183,6 +183,12 @@ def run_gyro_scale(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.mark_std) and args.mark_std > 0):
         raise CommandError(f"--mark-std must be > 0 deg, got {args.mark_std}")
     _check_write_target(args.write, args.input)
+    seen = {}
+    for d in args.input:
+        if d.resolve() in seen:
+            raise CommandError(f"{d}: given twice (as {seen[d.resolve()]} too): each run counts "
+                               "once, or its uncertainty would be understated")
+        seen[d.resolve()] = d
     runs = []
     robot = None
     for d, turns in zip(args.input, args.turns, strict=True):
@@ -191,16 +197,22 @@ def run_gyro_scale(args: argparse.Namespace) -> int:
         log = read_logdir(d)
         if log.imu_t is None:
             raise CommandError(f"{d}: gyro-scale calibration needs imu.csv")
+        _refuse_non_finite(d, log)
         try:
+            # the wheels, where logged, prove the rests were rests
             cal = calibrate_gyro_scale(log.imu_t, log.gyro, log.accel, turns,
-                                       mark_std=math.radians(args.mark_std))
+                                       mark_std=math.radians(args.mark_std),
+                                       wheel_t=log.wheel_t, ticks=log.ticks)
         except ValueError as exc:
             raise CommandError(f"{d}: {exc}") from exc
         print(f"{d}:")
         print(cal.report())
         runs.append(cal)
         robot = robot or log.robot
-    cal = combine_gyro_scales(runs)
+    try:
+        cal = combine_gyro_scales(runs)
+    except ValueError as exc:
+        raise CommandError(f"{', '.join(map(str, args.input))}: {exc}") from exc
     if len(runs) > 1:
         print(f"combined ({len(runs)} runs): g = {100 * cal.scale_error:+.3f} % +- "
               f"{100 * cal.scale_error_std:.3f} %")
@@ -213,6 +225,20 @@ def run_gyro_scale(args: argparse.Namespace) -> int:
         write_robot_toml(args.write, replace(robot, ekf=replace(robot.ekf, **cal.ekf_fields())))
         print(f"wrote {args.write}")
     return 0
+
+
+def _refuse_non_finite(d: Path, log) -> None:
+    """A NaN or infinite IMU value, named by imu.csv's line: the angle or rate across it is
+    unknown (``fusion replay`` skips such samples and counts them; a calibration must not)."""
+    from fusion.io.imu_csv import imu_csv_lines
+
+    bad = ~(np.isfinite(log.gyro).all(axis=1) & np.isfinite(log.accel).all(axis=1))
+    if bad.any():
+        first = int(np.flatnonzero(bad)[0])
+        (line,) = imu_csv_lines(d / "imu.csv", [first])
+        raise CommandError(f"{d / 'imu.csv'}:{line}: not a finite number ({int(bad.sum())} "
+                           "such rows): a calibration needs every sample; record the run "
+                           "again or remove the rows")
 
 
 def run_umbmark(args: argparse.Namespace) -> int:

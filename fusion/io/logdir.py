@@ -39,7 +39,8 @@ from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import read_imu_csv
 from fusion.io.read_progress import LineProgress, ReadProgress
-from fusion.io.robot_toml import read_robot_toml, write_robot_toml
+from fusion.io.robot_toml import write_robot_toml
+from fusion.io.run_config import read_log_robot
 from fusion.io.stamp_units import check_imu_stamps, check_wheel_stamps
 from fusion.io.uart2 import read_uart2_capture
 from fusion.planar.robot import RobotConfig
@@ -196,7 +197,7 @@ def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True
     if not toml_path.is_file():
         raise FileNotFoundError(f"{toml_path}: missing; a log directory needs robot.toml "
                                 "with a [chassis] table")
-    robot = read_robot_toml(toml_path)
+    robot = read_log_robot(toml_path)  # or the `fusion run` configuration it ran with
     log = LogDir(path=path, robot=robot, imu_frame=imu_frame)
     if (path / "imu.csv").is_file():
         imu = read_imu_csv(path / "imu.csv", _for_file(progress, "imu.csv"))

@@ -77,7 +77,12 @@ from typing import Any
 
 from fusion.geometry.kinematics import DiffDriveParams
 from fusion.io.errors import ConfigError, LogFormatError
-from fusion.io.robot_toml import ROBOT_TABLES, robot_config_from_tables, where
+from fusion.io.robot_toml import (
+    ROBOT_TABLES,
+    read_robot_toml,
+    robot_config_from_tables,
+    where,
+)
 from fusion.io.sink_spec import parse_sink_spec
 from fusion.planar.robot import RobotConfig
 
@@ -94,6 +99,7 @@ __all__ = [
     "RunConfig",
     "load_config",
     "parse_config",
+    "read_log_robot",
 ]
 
 
@@ -418,3 +424,30 @@ def load_config(path: str | Path) -> RunConfig:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"{path}: invalid TOML: {exc}") from None
     return parse_config(doc, path, text)
+
+
+def read_log_robot(path: str | Path) -> RobotConfig:
+    """The robot of a log directory's ``robot.toml``, which may also be the ``fusion run``
+    configuration the log was recorded with (README's calibration: ``cp robot.toml ccw/``):
+    its run tables (``[link]``, ``[run]``, ...) are checked as ``fusion run`` checks them and
+    left out, and ``[chassis]`` is required as in any robot.toml.
+
+    Raises:
+        FileNotFoundError: no such file.
+        LogFormatError: anything :func:`fusion.io.robot_toml.read_robot_toml` refuses, or a
+            bad run table; the message names the file, line and key.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+        doc = tomllib.loads(text)
+    except (UnicodeDecodeError, tomllib.TOMLDecodeError):
+        return read_robot_toml(path)  # which says what is wrong, in its words
+    extra = set(doc) - set(ROBOT_TABLES)
+    if not extra or not extra <= set(SCHEMA):
+        return read_robot_toml(path)  # a robot.toml, or one with tables nobody knows
+    try:
+        parse_config(doc, path, text)
+    except ConfigError as exc:
+        raise LogFormatError(str(exc)) from None
+    return robot_config_from_tables(path, {t: doc[t] for t in ROBOT_TABLES if t in doc}, text)
