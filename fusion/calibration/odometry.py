@@ -42,6 +42,7 @@ __all__ = [
     "UmbmarkResult",
     "calibrate_odometry",
     "rest_bias",
+    "saturated_samples",
     "umbmark",
 ]
 
@@ -62,6 +63,10 @@ class OdometryCalibration:
         turned: total absolute rotation in the used windows, rad (the fit's leverage on L).
         straight_distance: wheel travel in the used windows, m (the leverage on the ratio).
         scale_from_distance: whether ``speed_ratio`` was re-estimated from a distance.
+        wheel_distance_std: standard deviation of ``wheel_distance``, m: the fit's (from its
+            residuals) and the gyro scale's (``gyro_scale_std`` of :func:`calibrate_odometry`).
+        radius_ratio_std: standard deviation of :attr:`radius_ratio` (the fit's), 1.
+        windows_saturated: windows left out because the gyro saturated in them.
     """
 
     nominal: DiffDriveParams
@@ -76,6 +81,9 @@ class OdometryCalibration:
     turned: float
     straight_distance: float
     scale_from_distance: bool
+    wheel_distance_std: float = math.nan
+    radius_ratio_std: float = math.nan
+    windows_saturated: int = 0
 
     @property
     def radius_ratio(self) -> float:
@@ -92,20 +100,30 @@ class OdometryCalibration:
         n = self.nominal
         lines = [
             "[chassis]",
-            f"wheel_distance = {self.wheel_distance:.6g}  # m, was {n.wheel_distance:.6g} "
+            f"wheel_distance = {self.wheel_distance:.6g}  # m +- {self.wheel_distance_std:.2g} "
+            f"(1 sigma: the fit's and the gyro scale's), was {n.wheel_distance:.6g} "
             f"({100 * (self.wheel_distance / n.wheel_distance - 1):+.2f} %)",
             f"speed_ratio = {self.speed_ratio:.6g}  # m/tick, was {n.speed_ratio:.6g} "
             + (f"({100 * (self.speed_ratio / n.speed_ratio - 1):+.2f} %)"
                if self.scale_from_distance else "(kept: no distance given, a gyro cannot "
                "observe the common scale)"),
-            f"# right/left wheel radius ratio {self.radius_ratio:.5f}: per wheel "
+            f"# right/left wheel radius ratio {self.radius_ratio:.5f} +- "
+            f"{self.radius_ratio_std:.2g}: per wheel "
             f"{self.left_ratio:.6g} (left), {self.right_ratio:.6g} (right) m/tick; "
             "seed 000's driver has one speed_ratio, the fused EKF estimates the mismatch "
             "online",
-            f"# from {self.windows_used} windows ({self.windows_rejected} rejected as slip), "
-            f"{math.degrees(self.turned):.0f} deg turned, {self.straight_distance:.1f} m "
+            f"# from {self.windows_used} windows ({self.windows_rejected} rejected as slip"
+            + (f", {self.windows_saturated} left out: the gyro saturated"
+               if self.windows_saturated else "")
+            + f"), {math.degrees(self.turned):.0f} deg turned, {self.straight_distance:.1f} m "
             f"driven, gyro bias {math.degrees(self.gyro_bias):+.4f} deg/s",
         ]
+        total = self.windows_used + self.windows_rejected
+        if self.windows_rejected > REJECTED_SHARE * total:
+            lines.append(
+                f"note: {self.windows_rejected} of {total} windows disagree with the gyro and "
+                "were left out: wheels slipping much of the time, or the IMU's stamps off the "
+                "wheels' (--imu-lag); the rest still fit, but check the floor and the clocks")
         return "\n".join(lines)
 
 
@@ -163,6 +181,9 @@ def calibrate_odometry(
     window: int = 25,
     latency: float = 0.0,
     outlier_sigma: float = 5.0,
+    saturated: ArrayLike | None = None,
+    gyro_scale_std: float = 0.0,
+    max_change: float = 0.5,
 ) -> OdometryCalibration:
     """Estimate ``wheel_distance`` and the wheel-radius ratio with the gyro as reference.
 
@@ -178,12 +199,25 @@ def calibrate_odometry(
         window: wheel frames per fitting window (frames must be consecutive inside a window).
         latency: transport delay from the end of a period to its stamp, s.
         outlier_sigma: rejection threshold in robust standard deviations.
+        saturated: (N,) bool per IMU sample, the gyro at its full scale
+            (:func:`saturated_samples`): the windows holding one are left out.
+        gyro_scale_std: relative standard deviation of the gyro's scale (robot.toml's
+            ``[ekf] gyro_scale_std``): ``wheel_distance`` inherits it.
+        max_change: a ``wheel_distance`` further than this share from ``robot``'s is refused
+            (no robot.toml is 50 % off; the gyro's units, or wheels slipping most of the
+            time, are).
+
+    The fit starts from the least median of squares over pairs of windows (half the windows
+    may slip, and the start still sees the others), then rejects residuals beyond
+    ``outlier_sigma`` robust standard deviations and refits, until the set holds.
 
     Returns:
         :class:`OdometryCalibration`.
 
     Raises:
-        ValueError: too little data, no standstill for the bias, or no turning at all.
+        ValueError: too little data, no standstill for the bias, no turning at all (saying
+            how many windows the gyro's saturation took), wheels turning opposite to the
+            gyro (left and right swapped), or a ``wheel_distance`` beyond ``max_change``.
     """
     it = np.asarray(imu_t, dtype=float).reshape(-1)
     gz = np.asarray(gyro_z, dtype=float).reshape(-1)
@@ -221,9 +255,20 @@ def calibrate_odometry(
         raise ValueError(f"only {len(rows)} usable windows of {window} frames overlap the IMU "
                          "data; record a longer run")
     W = np.array(rows)
+    n_saturated = 0
+    if saturated is not None:
+        clipped = np.asarray(saturated, dtype=bool).reshape(-1)
+        count = np.concatenate(([0], np.cumsum(clipped)))
+        lo, hi = np.searchsorted(it, W[:, 0]), np.searchsorted(it, W[:, 1], side="right")
+        hit = count[hi] - count[np.maximum(lo - 1, 0)] > 0
+        n_saturated = int(hit.sum())
+        W = W[~hit]
+    if len(W) < 4:
+        raise ValueError(f"only {len(W)} usable windows ({n_saturated} left out because the "
+                         "gyro saturated in them); record a longer run, turning slower")
     dpsi = np.interp(W[:, 1], it, G) - np.interp(W[:, 0], it, G)
     A = np.column_stack([W[:, 3], -W[:, 2]])  # dpsi = a*NR - b*NL
-    keep = np.ones(len(W), dtype=bool)
+    keep = _least_median_start(A, dpsi, outlier_sigma)
     sigma = math.inf
     for _ in range(10):
         sol, *_ = np.linalg.lstsq(A[keep], dpsi[keep], rcond=None)
@@ -237,11 +282,21 @@ def calibrate_odometry(
     a, b = float(sol[0]), float(sol[1])
     turned = float(np.abs(dpsi[keep]).sum())
     if turned < math.radians(90):
-        raise ValueError(f"only {math.degrees(turned):.0f} deg of turning in the usable windows; "
-                         "the separation is not observable: turn more")
+        left_out = (f" ({n_saturated} windows were left out because the gyro saturated in "
+                    "them: turn slower)" if n_saturated else "")
+        raise ValueError(f"only {math.degrees(turned):.0f} deg of turning in the usable windows"
+                         f"{left_out}; the separation is not observable: turn more")
+    if a < 0 and b < 0:
+        raise ValueError(f"the wheels turn the robot opposite to the gyro (wheel factors a={a:g}, "
+                         f"b={b:g} per tick, both negative): left and right are swapped in the "
+                         "wheel log, or the IMU's mount (imu_mount_rpy) turns it upside down")
     if not (a > 0 and b > 0):
         raise ValueError(f"the fit gave non-physical wheel factors a={a:g}, b={b:g} (1/tick): "
                          "the run needs turns in both directions and straight driving")
+    # the fit's covariance (residual variance times (A'A)^-1 over the windows kept)
+    Ak = A[keep]
+    cov = np.linalg.inv(Ak.T @ Ak) * float(np.var(dpsi[keep] - Ak @ sol, ddof=2)
+                                            if keep.sum() > 2 else 0.0)
     rho = a / b  # s_r / s_l
     scale_known = distance is not None or truth_t is not None
     if truth_t is not None:
@@ -261,7 +316,21 @@ def calibrate_odometry(
         s = robot.speed_ratio
     s_l = 2.0 * s / (1.0 + rho)
     s_r = 2.0 * s * rho / (1.0 + rho)
-    L = s_r / a
+    L = s_r / a  # = 2 s / (a + b)
+    change = L / robot.wheel_distance - 1.0
+    if abs(change) > max_change:
+        units = (" The ratio is pi/180's: the gyro is in deg/s, not rad/s."
+                 if abs(L / robot.wheel_distance * 180.0 / math.pi - 1.0) < 0.1 else "")
+        raise ValueError(
+            f"the fit gives wheel_distance {L:.4g} m, {100 * change:+.0f} % from robot.toml's "
+            f"{robot.wheel_distance:.4g} m: no measured track is that far off; the gyro's "
+            "units, wheels slipping much of the time, or the wrong robot.toml (the residuals "
+            f"spread by {math.degrees(sigma):.2g} deg per window).{units} Nothing was "
+            "written")
+    var_sum = cov[0, 0] + cov[1, 1] + 2.0 * cov[0, 1]
+    L_std = L * math.sqrt(var_sum / (a + b) ** 2 + gyro_scale_std ** 2)
+    # rho = a/b: d rho = (da - rho db)/b
+    rho_std = math.sqrt(max(cov[0, 0] - 2 * rho * cov[0, 1] + rho * rho * cov[1, 1], 0.0)) / b
     return OdometryCalibration(
         nominal=robot,
         wheel_distance=float(L),
@@ -275,7 +344,96 @@ def calibrate_odometry(
         turned=turned,
         straight_distance=float(W[keep, 4].sum() * s),
         scale_from_distance=scale_known,
+        wheel_distance_std=float(L_std),
+        radius_ratio_std=float(rho_std),
+        windows_saturated=n_saturated,
     )
+
+
+#: above this share of the windows rejected, the report says what else than slip does it
+REJECTED_SHARE = 0.3
+#: rad: windows turning by more than this (by the gyro) tell the separation
+#: (_least_median_start); the other moving windows tell the radius ratio
+TURN_WINDOW = math.radians(5.0)
+#: candidate fits of _least_median_start at most (pairs drawn with a fixed seed beyond)
+MAX_CANDIDATES = 20_000
+
+
+def _least_median_start(A: NDArray[np.float64], y: NDArray[np.float64],
+                        outlier_sigma: float) -> NDArray[np.bool_]:
+    """The windows to start the fit ``y = A @ sol`` (2 unknowns) with, chosen so that half
+    the windows of each kind may slip without pulling the start: an independent probe's
+    wheel spinning 40 % of the time gave a least-squares wheel_distance 87 % off, and every
+    window within 5 sigma of that fit.
+
+    Turning windows (``|y| > TURN_WINDOW``) tell the separation; straight ones the radius
+    ratio, which turns in place leave open; stops (no ticks) tell neither and are kept.
+    Each candidate solves a pair of windows (turning with turning or with straight: all such
+    pairs up to :data:`MAX_CANDIDATES`); the start is the candidate with the least sum of the
+    median squared residual over the turning windows and over the straight ones (a median
+    per kind: straights, often the majority, fit any separation). The windows within
+    ``outlier_sigma`` robust standard deviations of it, each kind against its own, are the
+    start. All windows with fewer than 6 turning ones."""
+    n = len(y)
+    moving = np.any(A != 0.0, axis=1)
+    turning = np.flatnonzero(moving & (np.abs(y) > TURN_WINDOW))
+    straight = np.flatnonzero(moving & (np.abs(y) <= TURN_WINDOW))
+    if turning.size < 6:
+        return np.ones(n, dtype=bool)
+    ti, tj = np.triu_indices(turning.size, k=1)
+    i = np.concatenate([turning[ti], np.repeat(turning, straight.size)])
+    j = np.concatenate([turning[tj], np.tile(straight, turning.size)])
+    if i.size > MAX_CANDIDATES:
+        pick = np.random.default_rng(0).choice(i.size, MAX_CANDIDATES, replace=False)
+        i, j = i[pick], j[pick]
+    det = A[i, 0] * A[j, 1] - A[i, 1] * A[j, 0]
+    ok = np.abs(det) > 1e-12 * (np.abs(A[i]).max(axis=1) * np.abs(A[j]).max(axis=1))
+    if not ok.any():
+        return np.ones(n, dtype=bool)
+    i, j, det = i[ok], j[ok], det[ok]
+    a = (y[i] * A[j, 1] - A[i, 1] * y[j]) / det
+    b = (A[i, 0] * y[j] - y[i] * A[j, 0]) / det
+
+    def median_squares(rows, cand):
+        res = y[rows][None, :] - np.outer(a[cand], A[rows, 0]) - np.outer(b[cand], A[rows, 1])
+        return np.median(res ** 2, axis=1) if rows.size else np.zeros(res.shape[0])
+
+    best, best_k = np.inf, 0
+    for start in range(0, a.size, 2000):  # (candidates x windows) in blocks
+        cand = np.arange(start, min(start + 2000, a.size))
+        score = median_squares(turning, cand) + median_squares(straight, cand)
+        k = int(np.argmin(score))
+        if score[k] < best:
+            best, best_k = float(score[k]), int(cand[k])
+    res = y - A[:, 0] * a[best_k] - A[:, 1] * b[best_k]
+    keep = np.ones(n, dtype=bool)
+    for rows in (turning, straight):
+        if rows.size > 2:
+            # Rousseeuw's scale of LMedS residuals, with its small-sample correction
+            scale = 1.4826 * (1.0 + 5.0 / (rows.size - 2)) * math.sqrt(
+                float(np.median(res[rows] ** 2)))
+            keep[rows] = np.abs(res[rows]) <= outlier_sigma * max(scale, 1e-12)
+    return keep
+
+
+def saturated_samples(gyro: ArrayLike, least_run: int = 3) -> NDArray[np.bool_]:
+    """(N,) bool: samples at which some axis of ``gyro`` ((N, 3), in the IMU's own axes)
+    sits at its full scale: the largest magnitude that axis reads, held for ``least_run``
+    samples in a row or more (a clipped sensor repeats its limit; a real peak does not).
+    """
+    g = np.abs(np.asarray(gyro, dtype=float).reshape(-1, 3))
+    out = np.zeros(g.shape[0], dtype=bool)
+    for axis in range(3):
+        top = g[:, axis].max(initial=0.0)
+        if top == 0.0:
+            continue
+        at = g[:, axis] >= top * (1.0 - 1e-9)
+        # runs of at least least_run samples
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], at.astype(int), [0]))))
+        for start, stop in zip(edges[::2], edges[1::2], strict=True):
+            if stop - start >= least_run:
+                out[start:stop] = True
+    return out
 
 
 def _mean_abs_ticks(tk, wt, windows, rho, T, latency) -> float:

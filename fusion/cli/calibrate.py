@@ -104,8 +104,9 @@ def _missing_what(parser) -> int:
 
 
 def run_odometry(args: argparse.Namespace) -> int:
-    from fusion.calibration.odometry import calibrate_odometry
-    from fusion.geometry.mount import vertical_rate
+    from fusion.calibration.gyro_scale import GYRO_FULL_SCALE_MAX
+    from fusion.calibration.odometry import calibrate_odometry, saturated_samples
+    from fusion.geometry.mount import base_to_imu, mount_matrix, vertical_rate
     from fusion.io.logdir import read_logdir
     from fusion.jobs.imu_lag import choose_imu_lag
     from fusion.jobs.streams import Streams
@@ -121,6 +122,16 @@ def run_odometry(args: argparse.Namespace) -> int:
         raise CommandError(f"{args.input}: --use-truth but there is no truth.csv")
     if args.distance is not None and args.use_truth:
         raise CommandError("give --distance or --use-truth, not both")
+    _refuse_non_finite(args.input, log)
+    peak = float(np.max(np.linalg.norm(log.gyro, axis=1)))
+    if peak > GYRO_FULL_SCALE_MAX:
+        raise CommandError(f"{args.input / 'imu.csv'}: the gyro reads up to {peak:.3g} rad/s, "
+                           f"beyond an MPU6050's largest full scale ({GYRO_FULL_SCALE_MAX:.3g} "
+                           "rad/s = 2000 deg/s): the rates are in other units (deg/s?); the "
+                           "gyro columns are in rad/s")
+    # the full scale shows in the IMU's own axes (a clipped axis repeats its limit)
+    saturated = saturated_samples(base_to_imu(mount_matrix(log.robot.imu_mount_rpy),
+                                              log.gyro))
     if args.level:
         gyro_z = log.gyro[:, 2]
     else:
@@ -144,9 +155,16 @@ def run_odometry(args: argparse.Namespace) -> int:
         truth=log.truth if args.use_truth else None,
         window=args.window,
         latency=log.robot.ekf.wheel_latency,
+        saturated=saturated,
+        gyro_scale_std=log.robot.ekf.gyro_scale_std,
     )
     print(f"{args.input}: odometry calibration with the gyro as reference")
     print(cal.report())
+    if log.robot.ekf.gyro_scale == 0.0:
+        print(f"note: the gyro's scale is not calibrated ([ekf] gyro_scale in "
+              f"{args.input / 'robot.toml'}): wheel_distance carries its error (MPU6050: up to "
+              f"3 %; +- {100 * log.robot.ekf.gyro_scale_std:.2g} % is in the std above); run "
+              "`fusion calibrate gyro-scale` first and copy its [ekf] lines into robot.toml")
     if args.write is not None:
         from dataclasses import replace
 
@@ -246,13 +264,14 @@ def run_umbmark(args: argparse.Namespace) -> int:
     from fusion.io.logdir import read_logdir
     from fusion.planar.odometry import WheelOdometry
 
-    def errors(dirs: list[Path]) -> tuple[np.ndarray, float]:
+    def errors(dirs: list[Path], clockwise: bool) -> tuple[np.ndarray, float]:
         out = []
         L = None
         for d in dirs:
             log = read_logdir(d)
             if log.truth is None or log.wheel_t is None:
                 raise CommandError(f"{d}: UMBmark needs wheels.csv and truth.csv")
+            _check_square_run(d, log.truth, clockwise=clockwise, side=args.side)
             pose = WheelOdometry(log.robot.chassis).update_batch(log.ticks[:, 0],
                                                                  log.ticks[:, 1])[-1]
             # express the truth in the start frame of the run
@@ -265,8 +284,8 @@ def run_umbmark(args: argparse.Namespace) -> int:
             L = log.robot.chassis.wheel_distance
         return np.array(out), float(L)
 
-    cw, L = errors(args.cw)
-    ccw, L2 = errors(args.ccw)
+    cw, L = errors(args.cw, clockwise=True)
+    ccw, L2 = errors(args.ccw, clockwise=False)
     if L != L2:
         raise CommandError("the CW and CCW runs use different wheel_distance values")
     r = umbmark(cw, ccw, args.side, L)
@@ -281,4 +300,32 @@ def run_umbmark(args: argparse.Namespace) -> int:
     print(f"wheel_distance = {r.wheel_distance:.6g}  # m, was {L:.6g}")
     print(f"# per-wheel factors on speed_ratio: left {r.left_factor:.5f}, right "
           f"{r.right_factor:.5f}")
+    print("note: UMBmark's correction is first-order: drive the squares again with the "
+          "corrected values and repeat until the return errors stop shrinking "
+          "(Borenstein & Feng iterate too)")
     return 0
+
+
+#: A square run's truth must turn by 360 deg within this, and its path be 4 sides within
+#: this share: a run in the wrong list, a wrong --side or a run that is no square gave a
+#: confident wrong correction (an independent probe: wheel_distance 3-4 % off, E_d inverted)
+SQUARE_TURN_TOLERANCE = math.radians(45.0)
+SQUARE_PATH_TOLERANCE = 0.15
+
+
+def _check_square_run(d: Path, truth: np.ndarray, *, clockwise: bool, side: float) -> None:
+    """Refuse a run whose ground truth is not the square it is given as."""
+    yaw = np.unwrap(truth[:, 2])
+    turned = float(yaw[-1] - yaw[0])
+    want = -2.0 * math.pi if clockwise else 2.0 * math.pi
+    if abs(turned - want) > SQUARE_TURN_TOLERANCE:
+        other = "--ccw" if clockwise else "--cw"
+        raise CommandError(
+            f"{d}: truth.csv turns {math.degrees(turned):+.0f} deg, a "
+            f"{'clockwise' if clockwise else 'counter-clockwise'} square "
+            f"{math.degrees(want):+.0f}: the run belongs under {other}, or is no square")
+    path = float(np.sum(np.hypot(np.diff(truth[:, 0]), np.diff(truth[:, 1]))))
+    if abs(path / (4.0 * side) - 1.0) > SQUARE_PATH_TOLERANCE:
+        raise CommandError(
+            f"{d}: truth.csv's path is {path:.2f} m, a square of side {side:g} m (--side) is "
+            f"{4.0 * side:g} m: give the side driven, or the run is no square")
