@@ -79,7 +79,8 @@ BASE = {
             "sim raw": ["imu", "--sim", "--count", "30", "--raw", "-o", "raw.csv"]},
     "imu-calibrate": {"raw": ["imu-calibrate", "rest.csv", "-o", "cal.json"]},
     "calibrate odometry": {"logdir": ["calibrate", "odometry", "run1"]},
-    "calibrate umbmark": {"squares": ["calibrate", "umbmark", "--cw", "cw", "--ccw", "ccw"]},
+    "calibrate umbmark": {"squares": ["calibrate", "umbmark", "--cw", "cw", "--ccw", "ccw",
+                                      "--side", "2"]},
     "calibrate gyro-scale": {"turns": ["calibrate", "gyro-scale", "turns", "--turns", "3"]},
     "chassis decode": {"capture": ["chassis", "decode", "capture.bin"]},
     "chassis encode": {"ticks": ["chassis", "encode", "100", "-300"]},
@@ -178,9 +179,11 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         "--write": [changes("logdir", "--write", "robot-calibrated.toml")],
     },
     "calibrate umbmark": {
-        "--cw": [changes("squares", "--cw", "cw", "ccw")],
-        "--ccw": [changes("squares", "--ccw", "ccw", "cw")],
-        "--side": [changes("squares", "--side", "2")],
+        # the truth says which way each square went, and how long its side was
+        "--cw": [refused("squares", "the run belongs under --ccw", "--cw", "cw", "ccw")],
+        "--ccw": [refused("squares", "the run belongs under --cw", "--ccw", "ccw", "cw")],
+        "--side": [changes("squares", "--side", "2.2"),
+                   refused("squares", "a square of side 4 m (--side) is 16 m", "--side", "4")],
     },
     "calibrate gyro-scale": {
         # the last --turns counts: a miscount is refused with both counts
