@@ -319,11 +319,17 @@ def _check_square_run(d: Path, truth: np.ndarray, *, clockwise: bool, side: floa
     turned = float(yaw[-1] - yaw[0])
     want = -2.0 * math.pi if clockwise else 2.0 * math.pi
     if abs(turned - want) > SQUARE_TURN_TOLERANCE:
-        other = "--ccw" if clockwise else "--cw"
+        square = (f"{d}: truth.csv turns {math.degrees(turned):+.0f} deg, a "
+                  f"{'clockwise' if clockwise else 'counter-clockwise'} square "
+                  f"{math.degrees(want):+.0f}")
+        if turned * want < 0:
+            raise CommandError(f"{square}: the run belongs under "
+                               f"{'--ccw' if clockwise else '--cw'}")
         raise CommandError(
-            f"{d}: truth.csv turns {math.degrees(turned):+.0f} deg, a "
-            f"{'clockwise' if clockwise else 'counter-clockwise'} square "
-            f"{math.degrees(want):+.0f}: the run belongs under {other}, or is no square")
+            f"{square}: no square, or driven by an odometry so far off (more than "
+            f"{math.degrees(SQUARE_TURN_TOLERANCE):.0f} deg over the square) that UMBmark's "
+            "first-order correction does not hold; run `fusion calibrate odometry` (the gyro "
+            "as reference) first, then the squares")
     path = float(np.sum(np.hypot(np.diff(truth[:, 0]), np.diff(truth[:, 1]))))
     if abs(path / (4.0 * side) - 1.0) > SQUARE_PATH_TOLERANCE:
         raise CommandError(
