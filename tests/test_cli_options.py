@@ -183,7 +183,8 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         "--cw": [refused("squares", "the run belongs under --ccw", "--cw", "cw", "ccw")],
         "--ccw": [refused("squares", "the run belongs under --cw", "--ccw", "ccw", "cw")],
         "--side": [changes("squares", "--side", "2.2"),
-                   refused("squares", "a square of side 4 m (--side) is 16 m", "--side", "4")],
+                   refused("squares", "a square of side 4 m (--side) is 16 m", "--side",
+                           "4")],
     },
     "calibrate gyro-scale": {
         # the last --turns counts: a miscount is refused with both counts

@@ -188,10 +188,10 @@ def test_no_rest_at_either_end_is_refused_not_an_index_error():
 
 def test_a_gyro_in_degrees_per_second_is_named():
     t, gyro, accel, _ = _turns_stream(10, 0.01, math.radians(0.5), 0.0)
-    with pytest.raises(ValueError, match=r"reads up to 58\.4 rad/s.*deg/s"):
+    with pytest.raises(ValueError, match=r"reads up to 5\d\.\d rad/s on one axis.*deg/s"):
         calibrate_gyro_scale(t, np.degrees(gyro), accel, 10)
-    # turning slowly (0.3 rad/s: 17 'rad/s' in deg/s, within a full scale): the count says it
-    t, gyro, accel, _ = _turns_stream(2, 0.0, 0.0, 0.0, rate=0.3)
+    # turning slowly (0.2 rad/s: 11.5 'rad/s' in deg/s, within a full scale): the count says it
+    t, gyro, accel, _ = _turns_stream(2, 0.0, 0.0, 0.0, rate=0.2)
     with pytest.raises(ValueError, match="180/pi's: the gyro is in deg/s"):
         calibrate_gyro_scale(t, np.degrees(gyro), accel, 2)
 
@@ -212,26 +212,79 @@ def test_a_non_finite_sample_is_named_by_its_index_and_time():
         calibrate_gyro_scale(t, gyro, accel, 3)
 
 
+#: the wheels of the tests below: 0.1 mm per tick, 0.2 m apart (one tick of difference per
+#: 40 ms frame turns the robot at 1.4 deg/s)
+GEOMETRY = (1e-4, 0.2)
+
+
+def _turn_ticks(t_frames, turns, rate=1.0, rest=5.0, offset=0.0):
+    """Wheel frames (40 ms) of _turns_stream's turn in place, stamped ``offset`` s off the
+    IMU's clock: right forward, left back, at the true rate."""
+    spin = 2 * math.pi * abs(turns) / rate
+    turning = (t_frames - offset >= rest) & (t_frames - offset < rest + spin)
+    per_frame = rate * 0.04 * GEOMETRY[1] / 2 / GEOMETRY[0]  # ticks per wheel per frame
+    right = np.where(turning, round(math.copysign(per_frame, turns)), 0)
+    return np.column_stack([-right, right]).astype(np.int64)
+
+
 def test_wheels_turning_during_a_rest_are_refused():
     # the robot creeping at 0.3 deg/s through its "rests" reads as bias; the probe's +1.2 %
     # gyro came out +0.78 % without a word. Its wheels, where logged, tell.
     t, gyro, accel, angle = _turns_stream(3, 0.01, 0.0, 0.0)
     wheel_t = np.arange(0.02, t[-1], 0.04)
-    ticks = np.zeros((wheel_t.size, 2), dtype=np.int64)
-    assert calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), wheel_t=wheel_t,
-                                ticks=ticks).scale_error == pytest.approx(0.01, abs=1e-9)
+    ticks = _turn_ticks(wheel_t, 3)
+    cal = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), wheel_t=wheel_t,
+                               ticks=ticks, wheel_geometry=GEOMETRY)
+    assert cal.scale_error == pytest.approx(0.01, abs=1e-9)
     creeping = ticks.copy()
-    creeping[wheel_t < 4.0, 1] = 1
-    with pytest.raises(ValueError, match="wheels turned during the rest before the turns"):
-        calibrate_gyro_scale(t, gyro, accel, 3, wheel_t=wheel_t, ticks=creeping)
+    creeping[wheel_t < 4.0] = [-1, 1]  # 1.4 deg/s: 27 deg over the 19 s of turning
+    with pytest.raises(ValueError, match=r"the wheels turned the robot by \+4\.\d+ deg during "
+                                         r"the rest before the turns"):
+        calibrate_gyro_scale(t, gyro, accel, 3, wheel_t=wheel_t, ticks=creeping,
+                             wheel_geometry=GEOMETRY)
+
+
+def test_wheel_stamps_off_the_imus_by_a_second_or_a_gearbox_settling_are_no_motion():
+    # the turn's own ticks 0.6 s early or late (another clock), or 5 ticks of one wheel
+    # settling as the robot stops, fall in the second next to the turns, which the check
+    # leaves out
+    t, gyro, accel, angle = _turns_stream(3, 0.01, 0.0, 0.0)
+    wheel_t = np.arange(0.02, t[-1], 0.04)
+    for offset in (-0.6, 0.6):
+        ticks = _turn_ticks(wheel_t, 3, offset=offset)
+        cal = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), wheel_t=wheel_t,
+                                   ticks=ticks, wheel_geometry=GEOMETRY)
+        assert cal.scale_error == pytest.approx(0.01, abs=1e-9)
+    settling = _turn_ticks(wheel_t, 3)
+    end = 5.0 + 6 * math.pi
+    settling[(wheel_t > end) & (wheel_t < end + 0.2), 1] = 1
+    assert calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), wheel_t=wheel_t,
+                                ticks=settling, wheel_geometry=GEOMETRY).scale_error == \
+        pytest.approx(0.01, abs=1e-9)
 
 
 def test_an_encoder_toggling_on_an_edge_is_no_motion():
     t, gyro, accel, angle = _turns_stream(3, 0.01, 0.0, 0.0)
     wheel_t = np.arange(0.02, t[-1], 0.04)
-    ticks = np.zeros((wheel_t.size, 2), dtype=np.int64)
-    ticks[5:40:2, 0] = 1  # +1, -1, +1, ...: net 0 or 1
-    ticks[6:40:2, 0] = -1
+    ticks = _turn_ticks(wheel_t, 3)
+    ticks[5:40:2, 0] += 1  # +1, -1, +1, ...: net 0 or 1
+    ticks[6:40:2, 0] -= 1
     cal = calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi), wheel_t=wheel_t,
-                               ticks=ticks)
+                               ticks=ticks, wheel_geometry=GEOMETRY)
     assert cal.scale_error == pytest.approx(0.01, abs=1e-9)
+
+
+def test_runs_that_differ_a_little_more_than_their_uncertainties_widen_the_std():
+    # +1.00 % and +1.10 % with a 0.0025 rad mark over 6 turns each (0.0066 % each): 11 std
+    # apart, as a gyro whose scale differs a little with the turning direction gives
+    runs = []
+    for turns, scale in ((6, 0.010), (-6, 0.011)):
+        t, gyro, accel, angle = _turns_stream(turns, scale, 0.0, 0.0)
+        runs.append(calibrate_gyro_scale(t, gyro, accel, angle / (2 * math.pi),
+                                         mark_std=0.0025))
+    c = combine_gyro_scales(runs)
+    plain = 1.0 / math.sqrt(sum(r.scale_error_std ** -2 for r in runs))
+    assert c.scale_error == pytest.approx(0.0105, abs=1e-9)
+    # widened so that the two runs are within about a standard deviation of the mean
+    assert c.scale_error_std > 2.0 * plain and c.scale_error_std >= 0.0004
+    assert "widened" in c.report()

@@ -38,21 +38,29 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.integrate import trapezoid
 from scipy.stats import chi2
 
+from fusion.calibration.gyro_limits import check_gyro_units, saturated_samples
+
 __all__ = ["GyroScaleCalibration", "calibrate_gyro_scale", "combine_gyro_scales"]
 
 _DEG = math.pi / 180.0
 
-#: rad/s: the MPU6050's largest full-scale range (2000 deg/s). A gyro reading beyond it is in
-#: other units (deg/s: a turn at 1 rad/s reads 57.3).
-GYRO_FULL_SCALE_MAX = 2000.0 * _DEG
+#: rad/s: an MPU6050's rate noise at rest, per sample (standard deviation)
+MPU6050_REST_NOISE = 0.001
 #: rad/s: above this spread over the first second (standard deviation) the gyro cannot be at
-#: rest in rad/s (an MPU6050 at rest: about 0.001)
-REST_SPREAD_MAX = 0.02
+#: rest in rad/s
+REST_SPREAD_MAX = 20.0 * MPU6050_REST_NOISE
 #: Above this |g| a result is reported with a caution: the datasheet allows 3 %, but a robot
 #: a quarter turn off its mark after 10 turns gives 2.5 % too.
 LARGE_SCALE_ERROR = 0.02
-#: The combined runs must agree with each other at this chi-square probability.
+#: The combined runs must agree with each other at this chi-square probability; where they do
+#: not, but no run is further than RUN_SPREAD_MAX from their mean, the combined standard
+#: deviation is widened by the Birge ratio sqrt(chi-square / dof) instead (a scale that
+#: differs a little with the turning direction is a property of the gyro, not a mistake).
 AGREEMENT_PROBABILITY = 0.999
+RUN_SPREAD_MAX = 0.005
+#: s of each rest next to the turns left out of the wheels' check (their stamps and the IMU's
+#: may be that far apart, and a gearbox settles there)
+WHEEL_CHECK_MARGIN = 1.0
 
 
 @dataclass(frozen=True)
@@ -70,6 +78,8 @@ class GyroScaleCalibration:
         vertical: (3,) unit vector of the vertical (up) in the IMU frame, from the first
             rest; the rate calibrated is ``gyro . vertical``, so feed the EKF that rate (the
             pipeline's tilt-compensated rate is the same on a level floor).
+        note: what the reader should know about a combination (its standard deviation
+            widened because the runs differ), or "".
     """
 
     scale_error: float
@@ -82,6 +92,7 @@ class GyroScaleCalibration:
     rest_before: float
     rest_after: float
     vertical: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    note: str = ""
 
     @property
     def mount_tilt(self) -> float:
@@ -109,6 +120,7 @@ class GyroScaleCalibration:
                f"{abs(self.scale_error * self.declared_turns) * 360.0:.0f} deg off its mark "
                "would give: check that it ended on the mark"
                if abs(self.scale_error) > LARGE_SCALE_ERROR else "")
+            + (f"\nnote: {self.note}" if self.note else "")
         )
 
 
@@ -134,6 +146,7 @@ def calibrate_gyro_scale(
     max_gap: float = 0.1,
     wheel_t: ArrayLike | None = None,
     ticks: ArrayLike | None = None,
+    wheel_geometry: tuple[float, float] | None = None,
 ) -> GyroScaleCalibration:
     """Gyro scale error from one run of turns in place (see the module docstring).
 
@@ -147,19 +160,24 @@ def calibrate_gyro_scale(
         turn_threshold: a rate this far (rad/s) from the rest's median ends a rest.
         margin: time trimmed off each rest next to the turning, s.
         max_scale_error: a larger ``|g|`` is refused as a miscount (the datasheet allows 3 %;
-            with up to 19 turns a miscount by one gives more than 5 %).
+            on an accurate gyro a miscount by one of up to 19 turns gives more than 5 %, on
+            one 3 % off, of up to 12).
         max_gap: the longest interval without an IMU sample between the rests, s (or five
             sample periods, if longer): the angle turned across a gap is unknown.
-        wheel_t, ticks: optional wheel frames of the same run ((M,) stamps on the IMU's
-            clock, s; (M, 2) left and right ticks per frame): a rest during which a wheel
-            turned is refused (a slow turn there would be taken for the gyro's bias).
+        wheel_t, ticks, wheel_geometry: optional wheel frames of the same run ((M,) stamps on
+            the IMU's clock, s; (M, 2) left and right ticks per frame) and the chassis'
+            ``(speed_ratio, wheel_distance)`` (m/tick, m): a rest in which the wheels turned
+            the robot by more than the mark's uncertainty, counted over the turning time
+            (the rate taken for bias), is refused; :data:`WHEEL_CHECK_MARGIN` s of each rest
+            next to the turns are left out of this check.
 
     Raises:
         ValueError: inputs of the wrong shape, non-finite (naming the first such sample) or
             not increasing; ``turns`` zero or not finite; a gyro beyond the MPU6050's full
-            scale (other units); a rest shorter than ``min_rest`` at either end, or one the
-            wheels turned in; a gap in the samples during the turns; a measured turn count
-            whose scale error exceeds ``max_scale_error`` (the message gives both counts).
+            scale (other units), or held at its limit during the turns; a rest shorter than
+            ``min_rest`` at either end, or one the wheels turned in; a gap in the samples
+            during the turns; a measured turn count whose scale error exceeds
+            ``max_scale_error`` (the message gives both counts).
     """
     t = np.asarray(imu_t, dtype=float).reshape(-1)
     g = np.asarray(gyro, dtype=float)
@@ -185,12 +203,7 @@ def calibrate_gyro_scale(
     up = a[first].mean(axis=0)
     up /= np.linalg.norm(up)
     rate = g @ up
-    peak = float(np.max(np.linalg.norm(g, axis=1)))
-    if peak > GYRO_FULL_SCALE_MAX:
-        raise ValueError(
-            f"the gyro reads up to {peak:.3g} rad/s, beyond an MPU6050's largest full scale "
-            f"({GYRO_FULL_SCALE_MAX:.3g} rad/s = 2000 deg/s): the rates are in other units "
-            "(deg/s?); imu.csv's gyro columns are in rad/s")
+    check_gyro_units(g)
     n_before = _rest_length(rate, t, turn_threshold)
     n_after = _rest_length(rate[::-1], -t[::-1], turn_threshold)
     if n_before == t.size:
@@ -206,16 +219,14 @@ def calibrate_gyro_scale(
         hint = ""
         if spread > REST_SPREAD_MAX:
             hint = (f"; over the first second the rate spreads by {spread:.3g} rad/s, "
-                    f"{spread / 0.001:.0f} times an MPU6050's at rest: the robot moved, or the "
+                    f"{spread / MPU6050_REST_NOISE:.0f} times an MPU6050's at rest: the robot "
+                    "moved, or the "
                     "gyro is not in rad/s (deg/s?)")
         raise ValueError(
             f"the robot must stand still for at least {min_rest:g} s before and after the "
             f"turns: found {rest_b:.1f} s at the start and {rest_a:.1f} s at the end (a rest "
             f"ends where the rate about the vertical departs by {math.degrees(turn_threshold):g} "
             f"deg/s){hint}")
-    if wheel_t is not None and ticks is not None:
-        _refuse_turning_wheels(np.asarray(wheel_t, dtype=float).reshape(-1),
-                               np.asarray(ticks), t[before], t[after])
     b0, b1 = float(rate[before].mean()), float(rate[after].mean())
     tb0, tb1 = float(t[before].mean()), float(t[after].mean())
     bias = b0 + (b1 - b0) * (t - tb0) / (tb1 - tb0)  # linear drift between the rests
@@ -228,6 +239,19 @@ def calibrate_gyro_scale(
         raise ValueError(
             f"no IMU sample for {gaps[worst]:.3g} s after t = {float(ts[worst])!r} s, during the "
             "turns: the angle turned across the gap is unknown; record the run again")
+    clipped = saturated_samples(g[span])
+    if clipped.any():
+        first = int(np.flatnonzero(clipped)[0])
+        limit = math.degrees(float(np.abs(g[span][first]).max()))
+        raise ValueError(
+            f"the gyro is held at its limit ({limit:.0f} deg/s) on {int(clipped.sum())} "
+            "samples during the turns, from t = "
+            f"{float(ts[first]):.2f} s: a saturated gyro reads its limit, not the rate; turn "
+            "slower, or set a larger full scale ([imu] gyro_range_dps)")
+    if wheel_t is not None and ticks is not None and wheel_geometry is not None:
+        _refuse_turning_wheels(np.asarray(wheel_t, dtype=float).reshape(-1),
+                               np.asarray(ticks), wheel_geometry, t[before], t[after],
+                               float(ts[-1] - ts[0]), mark_std)
     angle = float(trapezoid(rs, ts))
     declared = 2.0 * math.pi * turns
     measured_turns = angle / (2.0 * math.pi)
@@ -254,27 +278,33 @@ def calibrate_gyro_scale(
         vertical=(float(up[0]), float(up[1]), float(up[2])))
 
 
-#: ticks: a rest whose net count on either wheel exceeds this is no rest (an encoder sitting
-#: on an edge may toggle by one tick back and forth)
-REST_TICKS_MAX = 2
-
-
 def _refuse_turning_wheels(wheel_t: NDArray[np.float64], ticks: ArrayLike,
-                           rest_before: NDArray[np.float64],
-                           rest_after: NDArray[np.float64]) -> None:
-    """Raise if the wheel frames stamped within a rest (stamps ``rest_*``, s) add up to
-    more than :data:`REST_TICKS_MAX` ticks on either wheel."""
-    ticks = np.asarray(ticks).reshape(-1, 2)
+                           wheel_geometry: tuple[float, float],
+                           rest_before: NDArray[np.float64], rest_after: NDArray[np.float64],
+                           turning_time: float, mark_std: float) -> None:
+    """Raise if the wheels turned the robot during a rest (stamps ``rest_*``, s; the
+    :data:`WHEEL_CHECK_MARGIN` next to the turns left out) at a rate that, taken for the
+    gyro's bias over ``turning_time`` s, would cost more angle than ``mark_std`` (rad)."""
+    ticks = np.asarray(ticks, dtype=float).reshape(-1, 2)
+    speed_ratio, wheel_distance = wheel_geometry
     for name, rest in (("before", rest_before), ("after", rest_after)):
-        inside = (wheel_t >= rest[0]) & (wheel_t <= rest[-1])
-        net = np.abs(ticks[inside].sum(axis=0))
-        if net.max() > REST_TICKS_MAX:
-            moving = inside & np.any(ticks != 0, axis=1)
+        lo, hi = float(rest[0]), float(rest[-1])
+        if name == "before":
+            hi -= WHEEL_CHECK_MARGIN
+        else:
+            lo += WHEEL_CHECK_MARGIN
+        inside = (wheel_t >= lo) & (wheel_t <= hi)
+        if hi - lo <= 0.0 or not inside.any():
+            continue
+        turned = float(np.sum(ticks[inside, 1] - ticks[inside, 0])) * speed_ratio / wheel_distance
+        cost = abs(turned) / (hi - lo) * turning_time
+        if cost > mark_std:
             raise ValueError(
-                f"the wheels turned during the rest {name} the turns (left {int(net[0])}, "
-                f"right {int(net[1])} ticks net between t = {rest[0]:.2f} and {rest[-1]:.2f} "
-                f"s, from {float(wheel_t[moving][0]):.3f} s on): the robot must stand still "
-                "there, or the rate it turns at is taken for the gyro's bias")
+                f"the wheels turned the robot by {math.degrees(turned):+.2f} deg during the rest "
+                f"{name} the turns (t = {lo:.2f} to {hi:.2f} s): taken for the gyro's bias, that "
+                f"rate costs {math.degrees(cost):.1f} deg over the {turning_time:.0f} s of "
+                f"turning, more than the mark's {math.degrees(mark_std):g} deg; the robot must "
+                "stand still there")
 
 
 def combine_gyro_scales(runs: Sequence[GyroScaleCalibration]) -> GyroScaleCalibration:
@@ -282,9 +312,13 @@ def combine_gyro_scales(runs: Sequence[GyroScaleCalibration]) -> GyroScaleCalibr
     a bias error then cancels). The turn counts (unsigned) and times add up; the rests are the
     shortest.
 
+    Runs that differ by more than their uncertainties (chi-square above its
+    :data:`AGREEMENT_PROBABILITY` quantile) but each within :data:`RUN_SPREAD_MAX` of the mean
+    give the mean with its standard deviation widened by the Birge ratio, and a note.
+
     Raises:
-        ValueError: no runs; runs that disagree beyond their uncertainties (chi-square above
-            its :data:`AGREEMENT_PROBABILITY` quantile: a miscount, a robot off its mark, a
+        ValueError: no runs; runs that disagree beyond their uncertainties with one further
+            than :data:`RUN_SPREAD_MAX` from the mean (a miscount, a robot off its mark, a
             rest that was no rest), naming each run's value.
     """
     if not runs:
@@ -293,7 +327,19 @@ def combine_gyro_scales(runs: Sequence[GyroScaleCalibration]) -> GyroScaleCalibr
     g = np.array([r.scale_error for r in runs])
     mean = float(np.sum(w * g) / np.sum(w))
     spread = float(np.sum(w * (g - mean) ** 2))
-    if len(runs) > 1 and spread > chi2.ppf(AGREEMENT_PROBABILITY, len(runs) - 1):
+    std = float(1.0 / math.sqrt(np.sum(w)))
+    note = ""
+    dof = len(runs) - 1
+    if dof and spread > chi2.ppf(AGREEMENT_PROBABILITY, dof) and (
+            np.max(np.abs(g - mean)) <= RUN_SPREAD_MAX):
+        birge = math.sqrt(spread / dof)
+        std *= birge
+        note = (f"the runs differ by more than their uncertainties (chi-square {spread:.1f} "
+                f"on {dof} degree{'s' if dof > 1 else ''} of freedom), each within "
+                f"{100 * RUN_SPREAD_MAX:g} % of the mean: its standard deviation is widened "
+                f"{birge:.1f} times (a scale that differs with the turning direction, or a "
+                "mark missed by a little)")
+    elif dof and spread > chi2.ppf(AGREEMENT_PROBABILITY, dof):
         values = ", ".join(f"{100 * r.scale_error:+.3f} % +- {100 * r.scale_error_std:.3f} %"
                            for r in runs)
         raise ValueError(
@@ -303,11 +349,10 @@ def combine_gyro_scales(runs: Sequence[GyroScaleCalibration]) -> GyroScaleCalibr
             "not end on its mark or did not stand still in a rest; check each, or give a "
             "larger --mark-std if the marks were rough")
     return GyroScaleCalibration(
-        scale_error=float(np.sum(w * g) / np.sum(w)), scale_error_std=float(1.0 / math.sqrt(
-            np.sum(w))),
+        scale_error=mean, scale_error_std=std,
         measured_turns=float(sum(abs(r.measured_turns) for r in runs)),
         declared_turns=float(sum(abs(r.declared_turns) for r in runs)),
         turning_time=float(sum(r.turning_time for r in runs)),
         bias_before=runs[0].bias_before, bias_after=runs[-1].bias_after,
         rest_before=min(r.rest_before for r in runs), rest_after=min(r.rest_after for r in runs),
-        vertical=runs[0].vertical)
+        vertical=runs[0].vertical, note=note)

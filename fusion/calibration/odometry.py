@@ -42,7 +42,6 @@ __all__ = [
     "UmbmarkResult",
     "calibrate_odometry",
     "rest_bias",
-    "saturated_samples",
     "umbmark",
 ]
 
@@ -118,6 +117,11 @@ class OdometryCalibration:
             + f"), {math.degrees(self.turned):.0f} deg turned, {self.straight_distance:.1f} m "
             f"driven, gyro bias {math.degrees(self.gyro_bias):+.4f} deg/s",
         ]
+        if self.radius_ratio_std > RATIO_STD_NOTE:
+            lines.append(
+                f"note: the radius ratio is poorly measured (+- {self.radius_ratio_std:.2g}): "
+                "it needs straight driving, which this run has little of "
+                f"({self.straight_distance:.1f} m of wheel travel in the windows used)")
         total = self.windows_used + self.windows_rejected
         if self.windows_rejected > REJECTED_SHARE * total:
             lines.append(
@@ -200,7 +204,8 @@ def calibrate_odometry(
         latency: transport delay from the end of a period to its stamp, s.
         outlier_sigma: rejection threshold in robust standard deviations.
         saturated: (N,) bool per IMU sample, the gyro at its full scale
-            (:func:`saturated_samples`): the windows holding one are left out.
+            (:func:`fusion.calibration.gyro_limits.saturated_samples`): the windows whose
+            heading integral uses one are left out.
         gyro_scale_std: relative standard deviation of the gyro's scale (robot.toml's
             ``[ekf] gyro_scale_std``): ``wheel_distance`` inherits it.
         max_change: a ``wheel_distance`` further than this share from ``robot``'s is refused
@@ -259,8 +264,10 @@ def calibrate_odometry(
     if saturated is not None:
         clipped = np.asarray(saturated, dtype=bool).reshape(-1)
         count = np.concatenate(([0], np.cumsum(clipped)))
+        # the samples the heading integral over [t0, t1] interpolates between: from the last
+        # one before t0 to the first one after t1
         lo, hi = np.searchsorted(it, W[:, 0]), np.searchsorted(it, W[:, 1], side="right")
-        hit = count[hi] - count[np.maximum(lo - 1, 0)] > 0
+        hit = count[np.minimum(hi + 1, it.size)] - count[np.maximum(lo - 1, 0)] > 0
         n_saturated = int(hit.sum())
         W = W[~hit]
     if len(W) < 4:
@@ -293,10 +300,13 @@ def calibrate_odometry(
     if not (a > 0 and b > 0):
         raise ValueError(f"the fit gave non-physical wheel factors a={a:g}, b={b:g} (1/tick): "
                          "the run needs turns in both directions and straight driving")
-    # the fit's covariance (residual variance times (A'A)^-1 over the windows kept)
+    # the fit's covariance: residual variance (the model has no intercept; stops, whose rows
+    # are zero, tell nothing and do not count) times (A'A)^-1 over the windows kept
     Ak = A[keep]
-    cov = np.linalg.inv(Ak.T @ Ak) * float(np.var(dpsi[keep] - Ak @ sol, ddof=2)
-                                            if keep.sum() > 2 else 0.0)
+    informative = np.any(Ak != 0.0, axis=1)
+    res_k = (dpsi[keep] - Ak @ sol)[informative]
+    res_var = float(res_k @ res_k) / (res_k.size - 2) if res_k.size > 2 else 0.0
+    cov = np.linalg.inv(Ak.T @ Ak) * res_var
     rho = a / b  # s_r / s_l
     scale_known = distance is not None or truth_t is not None
     if truth_t is not None:
@@ -352,9 +362,11 @@ def calibrate_odometry(
 
 #: above this share of the windows rejected, the report says what else than slip does it
 REJECTED_SHARE = 0.3
-#: rad: windows turning by more than this (by the gyro) tell the separation
+#: above this standard deviation of the radius ratio, the report says it needs straights
+RATIO_STD_NOTE = 0.01
+#: rad: windows turning by more than this angle (by the gyro) tell the separation
 #: (_least_median_start); the other moving windows tell the radius ratio
-TURN_WINDOW = math.radians(5.0)
+TURNING_WINDOW_ANGLE = math.radians(5.0)
 #: candidate fits of _least_median_start at most (pairs drawn with a fixed seed beyond)
 MAX_CANDIDATES = 20_000
 
@@ -366,7 +378,7 @@ def _least_median_start(A: NDArray[np.float64], y: NDArray[np.float64],
     wheel spinning 40 % of the time gave a least-squares wheel_distance 87 % off, and every
     window within 5 sigma of that fit.
 
-    Turning windows (``|y| > TURN_WINDOW``) tell the separation; straight ones the radius
+    Turning windows (``|y| > TURNING_WINDOW_ANGLE``) tell the separation; straight ones the radius
     ratio, which turns in place leave open; stops (no ticks) tell neither and are kept.
     Each candidate solves a pair of windows (turning with turning or with straight: all such
     pairs up to :data:`MAX_CANDIDATES`); the start is the candidate with the least sum of the
@@ -376,16 +388,22 @@ def _least_median_start(A: NDArray[np.float64], y: NDArray[np.float64],
     start. All windows with fewer than 6 turning ones."""
     n = len(y)
     moving = np.any(A != 0.0, axis=1)
-    turning = np.flatnonzero(moving & (np.abs(y) > TURN_WINDOW))
-    straight = np.flatnonzero(moving & (np.abs(y) <= TURN_WINDOW))
+    turning = np.flatnonzero(moving & (np.abs(y) > TURNING_WINDOW_ANGLE))
+    straight = np.flatnonzero(moving & (np.abs(y) <= TURNING_WINDOW_ANGLE))
     if turning.size < 6:
         return np.ones(n, dtype=bool)
-    ti, tj = np.triu_indices(turning.size, k=1)
-    i = np.concatenate([turning[ti], np.repeat(turning, straight.size)])
-    j = np.concatenate([turning[tj], np.tile(straight, turning.size)])
-    if i.size > MAX_CANDIDATES:
-        pick = np.random.default_rng(0).choice(i.size, MAX_CANDIDATES, replace=False)
-        i, j = i[pick], j[pick]
+    pairs = turning.size * (turning.size - 1) // 2 + turning.size * straight.size
+    if pairs <= MAX_CANDIDATES:
+        ti, tj = np.triu_indices(turning.size, k=1)
+        i = np.concatenate([turning[ti], np.repeat(turning, straight.size)])
+        j = np.concatenate([turning[tj], np.tile(straight, turning.size)])
+    else:  # drawn, never all built: a long log has millions of pairs
+        rng = np.random.default_rng(0)
+        i = turning[rng.integers(0, turning.size, MAX_CANDIDATES)]
+        others = np.concatenate([turning, straight])
+        j = others[rng.integers(0, others.size, MAX_CANDIDATES)]
+        distinct = i != j
+        i, j = i[distinct], j[distinct]
     det = A[i, 0] * A[j, 1] - A[i, 1] * A[j, 0]
     ok = np.abs(det) > 1e-12 * (np.abs(A[i]).max(axis=1) * np.abs(A[j]).max(axis=1))
     if not ok.any():
@@ -414,26 +432,6 @@ def _least_median_start(A: NDArray[np.float64], y: NDArray[np.float64],
                 float(np.median(res[rows] ** 2)))
             keep[rows] = np.abs(res[rows]) <= outlier_sigma * max(scale, 1e-12)
     return keep
-
-
-def saturated_samples(gyro: ArrayLike, least_run: int = 3) -> NDArray[np.bool_]:
-    """(N,) bool: samples at which some axis of ``gyro`` ((N, 3), in the IMU's own axes)
-    sits at its full scale: the largest magnitude that axis reads, held for ``least_run``
-    samples in a row or more (a clipped sensor repeats its limit; a real peak does not).
-    """
-    g = np.abs(np.asarray(gyro, dtype=float).reshape(-1, 3))
-    out = np.zeros(g.shape[0], dtype=bool)
-    for axis in range(3):
-        top = g[:, axis].max(initial=0.0)
-        if top == 0.0:
-            continue
-        at = g[:, axis] >= top * (1.0 - 1e-9)
-        # runs of at least least_run samples
-        edges = np.flatnonzero(np.diff(np.concatenate(([0], at.astype(int), [0]))))
-        for start, stop in zip(edges[::2], edges[1::2], strict=True):
-            if stop - start >= least_run:
-                out[start:stop] = True
-    return out
 
 
 def _mean_abs_ticks(tk, wt, windows, rho, T, latency) -> float:

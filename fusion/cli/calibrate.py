@@ -104,8 +104,8 @@ def _missing_what(parser) -> int:
 
 
 def run_odometry(args: argparse.Namespace) -> int:
-    from fusion.calibration.gyro_scale import GYRO_FULL_SCALE_MAX
-    from fusion.calibration.odometry import calibrate_odometry, saturated_samples
+    from fusion.calibration.gyro_limits import check_gyro_units, saturated_samples
+    from fusion.calibration.odometry import calibrate_odometry
     from fusion.geometry.mount import base_to_imu, mount_matrix, vertical_rate
     from fusion.io.logdir import read_logdir
     from fusion.jobs.imu_lag import choose_imu_lag
@@ -123,15 +123,13 @@ def run_odometry(args: argparse.Namespace) -> int:
     if args.distance is not None and args.use_truth:
         raise CommandError("give --distance or --use-truth, not both")
     _refuse_non_finite(args.input, log)
-    peak = float(np.max(np.linalg.norm(log.gyro, axis=1)))
-    if peak > GYRO_FULL_SCALE_MAX:
-        raise CommandError(f"{args.input / 'imu.csv'}: the gyro reads up to {peak:.3g} rad/s, "
-                           f"beyond an MPU6050's largest full scale ({GYRO_FULL_SCALE_MAX:.3g} "
-                           "rad/s = 2000 deg/s): the rates are in other units (deg/s?); the "
-                           "gyro columns are in rad/s")
     # the full scale shows in the IMU's own axes (a clipped axis repeats its limit)
-    saturated = saturated_samples(base_to_imu(mount_matrix(log.robot.imu_mount_rpy),
-                                              log.gyro))
+    raw_gyro = base_to_imu(mount_matrix(log.robot.imu_mount_rpy), log.gyro)
+    try:
+        check_gyro_units(raw_gyro, f"{args.input / 'imu.csv'}: the gyro")
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    saturated = saturated_samples(raw_gyro)
     if args.level:
         gyro_z = log.gyro[:, 2]
     else:
@@ -212,15 +210,20 @@ def run_gyro_scale(args: argparse.Namespace) -> int:
     for d, turns in zip(args.input, args.turns, strict=True):
         if not d.is_dir():
             raise CommandError(f"{d}: not a log directory")
-        log = read_logdir(d)
+        # the IMU's own axes: the vertical is found from the accelerometer (any mount), and a
+        # clipped axis shows as such only unrotated
+        log = read_logdir(d, imu_frame="imu")
         if log.imu_t is None:
             raise CommandError(f"{d}: gyro-scale calibration needs imu.csv")
         _refuse_non_finite(d, log)
+        chassis = log.robot.chassis
         try:
             # the wheels, where logged, prove the rests were rests
             cal = calibrate_gyro_scale(log.imu_t, log.gyro, log.accel, turns,
                                        mark_std=math.radians(args.mark_std),
-                                       wheel_t=log.wheel_t, ticks=log.ticks)
+                                       wheel_t=log.wheel_t, ticks=log.ticks,
+                                       wheel_geometry=(chassis.speed_ratio,
+                                                       chassis.wheel_distance))
         except ValueError as exc:
             raise CommandError(f"{d}: {exc}") from exc
         print(f"{d}:")
@@ -234,6 +237,8 @@ def run_gyro_scale(args: argparse.Namespace) -> int:
     if len(runs) > 1:
         print(f"combined ({len(runs)} runs): g = {100 * cal.scale_error:+.3f} % +- "
               f"{100 * cal.scale_error_std:.3f} %")
+        if cal.note:
+            print(f"note: {cal.note}")
     print("[ekf]")
     for key, value in cal.ekf_fields().items():
         print(f"{key} = {value:.6g}")
@@ -306,32 +311,45 @@ def run_umbmark(args: argparse.Namespace) -> int:
     return 0
 
 
-#: A square run's truth must turn by 360 deg within this, and its path be 4 sides within
-#: this share: a run in the wrong list, a wrong --side or a run that is no square gave a
-#: confident wrong correction (an independent probe: wheel_distance 3-4 % off, E_d inverted)
-SQUARE_TURN_TOLERANCE = math.radians(45.0)
-SQUARE_PATH_TOLERANCE = 0.15
+#: What a square run's truth must show, where it has the samples to show it (at least
+#: SQUARE_TRUTH_ROWS: a hand-measured start and end pose shows neither): the way it turned,
+#: where it turned by more than half a turn, and a path of four sides within
+#: SQUARE_PATH_SHARE (the robot drives its sides by its own odometry, so their length holds
+#: even where its turns are off). An independent probe's exchanged lists (E_d inverted) and
+#: wrong --side (wheel_distance 3-4 % off) were corrected with confidence.
+SQUARE_TRUTH_ROWS = 20
+SQUARE_PATH_SHARE = 0.15
+#: m: the path is measured between truth points at least this far apart (a motion capture's
+#: millimetre noise would add up to metres over thousands of samples)
+PATH_STEP = 0.02
 
 
 def _check_square_run(d: Path, truth: np.ndarray, *, clockwise: bool, side: float) -> None:
-    """Refuse a run whose ground truth is not the square it is given as."""
+    """Refuse a run whose ground truth shows another square than the one it is given as."""
+    if len(truth) < SQUARE_TRUTH_ROWS:
+        return
     yaw = np.unwrap(truth[:, 2])
     turned = float(yaw[-1] - yaw[0])
-    want = -2.0 * math.pi if clockwise else 2.0 * math.pi
-    if abs(turned - want) > SQUARE_TURN_TOLERANCE:
-        square = (f"{d}: truth.csv turns {math.degrees(turned):+.0f} deg, a "
-                  f"{'clockwise' if clockwise else 'counter-clockwise'} square "
-                  f"{math.degrees(want):+.0f}")
-        if turned * want < 0:
-            raise CommandError(f"{square}: the run belongs under "
-                               f"{'--ccw' if clockwise else '--cw'}")
+    if abs(turned) > math.pi and (turned > 0) == clockwise:
         raise CommandError(
-            f"{square}: no square, or driven by an odometry so far off (more than "
-            f"{math.degrees(SQUARE_TURN_TOLERANCE):.0f} deg over the square) that UMBmark's "
-            "first-order correction does not hold; run `fusion calibrate odometry` (the gyro "
-            "as reference) first, then the squares")
-    path = float(np.sum(np.hypot(np.diff(truth[:, 0]), np.diff(truth[:, 1]))))
-    if abs(path / (4.0 * side) - 1.0) > SQUARE_PATH_TOLERANCE:
+            f"{d}: truth.csv turns {math.degrees(turned):+.0f} deg, a "
+            f"{'clockwise' if clockwise else 'counter-clockwise'} square turns "
+            f"{'-' if clockwise else '+'}: the run belongs under "
+            f"{'--ccw' if clockwise else '--cw'}")
+    path = _path_length(truth[:, :2], PATH_STEP)
+    if abs(path / (4.0 * side) - 1.0) > SQUARE_PATH_SHARE:
         raise CommandError(
             f"{d}: truth.csv's path is {path:.2f} m, a square of side {side:g} m (--side) is "
             f"{4.0 * side:g} m: give the side driven, or the run is no square")
+
+
+def _path_length(xy: np.ndarray, step: float) -> float:
+    """Length (m) of the polyline through the points of ``xy`` (m) each at least ``step`` m
+    from the one kept before it."""
+    total, last = 0.0, xy[0]
+    for point in xy[1:]:
+        d = math.hypot(point[0] - last[0], point[1] - last[1])
+        if d >= step:
+            total += d
+            last = point
+    return total
