@@ -114,19 +114,19 @@ def test_a_wheel_slipping_forty_percent_of_the_time_does_not_pull_the_fit():
 
 
 def test_the_stated_uncertainty_of_wheel_distance_covers_its_error():
-    """Six missions with three slip patches each (degraded_mission): the errors against the
+    """Missions with three slip patches each (degraded_mission): the errors against the
     simulator's true separation, in units of the stated standard deviation (the fit's; the
-    gyro here is exact, gyro_scale_std 0), have an RMS between 0.3 and 2. Measured when
-    written: 1.54 0.17 1.05 3.20 0.88 1.09, RMS 1.6: the fit's standard deviation is
-    optimistic by about that factor (it takes the windows as independent; an error of the
-    bias interpolated between two stops spans many)."""
+    gyro here is exact, gyro_scale_std 0). With the windows taken as independent the RMS was
+    1.55 on seeds 0-5 and 1.82 on seeds 6-17 (the bias interpolated between stops errs alike
+    over a whole stretch); with the stretches as clusters (_fit_covariance) 1.04 on 0-5, where
+    the problem was seen, and 1.14 on 6-17, asserted here."""
     z = []
-    for seed in range(6):
+    for seed in range(6, 18):
         run = degraded_mission(seed=seed, duration=300.0)
         cal = calibrate_odometry(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, ROBOT)
         z.append((cal.wheel_distance - run.true_wheel_distance) / cal.wheel_distance_std)
     rms = float(np.sqrt(np.mean(np.square(z))))
-    assert 0.3 < rms < 2.0, z
+    assert 0.6 < rms < 1.4, z
     # and the gyro scale's own uncertainty adds on: 3 % (uncalibrated) dominates
     cal3 = calibrate_odometry(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, ROBOT,
                               gyro_scale_std=0.03)
