@@ -62,8 +62,9 @@ class OdometryCalibration:
         turned: total absolute rotation in the used windows, rad (the fit's leverage on L).
         straight_distance: wheel travel in the used windows, m (the leverage on the ratio).
         scale_from_distance: whether ``speed_ratio`` was re-estimated from a distance.
-        wheel_distance_std: standard deviation of ``wheel_distance``, m: the fit's (from its
-            residuals) and the gyro scale's (``gyro_scale_std`` of :func:`calibrate_odometry`).
+        wheel_distance_std: standard deviation of ``wheel_distance``, m: the fit's (its
+            residuals, the stretches between stops as clusters: ``_fit_covariance``) and the
+            gyro scale's (``gyro_scale_std`` of :func:`calibrate_odometry`).
         radius_ratio_std: standard deviation of :attr:`radius_ratio` (the fit's), 1.
         windows_saturated: windows left out because the gyro saturated in them.
     """
