@@ -151,6 +151,27 @@ def test_windows_where_the_gyro_saturated_are_left_out_and_said():
                            saturated=np.abs(run.gyro[:, 2]) > 0.05)
 
 
+def test_windows_across_non_finite_gyro_samples_are_left_out_and_said():
+    # a corrupt row in a turn: the heading integral across it is unknown, so the windows that
+    # span it go, the rest fit as without it (fusion replay skips such samples too)
+    run = degraded_mission(seed=2, duration=300.0)
+    gz = run.gyro[:, 2].copy()
+    turning = np.flatnonzero(np.abs(gz) > 0.5)
+    holes = turning[np.linspace(0, turning.size - 1, 12).astype(int)]
+    gz[holes] = np.nan
+    gz[holes[3] + 1] = np.inf  # two in a row
+    clean = calibrate_odometry(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks, ROBOT)
+    cal = calibrate_odometry(run.imu_t, gz, run.wheel_t, run.ticks, ROBOT)
+    assert 6 <= cal.windows_not_finite <= 24  # one or two windows per hole
+    assert "across IMU samples that are not finite numbers" in cal.report()
+    assert cal.windows_used + cal.windows_rejected + cal.windows_not_finite == (
+        clean.windows_used + clean.windows_rejected)
+    assert cal.wheel_distance == pytest.approx(run.true_wheel_distance, rel=0.003)
+    # 10 of 299 windows fewer (and the slip rejection redrawn around them: 24 -> 20) move
+    # the fit within its stated uncertainty (measured 1.8 std)
+    assert abs(cal.wheel_distance - clean.wheel_distance) < 2 * clean.wheel_distance_std
+
+
 def test_swapped_wheels_and_other_units_are_named():
     run = degraded_mission(seed=1, duration=150.0)
     with pytest.raises(ValueError, match="left and right are swapped"):
@@ -227,6 +248,46 @@ def test_cli_calibrate_odometry(tmp_path, capsys):
     assert cfg.chassis.encode_sampling_time == ROBOT.encode_sampling_time
     assert main(["calibrate", "odometry", str(d), "--write", str(d / "robot.toml")]) == 2
     assert "refusing to overwrite" in capsys.readouterr().err
+
+
+def test_cli_calibrate_odometry_leaves_out_corrupt_imu_rows_and_names_them(tmp_path, capsys):
+    from fusion.cli import main
+
+    run = degraded_mission(seed=1, duration=150.0)
+    d = write_synthetic_run(tmp_path / "run", run)
+    lines = (d / "imu.csv").read_text().splitlines()
+    turning = np.flatnonzero(np.abs(run.gyro[:, 2]) > 0.5)
+    for k in turning[[10, 250, 500]]:
+        head, rest = lines[k + 1].split(",", 1)  # line 1 is the header
+        lines[k + 1] = head + ",nan," + rest.split(",", 1)[1]
+    (d / "imu.csv").write_text("\n".join(lines) + "\n")
+    assert main(["calibrate", "odometry", str(d)]) == 0
+    out = capsys.readouterr().out
+    assert (f"note: {d / 'imu.csv'}:{turning[10] + 2}: not a finite number (3 such rows): "
+            "left out") in out
+    assert re.search(r"\d+ left out: across IMU samples that are not finite numbers", out)
+    assert _value(out, "wheel_distance") == pytest.approx(run.true_wheel_distance, rel=0.003)
+
+
+def test_cli_calibrate_odometry_bound_on_the_change_can_be_raised(tmp_path, capsys):
+    # a robot.toml whose wheel_distance is a placeholder half the true one: refused by
+    # default (+100 %), measured with --max-change 150
+    from fusion.cli import main
+
+    run = degraded_mission(seed=1, duration=150.0)
+    d = write_synthetic_run(tmp_path / "run", run)
+    toml = (d / "robot.toml").read_text()
+    assert "wheel_distance = 0.3  #" in toml
+    (d / "robot.toml").write_text(toml.replace("wheel_distance = 0.3  #",
+                                               "wheel_distance = 0.15  #"))
+    assert main(["calibrate", "odometry", str(d)]) == 2
+    err = capsys.readouterr().err
+    assert "beyond max_change (50 %)" in err and "--max-change" in err
+    assert main(["calibrate", "odometry", str(d), "--max-change", "150"]) == 0
+    out = capsys.readouterr().out
+    assert _value(out, "wheel_distance") == pytest.approx(run.true_wheel_distance, rel=0.003)
+    assert main(["calibrate", "odometry", str(d), "--max-change", "0"]) == 2
+    assert "--max-change must be > 0 %" in capsys.readouterr().err
 
 
 def test_cli_calibrate_odometry_puts_a_late_imu_on_the_wheels_clock(tmp_path, capsys):

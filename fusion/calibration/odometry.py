@@ -67,6 +67,8 @@ class OdometryCalibration:
             gyro scale's (``gyro_scale_std`` of :func:`calibrate_odometry`).
         radius_ratio_std: standard deviation of :attr:`radius_ratio` (the fit's), 1.
         windows_saturated: windows left out because the gyro saturated in them.
+        windows_not_finite: windows left out because they span an IMU sample that is not a
+            finite number (the angle turned across it is unknown).
     """
 
     nominal: DiffDriveParams
@@ -84,6 +86,7 @@ class OdometryCalibration:
     wheel_distance_std: float = math.nan
     radius_ratio_std: float = math.nan
     windows_saturated: int = 0
+    windows_not_finite: int = 0
 
     @property
     def radius_ratio(self) -> float:
@@ -115,6 +118,8 @@ class OdometryCalibration:
             f"# from {self.windows_used} windows ({self.windows_rejected} rejected as slip"
             + (f", {self.windows_saturated} left out: the gyro saturated"
                if self.windows_saturated else "")
+            + (f", {self.windows_not_finite} left out: across IMU samples that are not "
+               "finite numbers" if self.windows_not_finite else "")
             + f"), {math.degrees(self.turned):.0f} deg turned, {self.straight_distance:.1f} m "
             f"driven, gyro bias {math.degrees(self.gyro_bias):+.4f} deg/s",
         ]
@@ -206,7 +211,8 @@ def calibrate_odometry(
         outlier_sigma: rejection threshold in robust standard deviations.
         saturated: (N,) bool per IMU sample, the gyro at its full scale
             (:func:`fusion.calibration.gyro_limits.saturated_samples`): the windows whose
-            heading integral uses one are left out.
+            heading integral uses one are left out. A ``gyro_z`` that is NaN or infinite
+            (a corrupt log row) is dropped, and so are the windows across it.
         gyro_scale_std: relative standard deviation of the gyro's scale (robot.toml's
             ``[ekf] gyro_scale_std``): ``wheel_distance`` inherits it.
         max_change: a ``wheel_distance`` further than this share from ``robot``'s is refused
@@ -236,6 +242,16 @@ def calibrate_odometry(
                          f"(need >= {2 * window})")
     if window < 1:
         raise ValueError(f"window must be >= 1 frame, got {window}")
+    clipped = (np.zeros(it.size, dtype=bool) if saturated is None
+               else np.asarray(saturated, dtype=bool).reshape(-1))
+    if clipped.size != it.size:
+        raise ValueError(f"saturated has {clipped.size} flags for {it.size} IMU samples")
+    # a non-finite sample is dropped; its kept neighbours mark the windows across the hole
+    bad = ~(np.isfinite(gz) & np.isfinite(it))
+    near_bad = (np.concatenate(([False], bad[:-1])) | np.concatenate((bad[1:], [False])))[~bad]
+    it, gz, clipped = it[~bad], gz[~bad], clipped[~bad]
+    if it.size < 10:
+        raise ValueError(f"too little data: {it.size} finite IMU samples")
     T = robot.encode_sampling_time
     bias, phase_mids = rest_bias(it, gz, wt, tk, T, latency=latency)
     rate = gz - bias
@@ -261,19 +277,14 @@ def calibrate_odometry(
         raise ValueError(f"only {len(rows)} usable windows of {window} frames overlap the IMU "
                          "data; record a longer run")
     W = np.array(rows)
-    n_saturated = 0
-    if saturated is not None:
-        clipped = np.asarray(saturated, dtype=bool).reshape(-1)
-        count = np.concatenate(([0], np.cumsum(clipped)))
-        # the samples the heading integral over [t0, t1] interpolates between: from the last
-        # one before t0 to the first one after t1
-        lo, hi = np.searchsorted(it, W[:, 0]), np.searchsorted(it, W[:, 1], side="right")
-        hit = count[np.minimum(hi + 1, it.size)] - count[np.maximum(lo - 1, 0)] > 0
-        n_saturated = int(hit.sum())
-        W = W[~hit]
+    hit_clipped = _windows_using(clipped, it, W)
+    hit_bad = _windows_using(near_bad, it, W) & ~hit_clipped
+    n_saturated, n_not_finite = int(hit_clipped.sum()), int(hit_bad.sum())
+    W = W[~(hit_clipped | hit_bad)]
     if len(W) < 4:
         raise ValueError(f"only {len(W)} usable windows ({n_saturated} left out because the "
-                         "gyro saturated in them); record a longer run, turning slower")
+                         f"gyro saturated in them, {n_not_finite} across IMU samples that "
+                         "are not finite numbers); record a longer run, turning slower")
     dpsi = np.interp(W[:, 1], it, G) - np.interp(W[:, 0], it, G)
     A = np.column_stack([W[:, 3], -W[:, 2]])  # dpsi = a*NR - b*NL
     keep = _least_median_start(A, dpsi, outlier_sigma)
@@ -328,10 +339,11 @@ def calibrate_odometry(
                  if abs(L / robot.wheel_distance * 180.0 / math.pi - 1.0) < 0.1 else "")
         raise ValueError(
             f"the fit gives wheel_distance {L:.4g} m, {100 * change:+.0f} % from robot.toml's "
-            f"{robot.wheel_distance:.4g} m: no measured track is that far off; the gyro's "
-            "units, wheels slipping much of the time, or the wrong robot.toml (the residuals "
-            f"spread by {math.degrees(sigma):.2g} deg per window).{units} Nothing was "
-            "written")
+            f"{robot.wheel_distance:.4g} m, beyond max_change ({100 * max_change:.0f} %): "
+            "likelier the gyro's units, wheels slipping much of the time, or the wrong "
+            f"robot.toml (the residuals spread by {math.degrees(sigma):.2g} deg per window)."
+            f"{units} Nothing was written; if robot.toml's value was a placeholder, allow "
+            "more (--max-change in fusion calibrate odometry)")
     var_sum = cov[0, 0] + cov[1, 1] + 2.0 * cov[0, 1]
     L_std = L * math.sqrt(var_sum / (a + b) ** 2 + gyro_scale_std ** 2)
     # rho = a/b: d rho = (da - rho db)/b
@@ -352,7 +364,18 @@ def calibrate_odometry(
         wheel_distance_std=float(L_std),
         radius_ratio_std=float(rho_std),
         windows_saturated=n_saturated,
+        windows_not_finite=n_not_finite,
     )
+
+
+def _windows_using(flags: NDArray[np.bool_], it: NDArray[np.float64],
+                   windows: NDArray[np.float64]) -> NDArray[np.bool_]:
+    """Which windows' heading integral uses a flagged IMU sample: the integral over
+    ``[t0, t1]`` interpolates from the last sample before ``t0`` to the first after ``t1``."""
+    count = np.concatenate(([0], np.cumsum(flags)))
+    lo = np.searchsorted(it, windows[:, 0])
+    hi = np.searchsorted(it, windows[:, 1], side="right")
+    return count[np.minimum(hi + 1, it.size)] - count[np.maximum(lo - 1, 0)] > 0
 
 
 #: above this share of the windows rejected, the report says what else than slip does it

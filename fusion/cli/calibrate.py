@@ -58,6 +58,10 @@ def register(subparsers) -> None:
                    help="s by which the IMU's stamps are later than the wheel frames' (taken "
                         "off them; 0 leaves them). Default auto: as fusion replay, estimated "
                         "from the turns and moved only when clearly off, with a note")
+    o.add_argument("--max-change", type=float, default=50.0, metavar="PERCENT",
+                   help="refuse a wheel_distance further than this from robot.toml's "
+                        "(default 50: the gyro's units or constant slip are likelier than so "
+                        "wrong a robot.toml; raise it for a placeholder robot.toml)")
     o.add_argument("--write", type=Path, metavar="TOML",
                    help="also write a robot.toml with the corrected [chassis] (frames and "
                         "[ekf] copied from the log's robot.toml); refuses to overwrite the "
@@ -122,24 +126,30 @@ def run_odometry(args: argparse.Namespace) -> int:
         raise CommandError(f"{args.input}: --use-truth but there is no truth.csv")
     if args.distance is not None and args.use_truth:
         raise CommandError("give --distance or --use-truth, not both")
-    _refuse_non_finite(args.input, log)
+    if not (math.isfinite(args.max_change) and args.max_change > 0):
+        raise CommandError(f"--max-change must be > 0 %, got {args.max_change}")
+    # a corrupt row is left out with the windows across it (calibrate_odometry), and said
+    finite = _finite_imu_rows(args.input, log)
+    imu_t, gyro, accel = log.imu_t[finite], log.gyro[finite], log.accel[finite]
     # the full scale shows in the IMU's own axes (a clipped axis repeats its limit)
-    raw_gyro = base_to_imu(mount_matrix(log.robot.imu_mount_rpy), log.gyro)
+    raw_gyro = base_to_imu(mount_matrix(log.robot.imu_mount_rpy), gyro)
     try:
         check_gyro_units(raw_gyro, f"{args.input / 'imu.csv'}: the gyro")
     except ValueError as exc:
         raise CommandError(str(exc)) from None
-    saturated = saturated_samples(raw_gyro)
+    saturated = np.zeros(finite.size, dtype=bool)
+    saturated[finite] = saturated_samples(raw_gyro)
     if args.level:
-        gyro_z = log.gyro[:, 2]
+        vertical = gyro[:, 2]
     else:
         from fusion.attitude.mahony import Mahony
 
-        q = Mahony(axes=6).update_batch(log.gyro, log.accel, timestamps=log.imu_t)
-        gyro_z = vertical_rate(log.gyro, q)
-    gyro_z = gyro_z / (1.0 + log.robot.ekf.gyro_scale)  # the reference: a calibrated gyro
+        q = Mahony(axes=6).update_batch(gyro, accel, timestamps=imu_t)
+        vertical = vertical_rate(gyro, q)
+    gyro_z = np.full(finite.size, np.nan)
+    gyro_z[finite] = vertical / (1.0 + log.robot.ekf.gyro_scale)  # as a calibrated gyro
     # the IMU's stamps on the wheels' clock, as fusion replay puts them
-    lag = choose_imu_lag(Streams(log.imu_t, log.gyro, log.accel, log.wheel_t, log.ticks),
+    lag = choose_imu_lag(Streams(imu_t, gyro, accel, log.wheel_t, log.ticks),
                          log.robot.chassis, args.imu_lag)
     if lag.note:
         print(f"note: {lag.note}")
@@ -155,6 +165,7 @@ def run_odometry(args: argparse.Namespace) -> int:
         latency=log.robot.ekf.wheel_latency,
         saturated=saturated,
         gyro_scale_std=log.robot.ekf.gyro_scale_std,
+        max_change=args.max_change / 100.0,
     )
     print(f"{args.input}: odometry calibration with the gyro as reference")
     print(cal.report())
@@ -248,6 +259,20 @@ def run_gyro_scale(args: argparse.Namespace) -> int:
         write_robot_toml(args.write, replace(robot, ekf=replace(robot.ekf, **cal.ekf_fields())))
         print(f"wrote {args.write}")
     return 0
+
+
+def _finite_imu_rows(d: Path, log) -> np.ndarray:
+    """(N,) bool, the IMU rows whose values are all finite numbers; a note names the first
+    other row by imu.csv's line."""
+    from fusion.io.imu_csv import imu_csv_lines
+
+    finite = np.isfinite(log.gyro).all(axis=1) & np.isfinite(log.accel).all(axis=1)
+    if not finite.all():
+        first = int(np.flatnonzero(~finite)[0])
+        (line,) = imu_csv_lines(d / "imu.csv", [first])
+        print(f"note: {d / 'imu.csv'}:{line}: not a finite number ({int((~finite).sum())} such "
+              "rows): left out, with the windows across them (as fusion replay skips them)")
+    return finite
 
 
 def _refuse_non_finite(d: Path, log) -> None:
