@@ -176,6 +176,9 @@ TABLE: dict[str, dict[str, list[Row]]] = {
         "--window": [changes("logdir", "--window", "50")],
         "--level": [changes("logdir", "--level")],
         "--imu-lag": [changes("logdir", "--imu-lag", "0.3")],
+        # run1's track is a few per cent off robot.toml's: beyond 0.1 % it is refused
+        "--max-change": [refused("logdir", "beyond max_change (0.1 %)", "--max-change",
+                                 "0.1")],
         "--write": [changes("logdir", "--write", "robot-calibrated.toml")],
     },
     "calibrate umbmark": {

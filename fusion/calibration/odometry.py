@@ -339,7 +339,7 @@ def calibrate_odometry(
                  if abs(L / robot.wheel_distance * 180.0 / math.pi - 1.0) < 0.1 else "")
         raise ValueError(
             f"the fit gives wheel_distance {L:.4g} m, {100 * change:+.0f} % from robot.toml's "
-            f"{robot.wheel_distance:.4g} m, beyond max_change ({100 * max_change:.0f} %): "
+            f"{robot.wheel_distance:.4g} m, beyond max_change ({100 * max_change:g} %): "
             "likelier the gyro's units, wheels slipping much of the time, or the wrong "
             f"robot.toml (the residuals spread by {math.degrees(sigma):.2g} deg per window)."
             f"{units} Nothing was written; if robot.toml's value was a placeholder, allow "
