@@ -53,6 +53,7 @@ from fusion.jobs.streams import (
     with_mount_estimate,
 )
 from fusion.jobs.wheel_checks import wheel_count_warnings
+from fusion.jobs.wheel_glitches import without_glitches
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.model import NX
 from fusion.planar.odometry import WheelOdometry
@@ -307,7 +308,9 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                          "the wheel encoder frames")
     imu_t, gyro, accel, note = _finite_imu_rows(path / "imu.csv", log.imu_t, log.gyro,
                                                 log.accel)
-    streams = Streams(imu_t, gyro, accel, log.wheel_t, log.ticks)
+    streams, glitch_note = without_glitches(
+        Streams(imu_t, gyro, accel, log.wheel_t, log.ticks), robot.chassis,
+        lambda idx: _wheel_rows(path, idx))
     streams.check_gyro(f"{path / 'imu.csv'}", robot.chassis)
     try:
         lag = choose_imu_lag(streams, robot.chassis, imu_lag)
@@ -318,9 +321,17 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
     result = _finish(path, output, robot, streams, log.truth_t, log.truth,
                      tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats,
                      one_pass=one_pass)
-    result.notes.extend(n for n in (note, lag.note, limit_note) if n)
+    result.notes.extend(n for n in (note, glitch_note, lag.note, limit_note) if n)
     result.imu_lag = lag.lag
     return result
+
+
+def _wheel_rows(path: Path, indices: list[int]) -> str:
+    """Where a log directory's wheel frames ``indices`` (0-based) are, in words."""
+    csv = path / "wheels.csv"
+    if csv.is_file():
+        return f"{csv} line(s) {', '.join(map(str, imu_csv_lines(csv, indices)))}"
+    return f"{path / 'wheels.uart2'} frame(s) {', '.join(str(i + 1) for i in indices)}"
 
 
 def _finite_imu_rows(csv: Path, t, gyro, accel):
@@ -354,11 +365,14 @@ def replay_capture(path: str | Path, output: str | Path, robot: RobotConfig | st
     if not len(cap):
         raise ValueError(f"{path}: no DATA-uart2 frame in the capture (parser counters: "
                          f"{cap.stats})")
-    streams = Streams(wheel_t=np.asarray(cap.frame_times(period), dtype=np.float64),
-                      ticks=np.column_stack([cap.left, cap.right]).astype(np.int64))
-    return _finish(path, output, robot, streams, None, None, tilt=True, plot=plot,
-                   one_pass=True,
-                   progress=progress, capture_stats=cap.stats)
+    streams, glitch_note = without_glitches(
+        Streams(wheel_t=np.asarray(cap.frame_times(period), dtype=np.float64),
+                ticks=np.column_stack([cap.left, cap.right]).astype(np.int64)),
+        robot.chassis, lambda idx: f"{path} frame(s) {', '.join(str(i + 1) for i in idx)}")
+    result = _finish(path, output, robot, streams, None, None, tilt=True, plot=plot,
+                     one_pass=True, progress=progress, capture_stats=cap.stats)
+    result.notes.extend([glitch_note] if glitch_note else [])
+    return result
 
 
 def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, truth_t, truth, *,
