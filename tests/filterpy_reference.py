@@ -81,6 +81,7 @@ class FilterpyReference:
                                     "speed_resets", "predictions", "accel_slips",
                                     "straight_frames", "wheel_scale_refits",
                                     "bias_relearnt", "gyro_spikes"), 0)
+        self.stats["fault_turn"] = 0.0  # rad: w over the encoder faults' intervals
         # the wheels' yaw rates are fused only while few turning frames fail the slip gate
         self.slip_share = 0.0
         self.distrust = False  # disproven: most turns disagree
@@ -401,6 +402,7 @@ class FilterpyReference:
                     self.zero_count = 0
                     self.steady_w = None
                     self.stats["encoder_faults"] += 1
+                    self.stats["fault_turn"] += kf.x[4] * interval
                     self.in_fault = True
                     if self.imu_motion in (UNSURE, MOVING):  # no gap: v stays extrapolated
                         self._measured(3)

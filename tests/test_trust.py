@@ -118,6 +118,19 @@ def test_heading_check_removes_the_bias_estimate() -> None:
                                            0.0)] == ["heading_divergence"]
 
 
+def test_heading_check_leaves_out_the_turn_of_a_dead_feed() -> None:
+    # shaped after an independent probe's dead feed during a spin in place: the wheels turned
+    # +134 deg, the gyro +429, of which +295 while the wheels read zero (encoder faults)
+    stats = {"wheel_frames": 2500, "encoder_faults": 200, "gyro_time": 100.0,
+             "wheel_turn": math.radians(134.0), "gyro_turn": math.radians(429.0)}
+    assert [w.name for w in trust_warnings(stats, 0.0)] == ["heading_divergence"]
+    assert trust_warnings({**stats, "fault_turn": math.radians(295.0)}, 0.0) == []
+    # what the odometry did see still has to agree: 160 deg more than the dead feed explains
+    (w,) = trust_warnings({**stats, "fault_turn": math.radians(135.0)}, 0.0)
+    assert w.name == "heading_divergence"
+    assert w.figures["divergence"] == pytest.approx(math.radians(160.0))
+
+
 def test_heading_check_credits_the_wheel_calibration_the_ekf_estimated() -> None:
     # 60 s, the gyro turning -6 rad (bias removed), 80 m driven: wheels whose yaw-rate scale
     # is 3 % low and whose right wheel covers a little more ground than the left (0.025 rad

@@ -107,7 +107,11 @@ Checks (each a :class:`TrustWarning` with its figures):
     black-box simulator's dead seed 403 (the odometry turned -131 deg where the gyro turned
     -340 over 79 m; the EKF's k -0.027 and c +0.023 rad/m, a 0.5 % radius mismatch, predict
     -229 deg) the 98 deg left are within the 199 deg allowed; without k and c credited the
-    209 deg apart called a track of 0.9 deg yaw RMSE untrustworthy.
+    209 deg apart called a track of 0.9 deg yaw RMSE untrustworthy. The gyro's turn while
+    the odometry read zero as an encoder fault (``fault_turn``) is left out: the odometry
+    could not see it, and ``encoder_fault`` speaks for that (an independent probe's dead feed
+    during a spin in place had the odometry 295 deg behind, named as a calibration
+    disagreement on a track of 5.9 deg yaw RMSE).
 
 Angles in rad and rates in rad/s inside; messages print degrees.
 """
@@ -309,7 +313,8 @@ def trust_warnings(stats: Mapping[str, Any], gyro_bias: float | None,
     if not frames:
         return out
     odometry = float(stats.get("wheel_turn", 0.0)) + float(stats.get("twist_turn", 0.0))
-    gyro = float(stats.get("gyro_turn", 0.0)) - gyro_bias * gyro_time
+    gyro = (float(stats.get("gyro_turn", 0.0)) - gyro_bias * gyro_time
+            - float(stats.get("fault_turn", 0.0)))
     # the odometry's turn the EKF's wheel calibration predicts from the gyro's, w_m = (1 + k)
     # w + c v_m, each state within its limit (beyond, wheel_scale speaks or it explains
     # nothing): a radius mismatch turns the odometry with the distance, not the turns

@@ -38,6 +38,7 @@ from fusion.io.odometry_motion import OdometryMotion, odometry_motion
 from fusion.io.pose_track import own_track
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
+from fusion.jobs.dead_feed import dead_feed_notes
 from fusion.jobs.engine import run_tasks
 from fusion.jobs.imu_lag import choose_imu_lag, shifted
 from fusion.jobs.moving_start import MovingStart, first_stop, last_estimate
@@ -397,6 +398,7 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
     if n_imu and streams.has_wheels:
         notes.extend(coverage_warnings(streams.imu_t, wheel_t, robot.ekf.max_extrapolation,
                                        "wheel frames", fused=table))
+    notes.extend(dead_feed_notes(table, chassis.encode_sampling_time, "wheel frames"))
     t_out = table[:, 0]
     wheel = WheelOdometry(chassis).update_batch(ticks[:, 0], ticks[:, 1])
     truth_res = None
@@ -588,6 +590,9 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     notes = [n for n in (mount_note, bag.note, *bag.topic_notes, *signs.notes, lag.note,
                          limit_note,
                          fix_note, spliced.note, tilt and streams.level_note()) if n]
+    if motion.t.size > 1:
+        notes.extend(dead_feed_notes(table, float(np.median(np.diff(motion.t))),
+                                     f"odometry twists ({odom_topic})"))
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation, fused=table)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, fixes, gps,
                      gps_note, motion, start, notes, coverage, lag.lag)

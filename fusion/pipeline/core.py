@@ -205,6 +205,9 @@ class PipelineStats:
             wheel_scale_refit``: a skid-steer base or a wrong wheel_distance in robot.toml).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
+        fault_turn: rad, the EKF's yaw rate integrated over those frames' intervals: the
+            gyro's turn that the odometry, dead, could not see (the EKF's ``fault_turn``;
+            :mod:`fusion.evaluation.trust` leaves it out of the headings it compares).
         gyro_spikes: gyro samples further from the predicted rate than any robot turns (a
             glitch on the bus; not fused; the EKF's ``gyro_spikes``).
         bias_relearnt: stops at which the gyro bias was relearnt because every zero-velocity
@@ -262,6 +265,7 @@ class PipelineStats:
     odometry_rate_correlation: float | None = None
     zupts: int = 0
     encoder_faults: int = 0
+    fault_turn: float = 0.0
     bias_relearnt: int = 0
     gyro_spikes: int = 0
     gap_count: int = 0
@@ -1352,6 +1356,7 @@ class FusionPipeline(Lifecycle):
             self.stats.odometry_rate_correlation = None if math.isnan(fit[2]) else fit[2]
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
+        self.stats.fault_turn = s["fault_turn"]
         self.stats.bias_relearnt = s["bias_relearnt"]
         self.stats.gyro_spikes = s["gyro_spikes"]
         self.stats.speed_resets = s["speed_resets"]

@@ -192,7 +192,8 @@ A_BIAS_RELEARNT = 69
 A_GYRO_T = 70  # filter time of the last gyro sample fused (NaN: none yet)
 A_SPIKE_RUN = 71  # gyro samples rejected as spikes since the last one fused
 A_GYRO_SPIKES = 72  # gyro samples rejected as spikes in all
-AUX_SIZE = 73
+A_FAULT_TURN = 73  # rad: the rate state integrated over the odometry's encoder-fault intervals
+AUX_SIZE = 74
 #: rad/s^2: no ground robot's yaw rate changes faster (a differential drive's wheels at 5
 #: m/s^2 on a 0.3 m track: 33 rad/s^2); a gyro reading further from the predicted rate
 #: than this times the time since the last fused sample, plus SPIKE_SIGMAS standard
@@ -1159,6 +1160,8 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         if fault:
             _no_steady_offset(aux)
             aux[A_FAULTS] += 1.0
+            # the turn the gyro saw while the odometry, dead, could not (trust checks)
+            aux[A_FAULT_TURN] += x[4] * interval
             aux[A_FLAGS] = FLAG_FAULT
             aux[A_ZERO_COUNT] = 0.0
             return math.nan, 7

@@ -821,8 +821,10 @@ class PlanarEKF(ExtendedKalmanFilter):
             ``invalid`` (non-finite or implausible inputs), ``gyro_saturated``,
             ``gyro_spikes`` (gyro samples further from the predicted rate than any robot
             turns: a glitch, not fused; :data:`fusion.planar._ekf_core.MAX_ANGULAR_ACCEL`),
-            ``encoder_faults``, ``updates``, ``speed_resets`` (v or w forgotten by the gap
-            policy), ``predictions`` (prediction steps).
+            ``encoder_faults``, ``fault_turn`` (rad, a float: the yaw rate state integrated
+            over the intervals of those frames, the turn the odometry could not see),
+            ``updates``, ``speed_resets`` (v or w forgotten by the gap policy),
+            ``predictions`` (prediction steps).
     """
 
     def __init__(
@@ -941,7 +943,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         return None if math.isnan(t) else float(t)
 
     @property
-    def stats(self) -> dict[str, int]:
+    def stats(self) -> dict[str, int | float]:
         a = self._aux
         return {
             "slips": int(a[core.A_SLIPS]),
@@ -954,6 +956,7 @@ class PlanarEKF(ExtendedKalmanFilter):
             "gyro_saturated": int(a[core.A_SATURATED]),
             "gyro_spikes": int(a[core.A_GYRO_SPIKES]),
             "encoder_faults": int(a[core.A_FAULTS]),
+            "fault_turn": float(a[core.A_FAULT_TURN]),
             "updates": int(a[core.A_UPDATES]),
             "speed_resets": int(a[core.A_SPEED_RESETS]),
             "predictions": int(a[core.A_PREDICTIONS]),
