@@ -180,9 +180,14 @@ def test_core_equals_filterpy_coasting_through_an_encoder_fault(short_run):
     kinds, t, a, b, _ = merge_events(run.imu_t, run.gyro[:, 2], run.wheel_t, ticks,
                                      ROBOT.encode_sampling_time, imu_motion=codes)
     noise = EkfNoise(slip_accel_psd=0.05, odometry_along_var=1e-4, odometry_cross_var=1e-5)
-    fast, _, status = _core_and_reference(noise, kinds, t, a, b)
+    fast, ref, status = _core_and_reference(noise, kinds, t, a, b)
     assert fast.stats["encoder_faults"] == dead.sum() == (status == 7).sum()
     assert dead.sum() >= 45
+    # the turn over the faults, counted alike (the trust checks leave it out): the reference
+    # sums its own rate state over the same intervals
+    assert fast.stats["fault_turn"] != 0.0
+    assert fast.stats["fault_turn"] == pytest.approx(ref.stats["fault_turn"], rel=1e-9)
+    assert fast.stats == pytest.approx(ref.stats, rel=1e-9)
 
 
 def test_a_hard_stop_without_an_imu_is_a_stop_once_braking_fits():

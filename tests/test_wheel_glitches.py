@@ -95,3 +95,46 @@ def test_a_replay_leaves_glitches_out_and_says_where(tmp_path):
     # the printed wheel-only figure is the wheels' own, less five frames (their turns bend
     # it by 0.6 %), not the glitches' (dead-reckoned with them it ends 46 m from the truth)
     assert res.truth["wheel_pct"] == pytest.approx(ref.truth["wheel_pct"], abs=1.0)
+
+
+def _glitchy_log(tmp_path, blank_rows=()):
+    """degraded_mission seed 1 (150 s) as a log directory with three single-frame glitches
+    (+4096, +8192, +16384 ticks on the left wheel while driving) and rows without values
+    inserted before the given frames; returns (run, log dir, glitch frames, their lines)."""
+    run = degraded_mission(seed=1, duration=150.0)
+    d = write_synthetic_run(tmp_path / "glitchy", run)
+    moving = np.flatnonzero(np.abs(run.ticks).min(axis=1) > 20)
+    hit = moving[[100, 900, 1800]]
+    lines = (d / "wheels.csv").read_text().splitlines()
+    for k, extra in zip(hit, (4096, 8192, 16384), strict=True):
+        stamp, left, right = lines[k + 1].split(",")
+        lines[k + 1] = f"{stamp},{int(left) + extra},{right}"
+    for k in sorted(blank_rows, reverse=True):
+        lines.insert(k + 1, ",,")
+    (d / "wheels.csv").write_text("\n".join(lines) + "\n")
+    named = [k + 2 + sum(b <= k for b in blank_rows) for k in hit]
+    return run, d, hit, named
+
+
+def test_the_note_names_the_lines_past_rows_without_values(tmp_path):
+    _, d, _, named = _glitchy_log(tmp_path, blank_rows=(5, 50))
+    res = replay_logdir(d, tmp_path / "f.csv")
+    (note,) = [n for n in res.notes if "left out as glitches" in n]
+    assert f"wheels.csv line(s) {', '.join(map(str, named))}" in note, note
+    lines = (d / "wheels.csv").read_text().splitlines()
+    assert all(int(lines[n - 1].split(",")[1]) > 4000 for n in named)
+
+
+def test_the_odometry_calibration_leaves_glitches_out_too(tmp_path, capsys):
+    # --distance sums every frame's ticks: three glitches took speed_ratio 3.5 % off
+    from fusion.cli import main
+
+    run, d, _, named = _glitchy_log(tmp_path)
+    true_path = float(np.sum(np.hypot(*np.diff(run.truth[:, :2], axis=0).T)))
+    assert main(["calibrate", "odometry", str(d), "--distance", f"{true_path:.4f}"]) == 0
+    out = capsys.readouterr().out
+    assert f"wheels.csv line(s) {', '.join(map(str, named))}" in out
+    true_mean = 0.5 * (run.true_left_ratio + run.true_right_ratio)
+    speed_ratio = float(next(ln for ln in out.splitlines() if ln.startswith("speed_ratio = "))
+                        .split("=")[1].split("#")[0])
+    assert speed_ratio == pytest.approx(true_mean, rel=0.005)

@@ -282,9 +282,12 @@ def calibrate_odometry(
     n_saturated, n_not_finite = int(hit_clipped.sum()), int(hit_bad.sum())
     W = W[~(hit_clipped | hit_bad)]
     if len(W) < 4:
+        advice = ("each IMU sample that is not a number costs the windows across it: repair "
+                  "imu.csv or record the run again" if n_not_finite > n_saturated
+                  else "record a longer run, turning slower")
         raise ValueError(f"only {len(W)} usable windows ({n_saturated} left out because the "
                          f"gyro saturated in them, {n_not_finite} across IMU samples that "
-                         "are not finite numbers); record a longer run, turning slower")
+                         f"are not finite numbers); {advice}")
     dpsi = np.interp(W[:, 1], it, G) - np.interp(W[:, 0], it, G)
     A = np.column_stack([W[:, 3], -W[:, 2]])  # dpsi = a*NR - b*NL
     keep = _least_median_start(A, dpsi, outlier_sigma)

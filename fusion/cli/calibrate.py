@@ -128,6 +128,8 @@ def run_odometry(args: argparse.Namespace) -> int:
         raise CommandError("give --distance or --use-truth, not both")
     if not (math.isfinite(args.max_change) and args.max_change > 0):
         raise CommandError(f"--max-change must be > 0 %, got {args.max_change}")
+    # glitch frames out, as fusion replay leaves them (a --distance sums every frame's ticks)
+    wheel_t, ticks = _wheels_without_glitches(args.input, log)
     # a corrupt row is left out with the windows across it (calibrate_odometry), and said
     finite = _finite_imu_rows(args.input, log)
     imu_t, gyro, accel = log.imu_t[finite], log.gyro[finite], log.accel[finite]
@@ -149,15 +151,15 @@ def run_odometry(args: argparse.Namespace) -> int:
     gyro_z = np.full(finite.size, np.nan)
     gyro_z[finite] = vertical / (1.0 + log.robot.ekf.gyro_scale)  # as a calibrated gyro
     # the IMU's stamps on the wheels' clock, as fusion replay puts them
-    lag = choose_imu_lag(Streams(imu_t, gyro, accel, log.wheel_t, log.ticks),
+    lag = choose_imu_lag(Streams(imu_t, gyro, accel, wheel_t, ticks),
                          log.robot.chassis, args.imu_lag)
     if lag.note:
         print(f"note: {lag.note}")
     if lag.lag:
-        Streams(log.imu_t - lag.lag, wheel_t=log.wheel_t).check_overlap(
+        Streams(log.imu_t - lag.lag, wheel_t=wheel_t).check_overlap(
             str(args.input), f"after moving the IMU's stamps by {-lag.lag:+.3f} s (--imu-lag)")
     cal = calibrate_odometry(
-        log.imu_t - lag.lag, gyro_z, log.wheel_t, log.ticks, log.robot.chassis,
+        log.imu_t - lag.lag, gyro_z, wheel_t, ticks, log.robot.chassis,
         distance=args.distance,
         truth_t=log.truth_t if args.use_truth else None,
         truth=log.truth if args.use_truth else None,
@@ -228,11 +230,13 @@ def run_gyro_scale(args: argparse.Namespace) -> int:
             raise CommandError(f"{d}: gyro-scale calibration needs imu.csv")
         _refuse_non_finite(d, log)
         chassis = log.robot.chassis
+        wheel_t, ticks = (None, None) if log.wheel_t is None else _wheels_without_glitches(
+            d, log)
         try:
             # the wheels, where logged, prove the rests were rests
             cal = calibrate_gyro_scale(log.imu_t, log.gyro, log.accel, turns,
                                        mark_std=math.radians(args.mark_std),
-                                       wheel_t=log.wheel_t, ticks=log.ticks,
+                                       wheel_t=wheel_t, ticks=ticks,
                                        wheel_geometry=(chassis.speed_ratio,
                                                        chassis.wheel_distance))
         except ValueError as exc:
@@ -261,6 +265,19 @@ def run_gyro_scale(args: argparse.Namespace) -> int:
     return 0
 
 
+def _wheels_without_glitches(d: Path, log) -> tuple[np.ndarray, np.ndarray]:
+    """The log's wheel frames (stamps s, ticks) without glitch frames
+    (:mod:`fusion.jobs.wheel_glitches`, as ``fusion replay`` leaves them out), with a note."""
+    from fusion.jobs.streams import Streams
+    from fusion.jobs.wheel_glitches import in_log, without_glitches
+
+    wheels, note = without_glitches(Streams(wheel_t=log.wheel_t, ticks=log.ticks),
+                                    log.robot.chassis, in_log(d, log.wheel_t))
+    if note:
+        print(f"note: {note}")
+    return wheels.wheel_t, wheels.ticks
+
+
 def _finite_imu_rows(d: Path, log) -> np.ndarray:
     """(N,) bool, the IMU rows whose values are all finite numbers; a note names the first
     other row by imu.csv's line."""
@@ -276,8 +293,9 @@ def _finite_imu_rows(d: Path, log) -> np.ndarray:
 
 
 def _refuse_non_finite(d: Path, log) -> None:
-    """A NaN or infinite IMU value, named by imu.csv's line: the angle or rate across it is
-    unknown (``fusion replay`` skips such samples and counts them; a calibration must not)."""
+    """A NaN or infinite IMU value, named by imu.csv's line: the angle across it is unknown,
+    and the gyro-scale calibration's one angle spans the whole run (``fusion replay`` and the
+    odometry calibration skip such samples, :func:`_finite_imu_rows`)."""
     from fusion.io.imu_csv import imu_csv_lines
 
     bad = ~(np.isfinite(log.gyro).all(axis=1) & np.isfinite(log.accel).all(axis=1))
@@ -302,8 +320,8 @@ def run_umbmark(args: argparse.Namespace) -> int:
             if log.truth is None or log.wheel_t is None:
                 raise CommandError(f"{d}: UMBmark needs wheels.csv and truth.csv")
             _check_square_run(d, log.truth, clockwise=clockwise, side=args.side)
-            pose = WheelOdometry(log.robot.chassis).update_batch(log.ticks[:, 0],
-                                                                 log.ticks[:, 1])[-1]
+            _, ticks = _wheels_without_glitches(d, log)
+            pose = WheelOdometry(log.robot.chassis).update_batch(ticks[:, 0], ticks[:, 1])[-1]
             # express the truth in the start frame of the run
             x0, y0, th0 = log.truth[0]
             dx, dy = log.truth[-1, 0] - x0, log.truth[-1, 1] - y0

@@ -5,7 +5,8 @@ because its inputs disagree beyond the model (wheel/twist odometry and the gyro 
 different motions, or the gyro's bias estimate left the sensor's physical range). They look
 only at a run's counters (:meth:`fusion.pipeline.core.PipelineStats.as_dict`: ``wheel_frames``,
 ``twist_messages``, ``slips``, ``encoder_faults``, ``gyro_turn``, ``gyro_time``,
-``wheel_turn``, ``twist_turn``, ``wheel_travel``, ``twist_travel``, ``odometry_rate_slope``,
+``wheel_turn``, ``twist_turn``, ``wheel_travel``, ``twist_travel``, ``fault_turn``,
+``odometry_rate_slope``,
 ``odometry_rate_correlation``, ``imu_samples``, ``accel_sum``)
 and the EKF's final gyro bias and wheel calibration estimates, so ``fusion replay`` and
 ``fusion run`` use the same checks, and a script can run them on a finished pipeline.

@@ -159,8 +159,7 @@ def _data_lines(path: Path) -> list[int]:
 
 
 def imu_csv_lines(path: str | Path, indices: list[int]) -> list[int]:
-    """The lines of the IMU CSV ``path`` holding samples ``indices`` (0-based data rows);
-    any CSV with one header line and a row per line (wheels.csv too)."""
+    """The lines of the IMU CSV ``path`` holding samples ``indices`` (0-based data rows)."""
     lines = _data_lines(Path(path))
     return [lines[i] for i in indices]
 

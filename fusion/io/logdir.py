@@ -49,8 +49,8 @@ from fusion.types.constants import TICKS_MAX
 if TYPE_CHECKING:
     from fusion.evaluation.synthetic import SyntheticRun
 
-__all__ = ["LogDir", "read_logdir", "read_truth_csv", "read_wheels_csv", "write_logdir",
-           "write_synthetic_run"]
+__all__ = ["LogDir", "read_logdir", "read_truth_csv", "read_wheels_csv", "wheels_csv_lines",
+           "write_logdir", "write_synthetic_run"]
 
 
 WHEELS_COLUMNS = ("t", "left", "right")
@@ -161,6 +161,12 @@ def read_wheels_csv(path: str | Path, progress: ReadProgress | None = None
         raise LogFormatError(f"{path}:{lines[big[0]]}: ticks {ticks[big[0]].tolist()} exceed "
                              f"the 24-bit range +-{TICKS_MAX} of a DATA-uart2 frame")
     return data[:, 0].copy(), ticks.astype(np.int64)
+
+
+def wheels_csv_lines(path: str | Path) -> NDArray[np.int64]:
+    """(M,) the line of ``wheels.csv`` (1-based) holding each frame :func:`read_wheels_csv`
+    returns (rows without values are skipped by the reader, so lines are not indices + 2)."""
+    return np.asarray(_read_csv(Path(path), WHEELS_COLUMNS)[1], dtype=np.int64)
 
 
 def read_truth_csv(path: str | Path) -> tuple[NDArray[np.float64], NDArray[np.float64]]:

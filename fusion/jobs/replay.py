@@ -54,7 +54,7 @@ from fusion.jobs.streams import (
     with_mount_estimate,
 )
 from fusion.jobs.wheel_checks import wheel_count_warnings
-from fusion.jobs.wheel_glitches import without_glitches
+from fusion.jobs.wheel_glitches import in_log, stamped, without_glitches
 from fusion.pipeline.core import FusionPipeline, PipelineStats
 from fusion.planar.model import NX
 from fusion.planar.odometry import WheelOdometry
@@ -311,7 +311,7 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
                                                 log.accel)
     streams, glitch_note = without_glitches(
         Streams(imu_t, gyro, accel, log.wheel_t, log.ticks), robot.chassis,
-        lambda idx: _wheel_rows(path, idx))
+        in_log(path, log.wheel_t))
     streams.check_gyro(f"{path / 'imu.csv'}", robot.chassis)
     try:
         lag = choose_imu_lag(streams, robot.chassis, imu_lag)
@@ -327,12 +327,6 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
     return result
 
 
-def _wheel_rows(path: Path, indices: list[int]) -> str:
-    """Where a log directory's wheel frames ``indices`` (0-based) are, in words."""
-    csv = path / "wheels.csv"
-    if csv.is_file():
-        return f"{csv} line(s) {', '.join(map(str, imu_csv_lines(csv, indices)))}"
-    return f"{path / 'wheels.uart2'} frame(s) {', '.join(str(i + 1) for i in indices)}"
 
 
 def _finite_imu_rows(csv: Path, t, gyro, accel):
@@ -366,10 +360,11 @@ def replay_capture(path: str | Path, output: str | Path, robot: RobotConfig | st
     if not len(cap):
         raise ValueError(f"{path}: no DATA-uart2 frame in the capture (parser counters: "
                          f"{cap.stats})")
+    cap_t = np.asarray(cap.frame_times(period), dtype=np.float64)
     streams, glitch_note = without_glitches(
-        Streams(wheel_t=np.asarray(cap.frame_times(period), dtype=np.float64),
+        Streams(wheel_t=cap_t,
                 ticks=np.column_stack([cap.left, cap.right]).astype(np.int64)),
-        robot.chassis, lambda idx: f"{path} frame(s) {', '.join(str(i + 1) for i in idx)}")
+        robot.chassis, lambda idx: f"{path} {stamped(cap_t[idx])}")
     result = _finish(path, output, robot, streams, None, None, tilt=True, plot=plot,
                      one_pass=True, progress=progress, capture_stats=cap.stats)
     result.notes.extend([glitch_note] if glitch_note else [])
@@ -398,7 +393,9 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
     if n_imu and streams.has_wheels:
         notes.extend(coverage_warnings(streams.imu_t, wheel_t, robot.ekf.max_extrapolation,
                                        "wheel frames", fused=table))
-    notes.extend(dead_feed_notes(table, chassis.encode_sampling_time, "wheel frames"))
+    if n_imu:  # without an IMU a fault is only a stop harder than stop_decel allows
+        notes.extend(dead_feed_notes(wheel_t, ~ticks.any(axis=1), table,
+                                     chassis.encode_sampling_time, "wheel frames"))
     t_out = table[:, 0]
     wheel = WheelOdometry(chassis).update_batch(ticks[:, 0], ticks[:, 1])
     truth_res = None
@@ -591,7 +588,10 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                          limit_note,
                          fix_note, spliced.note, tilt and streams.level_note()) if n]
     if motion.t.size > 1:
-        notes.extend(dead_feed_notes(table, float(np.median(np.diff(motion.t))),
+        still = ((np.abs(motion.v) <= robot.ekf.twist_zero_v)
+                 & (np.abs(motion.w) <= robot.ekf.twist_zero_w))
+        notes.extend(dead_feed_notes(motion.t, still, table,
+                                     float(np.median(np.diff(motion.t))),
                                      f"odometry twists ({odom_topic})"))
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation, fused=table)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, fixes, gps,

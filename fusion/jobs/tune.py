@@ -52,6 +52,7 @@ from fusion.jobs.engine import run_tasks
 from fusion.jobs.imu_lag import choose_imu_lag, shifted
 from fusion.jobs.replay import Streams, find_log_dirs, fuse_streams
 from fusion.jobs.replay import _truth_at as truth_at  # the replay's truth interpolation
+from fusion.jobs.wheel_glitches import glitch_frames
 from fusion.planar.odometry import integrate_wheel_travel
 from fusion.planar.robot import AttitudeConfig, RobotConfig
 
@@ -127,19 +128,28 @@ def odometry_yaw_rmse(robot: RobotConfig, log: LogDir, radius_ratio: float = 1.0
     stays ``speed_ratio`` (1: the wheels of robot.toml, which has no such key).
     """
     sr = robot.chassis.speed_ratio
-    dl = log.ticks[:, 0] * (sr * 2.0 / (1.0 + radius_ratio))
-    dr = log.ticks[:, 1] * (sr * 2.0 * radius_ratio / (1.0 + radius_ratio))
+    wheel_t, ticks = _without_glitches(log, robot)
+    dl = ticks[:, 0] * (sr * 2.0 / (1.0 + radius_ratio))
+    dr = ticks[:, 1] * (sr * 2.0 * radius_ratio / (1.0 + radius_ratio))
     poses = integrate_wheel_travel(dl, dr, robot.chassis.wheel_distance)
-    inside = _inside(log, log.wheel_t)
-    truth = _truth_at(log, log.wheel_t[inside])
+    inside = _inside(log, wheel_t)
+    truth = _truth_at(log, wheel_t[inside])
     return math.degrees(yaw_rmse(poses[inside, 2], truth[:, 2]))
+
+
+def _without_glitches(log: LogDir, robot: RobotConfig):
+    """The log's wheel frames (stamps s, ticks) without the glitch frames ``fusion replay``
+    leaves out (:mod:`fusion.jobs.wheel_glitches`)."""
+    keep = ~glitch_frames(log.wheel_t, log.ticks, robot.chassis.speed_ratio,
+                          robot.chassis.encode_sampling_time)
+    return log.wheel_t[keep], log.ticks[keep]
 
 
 def fused_position_rmse(robot: RobotConfig, log: LogDir) -> float:
     """Position RMSE (m) of the fused odometry (the replay's pipeline, no output file, the
     IMU's stamps moved as the replay moves them) against the truth, at the fused rows inside
     the truth's span."""
-    streams = Streams(log.imu_t, log.gyro, log.accel, log.wheel_t, log.ticks)
+    streams = Streams(log.imu_t, log.gyro, log.accel, *_without_glitches(log, robot))
     streams = shifted(streams, choose_imu_lag(streams, robot.chassis).lag)
     table = fuse_streams(robot, streams, None)[0]
     t = table[:, 0]

@@ -20,15 +20,17 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from fusion.geometry.kinematics import DiffDriveParams
+from fusion.io.logdir import wheels_csv_lines
 from fusion.jobs.streams import Streams
 
-__all__ = ["MAX_GLITCH_FRAMES", "MAX_WHEEL_ACCEL", "QUANTUM_TICKS", "glitch_frames",
-           "without_glitches"]
+__all__ = ["MAX_GLITCH_FRAMES", "MAX_WHEEL_ACCEL", "QUANTUM_TICKS", "glitch_frames", "in_log",
+           "stamped", "without_glitches"]
 
 #: m/s^2: no wheel's ground speed changes faster (5 g; a motor spinning a lifted wheel up
 #: reaches a few times less), so a count further from its neighbours' than this allows over
@@ -87,9 +89,30 @@ def without_glitches(streams: Streams, chassis: DiffDriveParams,
     fastest = float(np.abs(streams.ticks[idx]).max()) * chassis.speed_ratio \
         / chassis.encode_sampling_time
     more = f" and {idx.size - 5} more" if idx.size > 5 else ""
-    note = (f"{idx.size} wheel frame(s) left out as glitches (a wheel's count away from the "
-            f"frames on either side by more than {MAX_WHEEL_ACCEL:g} m/s^2 allows, and back; "
-            f"up to {fastest:.3g} m/s): {where(idx[:5].tolist())}{more}")
+    note = (f"{idx.size} wheel frame(s) left out as glitches (a wheel's speed away from the "
+            f"frames' on either side and back faster than {MAX_WHEEL_ACCEL:g} m/s^2, up to "
+            f"{fastest:.3g} m/s; EMI or a counter read wrong: if frequent, check the encoder "
+            f"wiring and its shielding): {where(idx[:5].tolist())}{more}")
     keep = ~marked
     return dataclasses.replace(streams, wheel_t=streams.wheel_t[keep],
                                ticks=streams.ticks[keep]), note
+
+
+def in_log(path: Path, wheel_t: NDArray[np.float64]) -> Callable[[list[int]], str]:
+    """For :func:`without_glitches`: where a log directory's wheel frames are, in words:
+    wheels.csv's lines, or a capture's frames by their stamps ``wheel_t`` (s; the parser's
+    frame count leaves out what it refused)."""
+
+    def where(indices: list[int]) -> str:
+        csv = path / "wheels.csv"
+        if csv.is_file():
+            lines = wheels_csv_lines(csv)
+            return f"{csv} line(s) {', '.join(str(lines[i]) for i in indices)}"
+        return f"{path / 'wheels.uart2'} {stamped(wheel_t[indices])}"
+
+    return where
+
+
+def stamped(t: NDArray[np.float64]) -> str:
+    """Frames named by their stamps ``t`` (s)."""
+    return f"frame(s) stamped {', '.join(f'{x:.3f}' for x in t)} s"

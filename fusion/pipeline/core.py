@@ -205,8 +205,9 @@ class PipelineStats:
             wheel_scale_refit``: a skid-steer base or a wrong wheel_distance in robot.toml).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
-        fault_turn: rad, the EKF's yaw rate integrated over those frames' intervals: the
-            gyro's turn that the odometry, dead, could not see (the EKF's ``fault_turn``;
+        fault_turn: rad, the EKF's yaw rate state (the gyro's, bias removed) integrated
+            over those frames' intervals: the turn the odometry, dead, could not see (the
+            EKF's ``fault_turn``;
             :mod:`fusion.evaluation.trust` leaves it out of the headings it compares).
         gyro_spikes: gyro samples further from the predicted rate than any robot turns (a
             glitch on the bus; not fused; the EKF's ``gyro_spikes``).

@@ -1160,7 +1160,8 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         if fault:
             _no_steady_offset(aux)
             aux[A_FAULTS] += 1.0
-            # the turn the gyro saw while the odometry, dead, could not (trust checks)
+            # the turn the filter's rate (the gyro's, bias removed) made while the odometry,
+            # dead, could not see it (the trust checks leave it out)
             aux[A_FAULT_TURN] += x[4] * interval
             aux[A_FLAGS] = FLAG_FAULT
             aux[A_ZERO_COUNT] = 0.0
