@@ -281,30 +281,29 @@ def _wheels_without_glitches(d: Path, log) -> tuple[np.ndarray, np.ndarray]:
 def _finite_imu_rows(d: Path, log) -> np.ndarray:
     """(N,) bool, the IMU rows whose values are all finite numbers; a note names the first
     other row by imu.csv's line."""
-    from fusion.io.imu_csv import imu_csv_lines
-
     finite = np.isfinite(log.gyro).all(axis=1) & np.isfinite(log.accel).all(axis=1)
     if not finite.all():
-        first = int(np.flatnonzero(~finite)[0])
-        (line,) = imu_csv_lines(d / "imu.csv", [first])
-        print(f"note: {d / 'imu.csv'}:{line}: not a finite number ({int((~finite).sum())} such "
-              "rows): left out, with the windows across them (as fusion replay skips them)")
+        print(f"note: {_first_non_finite(d, finite)}: left out, with the windows across them "
+              "(as fusion replay skips them)")
     return finite
+
+
+def _first_non_finite(d: Path, finite: np.ndarray) -> str:
+    """imu.csv's line of the first row not in ``finite``, and how many there are."""
+    from fusion.io.imu_csv import imu_csv_lines
+
+    (line,) = imu_csv_lines(d / "imu.csv", [int(np.flatnonzero(~finite)[0])])
+    return f"{d / 'imu.csv'}:{line}: not a finite number ({int((~finite).sum())} such rows)"
 
 
 def _refuse_non_finite(d: Path, log) -> None:
     """A NaN or infinite IMU value, named by imu.csv's line: the angle across it is unknown,
     and the gyro-scale calibration's one angle spans the whole run (``fusion replay`` and the
     odometry calibration skip such samples, :func:`_finite_imu_rows`)."""
-    from fusion.io.imu_csv import imu_csv_lines
-
-    bad = ~(np.isfinite(log.gyro).all(axis=1) & np.isfinite(log.accel).all(axis=1))
-    if bad.any():
-        first = int(np.flatnonzero(bad)[0])
-        (line,) = imu_csv_lines(d / "imu.csv", [first])
-        raise CommandError(f"{d / 'imu.csv'}:{line}: not a finite number ({int(bad.sum())} "
-                           "such rows): a calibration needs every sample; record the run "
-                           "again or remove the rows")
+    finite = np.isfinite(log.gyro).all(axis=1) & np.isfinite(log.accel).all(axis=1)
+    if not finite.all():
+        raise CommandError(f"{_first_non_finite(d, finite)}: a calibration needs every "
+                           "sample; record the run again or remove the rows")
 
 
 def run_umbmark(args: argparse.Namespace) -> int:
