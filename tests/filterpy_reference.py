@@ -71,6 +71,7 @@ class FilterpyReference:
         self.in_fault = False
         self.after_slip = False  # the last wheel frame or twist was a slip
         self.wheel_t: float | None = None
+        self.moved_t: float | None = None  # effective time of the last frame with ticks
         self.yaw_budget = noise.yaw_fix_burst
         self.yaw_owed = 0.0  # heading correction beyond the budget, rad
         # position error (m) driven into the pose along the heading held while owed
@@ -396,7 +397,22 @@ class FilterpyReference:
                 creep = (2 * r.speed_ratio / r.encode_sampling_time if kind == WHEELS
                          else 2 * n.twist_zero_v)
                 turning = abs(kf.x[3]) + 0.5 * r.wheel_distance * abs(kf.x[4]) > creep
-                if ((self.imu_motion == MOVING and turning)
+                # a steady turn on a smooth floor: the IMU reads still, the gyro's rate (less
+                # sqrt(gate) std of the bias and a sample) says a turn of >= 0.1 rad/s
+                # that would have turned the wheels by 2 ticks since they last did (a twist:
+                # faster than twice its zero speed)
+                heard = self.gyro_t is not None and self.t - self.gyro_t <= 0.5
+                low = abs(kf.x[4]) - math.sqrt(n.slip_gate * (kf.P[5, 5] + n.gyro_std ** 2))
+                rim = 0.5 * r.wheel_distance * low
+                if kind == WHEELS:
+                    turned = r.encode_sampling_time
+                    if self.moved_t is not None:
+                        turned = max(turned, t - self.moved_t)
+                    spinning = rim * turned > 2 * r.speed_ratio
+                else:
+                    spinning = rim > 2 * n.twist_zero_v
+                spinning = spinning and heard and low > 0.1
+                if ((self.imu_motion == MOVING and turning) or spinning
                         or (in_fault and self.imu_motion in (UNSURE, MOVING))
                         or (self.imu_motion != STILL and hard)):
                     self.zero_count = 0
@@ -404,11 +420,12 @@ class FilterpyReference:
                     self.stats["encoder_faults"] += 1
                     self.stats["fault_turn"] += kf.x[4] * interval
                     self.in_fault = True
-                    if self.imu_motion in (UNSURE, MOVING):  # no gap: v stays extrapolated
+                    if self.imu_motion in (UNSURE, MOVING) or spinning:  # no gap: v stays
                         self._measured(3)
                     return 7
             else:
                 self.wheel_t = t
+                self.moved_t = t
                 if self.zero_count >= n.zupt_frames:  # motion onset: v's freedom back
                     kf.P[3, 3] += n.accel_psd * r.encode_sampling_time
                 self.steady_w = None

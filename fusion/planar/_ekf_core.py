@@ -193,7 +193,8 @@ A_GYRO_T = 70  # filter time of the last gyro sample fused (NaN: none yet)
 A_SPIKE_RUN = 71  # gyro samples rejected as spikes since the last one fused
 A_GYRO_SPIKES = 72  # gyro samples rejected as spikes in all
 A_FAULT_TURN = 73  # rad: the rate state integrated over the odometry's encoder-fault intervals
-AUX_SIZE = 74
+A_MOVED_T = 74  # effective time of the last wheel frame with ticks (NaN: none yet)
+AUX_SIZE = 75
 #: rad/s^2: no ground robot's yaw rate changes faster (a differential drive's wheels at 5
 #: m/s^2 on a 0.3 m track: 33 rad/s^2); a gyro reading further from the predicted rate
 #: than this times the time since the last fused sample, plus SPIKE_SIGMAS standard
@@ -1062,6 +1063,39 @@ def _relearn_bias_at_stop(x, P, aux, par, imu_still):
 
 
 @njit
+def _spinning(x, P, aux, par, kind, t):
+    """True at a zero wheel frame or twist (``kind``, effective time ``t`` s) when the gyro
+    says the robot turns, whatever the IMU's shaking says: the rate ``w`` less ``sqrt(gate)``
+    standard deviations of the bias and one gyro sample (what a wrong bias could explain;
+    not w's own variance, which a motion onset widens for a moment) is above
+    :data:`TURN_RATE` and, at that rate, the wheels would have turned by more than two ticks
+    since they last read any (a twist: faster than twice its zero speed).
+
+    Why: a steady turn does not shake an IMU on a smooth floor, so the window statistic
+    calls it still (:mod:`fusion.planar.imu_motion`), and zero wheel speed in such a turn was
+    taken as a stop: its ZUPTs pinned w, the bias was relearnt to the turn's rate and the
+    heading lost (130 deg in a review's spin on the kinematic simulator). Since the wheels
+    last turned, not over one frame: a slow spin (0.2 rad/s on a 0.3 m track) turns each
+    wheel by 1.2 ticks of 0.5 mm per 20 ms frame, so no single zero frame proves it, but
+    two ZUPT frames in a row would have. A stop with a wrong bias is no spin: the bias's
+    own variance and TURN_RATE (6 deg/s) cover it. Needs a gyro heard within
+    :data:`GYRO_SILENT` s (without one w is the wheels' own, and says nothing when they
+    stop)."""
+    if not aux[A_T] - aux[A_GYRO_T] <= GYRO_SILENT:  # NaN: no gyro sample yet
+        return False
+    low = abs(x[4]) - math.sqrt(par[P_GATE] * (P[5, 5] + par[P_GYRO_VAR]))
+    if low <= TURN_RATE:
+        return False
+    rim = 0.5 * par[P_WHEEL_DISTANCE] * low  # m/s, each wheel's speed in a spin at `low`
+    if kind != EV_WHEELS:
+        return rim > 2.0 * par[P_TWIST_ZERO_V]
+    since = par[P_PERIOD]
+    if t - aux[A_MOVED_T] > since:  # NaN: the wheels never turned, one period
+        since = t - aux[A_MOVED_T]
+    return rim * since > 2.0 * par[P_SPEED_RATIO]
+
+
+@njit
 def _impossible_stop(x, P, aux, par, t):
     """True when zero wheel speed at ``t`` needs a harder braking than ``stop_decel`` since
     the last wheel frame, or since v was last measured (three standard deviations of v
@@ -1124,7 +1158,8 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
     Zero wheel speed is a stop only if the IMU agrees: with the IMU moving while the state
     expects the wheels to turn by more than two ticks per period (a twist: twice
     ``twist_zero_v``), or, unless the IMU is still, a stop harder than ``stop_decel`` allows,
-    or a fault already under way while the IMU is not still (and known), it is an
+    or a fault already under way while the IMU is not still (and known), or a gyro rate
+    that is a turn whatever the bias (:func:`_spinning`), it is an
     encoder fault, flagged and not fused (status 7): the pose coasts on the motion model, its
     covariance growing; the fault lasts until the ticks come back or the IMU is still. A stop
     that lasts ``zupt_frames`` frames with a still IMU (or no IMU information) gives a ZUPT;
@@ -1153,7 +1188,8 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         else:
             creep = 2.0 * par[P_TWIST_ZERO_V]
         turning = abs(x[3]) + 0.5 * par[P_WHEEL_DISTANCE] * abs(x[4]) > creep
-        fault = ((imu == MOTION_MOVING and turning)
+        spinning = _spinning(x, P, aux, par, kind, t)
+        fault = ((imu == MOTION_MOVING and turning) or spinning
                  or (in_fault and (imu == MOTION_UNSURE or imu == MOTION_MOVING))
                  or (imu != MOTION_STILL and _impossible_stop(x, P, aux, par, t)))
         aux[A_WHEEL_T] = t
@@ -1165,6 +1201,11 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
             aux[A_FAULT_TURN] += x[4] * interval
             aux[A_FLAGS] = FLAG_FAULT
             aux[A_ZERO_COUNT] = 0.0
+            if imu == MOTION_MOVING or imu == MOTION_UNSURE or spinning:
+                # a dead encoder feed on a moving robot is no gap: the speed keeps being
+                # extrapolated (the pose coasts, its covariance growing) instead of being
+                # forgotten after max_extrapolation
+                aux[A_V_T] = aux[A_T]
             return math.nan, 7
         aux[A_ZERO_COUNT] += 1.0
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES] and (imu == MOTION_STILL
@@ -1181,6 +1222,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
             _remember_twist(x, aux, par, t)
             return d2, status
     else:
+        aux[A_MOVED_T] = t
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
             # motion onset after a stop: the speed may have grown during this period at the
             # moving robot's pace, not the still one's
@@ -1354,11 +1396,6 @@ def step_core(x, P, aux, par, kind, t, a, b):
     elif kind == 1 or kind == 3 or kind == 4:
         d2, status = _wheel_event(x, P, aux, par, kind, t, a, b)
         if status == 7:
-            # a dead encoder feed while the IMU shows the robot moving is no gap: the speed
-            # keeps being extrapolated (the pose coasts, its covariance growing) instead of
-            # being forgotten after max_extrapolation
-            if aux[A_IMU_MOTION] == MOTION_MOVING or aux[A_IMU_MOTION] == MOTION_UNSURE:
-                aux[A_V_T] = aux[A_T]
             return status
     elif kind == EV_ACCEL:
         _accel_sample(aux, par, a)

@@ -1,0 +1,79 @@
+"""A dead encoder feed during a smooth spin on the spot, with an IMU that does not shake.
+
+The IMU's window statistic calls a steady turn "still" (nothing varies), so zero ticks there
+used to pass for a stop: the ZUPTs pinned the rate, the bias was relearnt to the spin's rate
+and the heading lost (review of session 18: about 130 deg). The gyro's rate, beyond what a
+wrong bias could explain, now makes those frames an encoder fault
+(``fusion.planar._ekf_core._spinning``). The reference is the kinematic simulator's truth.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from fusion.evaluation import synthetic as sim
+from fusion.io.fused_csv import read_fused_csv
+from fusion.io.logdir import write_logdir
+from fusion.jobs.replay import replay_logdir
+from fusion.planar.imu_motion import MOTION_STILL, imu_motion_codes
+from fusion.planar.robot import DiffDriveParams
+
+ROBOT = DiffDriveParams(wheel_distance=0.3, speed_ratio=0.0005, encode_sampling_time=0.02)
+BIAS = math.radians(0.5)  # rad/s, the gyro's z bias
+
+
+def _spin_run(rate: float, tmp_path, kill: bool = True):
+    """Stop 5 s, 2 m straight, one turn on the spot at ``rate`` rad/s, 2 m straight, stop 5 s;
+    with ``kill`` the wheels read zero from 0.5 s into the turn to 0.5 s before its end.
+    Returns the run, the dead window (s) and the replay's result and fused table."""
+    segments = (sim.stop(5.0) + sim.straight(2.0) + sim.spin(2 * math.pi, rate)
+                + sim.straight(2.0) + sim.stop(5.0))
+    run = sim.simulate(segments, ROBOT, imu=sim.ImuModel(gyro_bias=(0.0, 0.0, BIAS)), seed=1)
+    spin_start = 5.0 + 2.0 / 0.4
+    window = (spin_start + 0.5, spin_start + 2 * math.pi / rate - 0.5)
+    ticks = run.ticks.copy()
+    if kill:
+        ticks[(run.wheel_t >= window[0]) & (run.wheel_t < window[1])] = 0
+    log = write_logdir(tmp_path / "log", ROBOT, run.imu_t, run.gyro, run.accel, run.wheel_t,
+                       ticks, run.truth_t, run.truth)
+    result = replay_logdir(log, tmp_path / "fused.csv")
+    return run, window, result, read_fused_csv(tmp_path / "fused.csv")
+
+
+def _yaw_error_deg(run, fused) -> np.ndarray:
+    truth = np.interp(fused["t"], run.truth_t, np.unwrap(run.truth[:, 2]))
+    return np.degrees(np.angle(np.exp(1j * (fused["yaw"] - truth))))
+
+
+@pytest.mark.parametrize("rate", [0.2, 0.8])
+def test_zero_ticks_in_a_smooth_spin_are_a_fault_not_a_stop(tmp_path, rate):
+    run, (t0, t1), result, fused = _spin_run(rate, tmp_path)
+    # the scenario: the IMU's window statistic sees no motion during the spin
+    codes = imu_motion_codes(run.imu_t, run.gyro, run.accel)
+    inside = (run.imu_t > t0 + 0.5) & (run.imu_t < t1)
+    assert np.mean(codes[inside] == MOTION_STILL) > 0.9
+    dead = (fused["t"] > t0 + 0.05) & (fused["t"] < t1 - 0.05)  # a frame in from each end
+    assert (fused["encoder_fault"][dead] == 1).all()
+    assert (fused["zupt"][dead] == 0).all()
+    assert "encoder_fault" in {w.name for w in result.warnings}
+    # the heading holds through the turn (before: tens of degrees lost)
+    err = _yaw_error_deg(run, fused)
+    assert np.abs(err).max() < 1.0
+    # the bias is still the gyro's, not the spin's rate (the last stop's ZUPTs had it right)
+    assert fused["gyro_bias_z"][-1] == pytest.approx(BIAS, abs=math.radians(0.05))
+    # the turn the odometry could not see is the one the robot made while it was dead
+    true_turn = np.interp(t1, run.truth_t, np.unwrap(run.truth[:, 2])) - np.interp(
+        t0, run.truth_t, np.unwrap(run.truth[:, 2]))
+    assert result.stats["fault_turn"] == pytest.approx(true_turn, rel=0.03)
+
+
+def test_a_real_stop_after_a_spin_is_still_a_stop(tmp_path):
+    # the same run with the wheels alive: no frame is a fault, and both stops give ZUPTs
+    run, _, result, fused = _spin_run(0.8, tmp_path, kill=False)
+    assert result.stats["encoder_faults"] == 0
+    assert not fused["encoder_fault"].any()
+    last_stop = fused["t"] > run.truth_t[-1] - 4.0
+    assert fused["zupt"][last_stop].mean() > 0.9
