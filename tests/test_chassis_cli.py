@@ -13,6 +13,8 @@ from drivers.sim.stm32 import PtyStm32, Stm32Sim, Stm32SimParams
 from fusion.cli import main
 from fusion.cli.chassis import step_metrics
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 
 def test_encode_prints_golden_hex(capsys):
     assert main(["chassis", "encode", "100", "-300"]) == 0

@@ -78,6 +78,7 @@ def test_a_missing_serial_port_is_one_clear_error(tmp_path: Path) -> None:
     assert "No such file or directory" in lines[0]
 
 
+@pytest.mark.live  # real time: run alone (pyproject's markers)
 def test_run_on_a_real_chassis_without_imu_fuses_the_wheels_and_says_so(tmp_path: Path) -> None:
     from drivers.sim.stm32 import PtyStm32
 
@@ -184,6 +185,7 @@ def test_a_bag_without_topics_lists_its_topics(tmp_path: Path) -> None:
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.live  # real time: run alone (pyproject's markers)
 def test_output_into_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
     # `fusion run | head -c 100`: the reader goes away while records are still written
     proc = subprocess.Popen([sys.executable, "-m", "fusion", "run", "--duration", "3",
@@ -210,6 +212,7 @@ def test_help_texts_are_plain_and_complete(tmp_path: Path) -> None:
     assert "csv:PATH" in " ".join(r.stdout.split())
 
 
+@pytest.mark.live  # real time: run alone (pyproject's markers)
 def test_simulated_stm32_removes_its_links_on_sigterm(tmp_path: Path) -> None:
     links = tmp_path / "chassis"
     proc = subprocess.Popen([sys.executable, "-m", "drivers.sim.stm32", "--link-dir",

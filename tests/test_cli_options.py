@@ -743,6 +743,7 @@ def board(inputs):
     sim.close()
 
 
+@pytest.mark.live  # real time: run alone (pyproject's markers)
 @pytest.mark.parametrize(("cmd", "option", "effect"), LIVE_CASES,
                          ids=[f"{c} {o} [{e.kind}]" for c, o, e in LIVE_CASES])
 def test_live_option(cmd, option, effect, inputs, board, capsys, monkeypatch) -> None:

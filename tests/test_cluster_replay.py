@@ -26,6 +26,8 @@ from fusion.io.logdir import write_synthetic_run
 from fusion.jobs import cluster as dask_jobs
 from fusion.jobs.replay import LogJob, find_log_dirs, replay_logs
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 N_LOGS = 20
 REPO = Path(__file__).resolve().parent.parent
 

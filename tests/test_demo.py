@@ -12,6 +12,8 @@ import pytest
 
 from fusion.cli import demo
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 
 def _mcap_stamps(path: Path) -> dict[str, list[int]]:
     """Log times (ns) of the messages of each topic, in file order."""

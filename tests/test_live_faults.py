@@ -39,6 +39,8 @@ from fusion.sinks.text import CsvSink
 from fusion.types.constants import STANDARD_GRAVITY
 from fusion.types.samples import ImuSample, WheelTicks
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 PARAMS = SimRobotParams(slip_patches=())
 CFG = nominal_config(PARAMS)
 

@@ -26,6 +26,8 @@ from fusion.sinks.bag import McapSink
 from fusion.sinks.text import CsvSink, JsonLinesSink
 from fusion.types.fused import FusedOdometry
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 pytest.importorskip("mcap")
 pytest.importorskip("rosbags")
 

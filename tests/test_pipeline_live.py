@@ -7,12 +7,15 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 from sim_hardware import NackBursts, sim_hardware  # tests/sim_hardware.py
 
 from drivers.sim.robot import ScaledClock, SimRobotParams, send_twist
 from fusion.cli.demo import freeze_heap, nominal_config, warm_up
 from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.live import LiveRunner
+
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
 
 SPEED = 2.0  # robot time per wall second (low: a loaded machine must keep up)
 

@@ -19,6 +19,8 @@ from fusion.sinks.foxglove import FoxgloveSink
 from fusion.sinks.ros_messages import Topics
 from fusion.types.fused import FusedOdometry
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 pytest.importorskip("foxglove", reason="the Foxglove sink needs the 'foxglove' extra")
 websockets = pytest.importorskip("websockets")
 pytest.importorskip("google.protobuf")

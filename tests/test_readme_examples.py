@@ -53,6 +53,15 @@ def test_the_readme_has_its_python_examples_fenced():
     assert stray == []
 
 
+def test_ci_runs_exactly_the_readmes_test_command():
+    # the README's second command is the suite as a user runs it; .ci/run must not drift
+    commands = re.findall(r"^```bash\n(.*?)^```", README.read_text(encoding="utf-8"),
+                          re.S | re.M)
+    test_command = commands[1].strip()
+    assert "pytest" in test_command and "\n" not in test_command
+    assert test_command in (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+
+
 def test_python_blocks_are_found_with_their_lines():
     text = "a\n```python\nx = 1\ny = 2\n```\n```bash\nls\n```\n```python\n# needs: rospy\n```\n"
     assert python_blocks(text) == [(3, "x = 1\ny = 2\n"), (10, "# needs: rospy\n")]

@@ -16,6 +16,8 @@ import pytest
 from fusion.evaluation.synthetic import EXAMPLE_ROBOT
 from fusion.io.logdir import write_logdir
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 ROOT = Path(__file__).resolve().parents[1]
 
 

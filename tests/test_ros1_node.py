@@ -35,6 +35,8 @@ from scipy.spatial.transform import Rotation
 from fusion.sinks.ros1 import RateLimiter, Ros1Sink
 from fusion.types.fused import FusedOdometry
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 ROOT = Path(__file__).resolve().parents[1]
 DEFAULT_ROS_PYTHON = ROOT / ".ci" / "ros-venv" / "bin" / "python"
 TIMEOUT = 90.0  # generous: reached only when something is broken

@@ -44,6 +44,8 @@ from fusion.sinks.ros2_idl import IDL_TYPES, Twist, idl_message
 from fusion.sinks.ros_messages import ros_messages
 from fusion.types.fused import FusedOdometry
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 PEER = Path(__file__).with_name("ros2_peer.py")
 DISTROS = {"humble": Stores.ROS2_HUMBLE, "jazzy": Stores.ROS2_JAZZY}
 TOPIC_TYPES = {"/odom": "nav_msgs/msg/Odometry", "/tf": "tf2_msgs/msg/TFMessage",

@@ -16,6 +16,8 @@ import pytest
 
 from fusion.cli import main
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 
 def _mcap_counts(path) -> dict[str, int]:
     from mcap.reader import make_reader

@@ -20,6 +20,8 @@ import time
 
 import pytest
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 websockets = pytest.importorskip("websockets")
 pytest.importorskip("foxglove")
 

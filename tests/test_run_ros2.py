@@ -24,6 +24,8 @@ if importlib.util.find_spec("cyclonedds") is None and not os.environ.get("CI"):
 
 import cyclonedds  # noqa: F401  (under CI: a missing ros2 extra fails here)
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 PEER = Path(__file__).with_name("ros2_peer.py")
 
 

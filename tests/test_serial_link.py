@@ -14,6 +14,8 @@ import pytest
 from drivers.chassis import WheelFrameParser, encode_wheel_frame
 from drivers.serial_link import ChassisLink
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 TIMEOUT = 5.0  # generous I/O waits; tests assert behaviour, not speed
 
 

@@ -17,10 +17,13 @@ import time
 import tty
 
 import numpy as np
+import pytest
 
 from drivers.chassis import FRAME_LEN, FrameStamper, WheelFrameParser, encode_wheel_frame
 from drivers.serial_link import ChassisLink
 from fusion.io.uart2 import Uart2CaptureWriter, read_uart2_capture
+
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
 
 PERIOD = 0.02
 # left +65535, right +1: payload FF FF and checksum FF (seed 000's table: header FF FF,

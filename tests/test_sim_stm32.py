@@ -23,6 +23,8 @@ from drivers.sim.stm32 import PtyStm32, Stm32Sim, Stm32SimParams, _Pid
 from fusion.geometry.kinematics import DiffDriveParams, twist_to_ticks
 from fusion.planar.odometry import WheelOdometry
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 TIMEOUT = 5.0
 
 

@@ -30,6 +30,8 @@ from fusion.pipeline.core import FusionPipeline
 from fusion.pipeline.live import LiveRunner
 from fusion.sinks.text import JsonLinesSink
 
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 # 2x leaves headroom: tracemalloc slows Python ~2x and a CI machine may be shared.
 SPEED = float(os.environ.get("FUSION_SOAK_SPEED", "2"))
 # Wall seconds. The suite runs a bounded soak; for a long one (many minutes), e.g. before a
