@@ -187,7 +187,6 @@ def test_a_folder_of_logs_in_worker_processes(logs, tmp_path):
         assert (tmp_path / "plots" / f"{name}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
-@pytest.mark.live  # real time: run alone (pyproject's markers)
 def test_progress_only_on_a_terminal_or_when_asked(logs, tmp_path):
     pytest.importorskip("tqdm")
     log = str(logs / "run1")

@@ -16,8 +16,8 @@ signed: ``up`` fixes which way the gyro turns, so a robot weaving at a steady pe
 line up against its own mirror image half a period away. A peak on the edge of the search is
 no estimate (the lag is longer, or there is none). The run is also cut into pieces
 (:func:`piece_length`); each piece that turned at least :data:`PIECE_TURN` gets its own lag,
-and their range says whether one lag fits the whole run (a driver restarted with another
-lag, a weave whose period aliases).
+its correlation there and at the whole run's lag: whether one lag fits the whole run (a
+driver restarted with another lag, a weave whose period aliases).
 
 Each sample is taken as the rate at its stamp: a wheel frame or a twist that is the mean over
 the interval it closes reads as late by about half that interval.
@@ -68,6 +68,8 @@ class ImuLag:
         piece_lags: s, the lags of the pieces that turned enough and correlate.
         piece: s, the pieces' length.
         window: s, the window both rates were averaged over.
+        piece_peaks: the correlation of each of those pieces at its own lag.
+        piece_fits: the correlation of each of those pieces at the whole run's ``lag``.
     """
 
     lag: float
@@ -75,6 +77,8 @@ class ImuLag:
     piece_lags: tuple[float, ...]
     piece: float
     window: float
+    piece_peaks: tuple[float, ...] = ()
+    piece_fits: tuple[float, ...] = ()
 
     @property
     def spread(self) -> float:
@@ -134,7 +138,7 @@ def estimate_imu_lag(imu_t: ArrayLike, gyro: ArrayLike, up: ArrayLike, odom_t: A
         return None
     piece = piece_length(t1 - t0)
     n_piece = int(piece / GRID)
-    lags = []
+    lags, peaks, fits = [], [], []
     for start in range(0, grid.size - n_piece + 1, n_piece):
         sl = slice(start, start + n_piece)
         if _turn(b[sl], valid[sl]) < PIECE_TURN:
@@ -142,7 +146,9 @@ def estimate_imu_lag(imu_t: ArrayLike, gyro: ArrayLike, up: ArrayLike, odom_t: A
         piece_lag, piece_corr = _best_lag(a[sl], b[sl], valid[sl])
         if piece_lag is not None and piece_corr >= MIN_CORRELATION:
             lags.append(piece_lag)
-    return ImuLag(lag, corr, tuple(lags), piece, 2 * half * GRID)
+            peaks.append(piece_corr)
+            fits.append(_correlation_at(a[sl], b[sl], valid[sl], lag))
+    return ImuLag(lag, corr, tuple(lags), piece, 2 * half * GRID, tuple(peaks), tuple(fits))
 
 
 def _turn(w: NDArray[np.float64], valid: NDArray[np.bool_]) -> float:
@@ -177,6 +183,36 @@ def _best_lag(a: NDArray[np.float64], b: NDArray[np.float64], valid: NDArray[np.
     """The shift of ``a`` (s) that best matches ``b`` (``a[i + k]`` with ``b[i]``) by the
     Pearson correlation over the points valid in both, refined by a parabola through the
     peak, and that correlation; ``(None, 0)`` for a peak on the edge of the search."""
+    corr = _correlations(a, b, valid)
+    kmax = corr.size // 2
+    if not np.any(np.isfinite(corr)):
+        return None, 0.0
+    j = int(np.nanargmax(corr))
+    if j == 0 or j == corr.size - 1:
+        return None, 0.0
+    shift = float(j - kmax)
+    c0, c1, c2 = corr[j - 1], corr[j], corr[j + 1]
+    den = c0 - 2.0 * c1 + c2
+    if np.isfinite(c0) and np.isfinite(c2) and den < 0:
+        shift += 0.5 * float(c0 - c2) / float(den)
+    return shift * GRID, float(corr[j])
+
+
+def _correlation_at(a: NDArray[np.float64], b: NDArray[np.float64],
+                    valid: NDArray[np.bool_], lag: float) -> float:
+    """The Pearson correlation of ``a`` shifted by ``lag`` s with ``b`` (as in
+    :func:`_best_lag`), interpolated between the grid's shifts; NaN outside the search."""
+    corr = _correlations(a, b, valid)
+    kmax = corr.size // 2
+    return float(np.interp(lag / GRID, np.arange(-kmax, kmax + 1), corr,
+                           left=np.nan, right=np.nan))
+
+
+def _correlations(a: NDArray[np.float64], b: NDArray[np.float64], valid: NDArray[np.bool_]
+                  ) -> NDArray[np.float64]:
+    """(2 kmax + 1,) the Pearson correlation of ``a[i + k]`` with ``b[i]`` over the points
+    valid in both, for the shifts ``k = -kmax..kmax`` grid steps (up to :data:`MAX_LAG`, and
+    a quarter of the series); NaN where fewer than 10 points or no variance."""
     n = a.size
     kmax = min(int(MAX_LAG / GRID), n // 4)
     m = valid.astype(float)
@@ -191,15 +227,4 @@ def _best_lag(a: NDArray[np.float64], b: NDArray[np.float64], valid: NDArray[np.
     with np.errstate(divide="ignore", invalid="ignore"):
         cov = sab - sa * sb / count
         var = (saa - sa * sa / count) * (sbb - sb * sb / count)
-        corr = np.where((count >= 10) & (var > 0), cov / np.sqrt(var), np.nan)
-    if not np.any(np.isfinite(corr)):
-        return None, 0.0
-    j = int(np.nanargmax(corr))
-    if j == 0 or j == corr.size - 1:
-        return None, 0.0
-    shift = float(j - kmax)
-    c0, c1, c2 = corr[j - 1], corr[j], corr[j + 1]
-    den = c0 - 2.0 * c1 + c2
-    if np.isfinite(c0) and np.isfinite(c2) and den < 0:
-        shift += 0.5 * float(c0 - c2) / float(den)
-    return shift * GRID, float(corr[j])
+        return np.where((count >= 10) & (var > 0), cov / np.sqrt(var), np.nan)
