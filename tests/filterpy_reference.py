@@ -411,7 +411,7 @@ class FilterpyReference:
                     spinning = rim * turned > 2 * r.speed_ratio
                 else:
                     spinning = rim > 2 * n.twist_zero_v
-                spinning = spinning and heard and low > 0.1
+                spinning = spinning and heard and low > 0.1 and self.stats["zupts"] > 0
                 if ((self.imu_motion == MOVING and turning) or spinning
                         or (in_fault and self.imu_motion in (UNSURE, MOVING))
                         or (self.imu_motion != STILL and hard)):

@@ -1080,8 +1080,13 @@ def _spinning(x, P, aux, par, kind, t):
     two ZUPT frames in a row would have. A stop with a wrong bias is no spin: the bias's
     own variance and TURN_RATE (6 deg/s) cover it. Needs a gyro heard within
     :data:`GYRO_SILENT` s (without one w is the wheels' own, and says nothing when they
-    stop)."""
+    stop), and a ZUPT taken before: until the robot has stood still once, its bias may be
+    off by more than its prior admits (a moving start with a 25 deg/s bias, past the
+    MPU6050's +-20 deg/s tolerance, lost 117 deg when its first stop was taken for a spin;
+    that stop's ZUPTs relearn the bias instead)."""
     if not aux[A_T] - aux[A_GYRO_T] <= GYRO_SILENT:  # NaN: no gyro sample yet
+        return False
+    if aux[A_ZUPTS] == 0.0:
         return False
     low = abs(x[4]) - math.sqrt(par[P_GATE] * (P[5, 5] + par[P_GYRO_VAR]))
     if low <= TURN_RATE:
