@@ -71,7 +71,9 @@ class FilterpyReference:
         self.in_fault = False
         self.after_slip = False  # the last wheel frame or twist was a slip
         self.wheel_t: float | None = None
-        self.moved_t: float | None = None  # effective time of the last frame with ticks
+        # the last wheel frame with ticks (twist above zero): effective time, measured yaw rate
+        self.moved_t: float | None = None
+        self.moved_w = math.nan
         self.yaw_budget = noise.yaw_fix_burst
         self.yaw_owed = 0.0  # heading correction beyond the budget, rad
         # position error (m) driven into the pose along the heading held while owed
@@ -305,6 +307,13 @@ class FilterpyReference:
             self.ramp = (h[0] - self.last_twist[1][0]) / span
         self.last_twist = (t, h)
 
+    def _track_wheel_rate(self, rate: float, interval: float) -> None:
+        # the wheels' recent yaw rate (rad/s): frames not taken for faults, 0.2 s average
+        if math.isnan(self.moved_w):
+            self.moved_w = rate
+        else:
+            self.moved_w += min(1.0, interval / 0.2) * (rate - self.moved_w)
+
     def _measured(self, *states: int) -> None:
         for i in states:
             self.measured[i] = self.t
@@ -398,20 +407,24 @@ class FilterpyReference:
                          else 2 * n.twist_zero_v)
                 turning = abs(kf.x[3]) + 0.5 * r.wheel_distance * abs(kf.x[4]) > creep
                 # a steady turn on a smooth floor: the IMU reads still, the gyro's rate (less
-                # sqrt(gate) std of the bias and a sample) says a turn of >= 0.1 rad/s
-                # that would have turned the wheels by 2 ticks since they last did (a twist:
-                # faster than twice its zero speed)
+                # sqrt(gate) std of the bias and a sample) says a turn of >= 0.1 rad/s, within
+                # half of itself of the wheels' recent rate (0.2 s average over the frames not
+                # taken for faults), that would have turned
+                # the wheels by 2 ticks since they last did (a twist: faster than twice its
+                # zero speed)
+                w = kf.x[4]
                 heard = self.gyro_t is not None and self.t - self.gyro_t <= 0.5
-                low = abs(kf.x[4]) - math.sqrt(n.slip_gate * (kf.P[5, 5] + n.gyro_std ** 2))
+                low = abs(w) - math.sqrt(n.slip_gate * (kf.P[5, 5] + n.gyro_std ** 2))
                 rim = 0.5 * r.wheel_distance * low
-                if kind == WHEELS:
-                    turned = r.encode_sampling_time
-                    if self.moved_t is not None:
-                        turned = max(turned, t - self.moved_t)
+                if self.moved_t is None:
+                    spinning = False
+                elif kind == WHEELS:
+                    turned = max(r.encode_sampling_time, t - self.moved_t)
                     spinning = rim * turned > 2 * r.speed_ratio
                 else:
                     spinning = rim > 2 * n.twist_zero_v
-                spinning = spinning and heard and low > 0.1 and self.stats["zupts"] > 0
+                spinning = (spinning and heard and low > 0.1
+                            and abs(w - self.moved_w) <= 0.5 * abs(w))
                 if ((self.imu_motion == MOVING and turning) or spinning
                         or (in_fault and self.imu_motion in (UNSURE, MOVING))
                         or (self.imu_motion != STILL and hard)):
@@ -423,9 +436,9 @@ class FilterpyReference:
                     if self.imu_motion in (UNSURE, MOVING) or spinning:  # no gap: v stays
                         self._measured(3)
                     return 7
+                self._track_wheel_rate(0.0, interval)
             else:
                 self.wheel_t = t
-                self.moved_t = t
                 if self.zero_count >= n.zupt_frames:  # motion onset: v's freedom back
                     kf.P[3, 3] += n.accel_psd * r.encode_sampling_time
                 self.steady_w = None
@@ -465,6 +478,9 @@ class FilterpyReference:
                     z, R = model.twist_measurement(a, b, n.twist_v_std, n.twist_w_std,
                                                    n.scale_std, n.separation_std,
                                                    n.wheel_w_std)
+                if not still:  # the wheels turned: when, and at what yaw rate
+                    self.moved_t = t
+                    self._track_wheel_rate(z[1], interval)
                 R = R.copy()
                 R[1, 1] += (n.turn_w_std * kf.x[4]) ** 2  # turns: relative to the state's rate
                 inflate = n.wheel_w_corr_time / interval  # correlated yaw-rate error

@@ -100,6 +100,7 @@ def test_every_sinks_close_error_is_reported():
     assert is_user_error(info.value)  # disk full: one line, naming both
 
 
+@pytest.mark.live  # a run on a sped-up clock: run alone (pyproject's markers)
 def test_a_full_disk_is_one_line_naming_the_output(tmp_path):
     # a real write error with no file name (the kernel's EFBIG at a file-size limit, as ENOSPC
     # at a full disk): an independent probe's full disk printed three tracebacks and a final

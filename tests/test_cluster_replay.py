@@ -26,6 +26,9 @@ from fusion.io.logdir import write_synthetic_run
 from fusion.jobs import cluster as dask_jobs
 from fusion.jobs.replay import LogJob, find_log_dirs, replay_logs
 
+# a dask scheduler and workers on loopback (timeouts in wall-clock seconds)
+pytestmark = pytest.mark.live  # real time: run alone (pyproject's markers)
+
 N_LOGS = 20
 REPO = Path(__file__).resolve().parent.parent
 
@@ -180,7 +183,6 @@ def test_local_cluster_matches_serial(fleet, tmp_path):
     _assert_same_as_serial(out, serial)
 
 
-@pytest.mark.live  # real time: run alone (pyproject's markers)
 def test_worker_killed_mid_run_every_log_once(fleet, doomed_dask_processes, tmp_path,
                                               monkeypatch):
     logs, serial = fleet

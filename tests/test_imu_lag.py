@@ -246,3 +246,17 @@ def test_slipping_wheels_do_not_pass_for_a_driver_restart(seed):
     assert est.spread > lag_limit(streams)
     assert min(est.piece_fits) > 0.9
     assert choice.lag == 0.0 and choice.note == ""
+
+
+@pytest.mark.parametrize("late", [0.5, 1.0])
+def test_a_restart_on_a_noisy_odometry_is_not_moved_by_the_mean(late):
+    # A review's case: the restart from on time to `late` s late at 150 s, with 0.1 rad/s of
+    # white noise on the 20 Hz odometry's yaw rate. The noise flattens how much worse the
+    # run's lag fits each piece (the z test alone passed it), and every stamp was moved by
+    # the mean lag, the first half's good ones too.
+    s, w = odometry()
+    w = w + np.random.default_rng(9).normal(0.0, 0.1, w.size)
+    choice = choose_imu_lag(_streams(*imu_late(0.0, late_from=150.0, lag2=late), s, w), CHASSIS)
+    assert choice.lag == 0.0 and "do not keep one lag" in choice.note
+    lags = choice.estimate.piece_lags
+    assert abs(lags[0]) < 0.02 and abs(lags[-1] - late) < 0.02

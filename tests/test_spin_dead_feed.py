@@ -81,8 +81,9 @@ def test_a_real_stop_after_a_spin_is_still_a_stop(tmp_path):
 
 def test_a_moving_starts_first_stop_is_a_stop_whatever_the_bias(tmp_path):
     # Driving from the first sample with a 25 deg/s bias (past the MPU6050's +-20 deg/s):
-    # at the first stop the filter's rate is the unlearnt bias, which no spin test can tell
-    # from a turn; that stop's ZUPTs must relearn it (taken for a spin: 117 deg lost).
+    # at the first stop the filter's rate is the unlearnt bias; the wheels had slowed their
+    # turn before, so it is no spin, and that stop's ZUPTs relearn it (taken for a spin:
+    # 117 deg lost).
     segments = (sim.straight(3.0) + sim.arc(1.0, 1.5) + sim.stop(5.0) + sim.straight(2.0)
                 + sim.stop(5.0))
     bias = math.radians(25.0)
@@ -94,3 +95,38 @@ def test_a_moving_starts_first_stop_is_a_stop_whatever_the_bias(tmp_path):
     assert result.stats["encoder_faults"] == 0
     assert np.abs(_yaw_error_deg(run, fused)).max() < 1.0
     assert fused["gyro_bias_z"][-1] == pytest.approx(bias, abs=math.radians(0.05))
+
+
+def test_a_bias_that_steps_during_a_stop_is_relearnt_not_taken_for_a_spin(tmp_path):
+    # A review's case: the ZUPTs of a first stop learnt the bias; 3 s into a second 20 s stop
+    # it steps by 10 deg/s (a driver re-zeroing its offsets, a shock). The wheels stood
+    # still before: a stop, relearnt (taken for a spin, every later zero frame was a fault
+    # and the heading was lost: 180 deg at worst).
+    segments = (sim.stop(5.0) + sim.straight(2.0) + sim.stop(20.0) + sim.straight(2.0)
+                + sim.stop(10.0))
+    run = sim.simulate(segments, ROBOT, imu=sim.ImuModel(gyro_bias=(0.0, 0.0, BIAS)), seed=1)
+    gyro = run.gyro.copy()
+    step = math.radians(10.0)
+    gyro[run.imu_t >= 13.0, 2] += step
+    log = write_logdir(tmp_path / "log", ROBOT, run.imu_t, gyro, run.accel, run.wheel_t,
+                       run.ticks, run.truth_t, run.truth)
+    result = replay_logdir(log, tmp_path / "fused.csv")
+    fused = read_fused_csv(tmp_path / "fused.csv")
+    assert result.stats["encoder_faults"] == 0
+    assert fused["gyro_bias_z"][-1] == pytest.approx(BIAS + step, abs=math.radians(0.05))
+
+
+def test_a_spin_whose_wheels_die_before_any_stop_is_a_fault(tmp_path):
+    # driving from the first sample, no stop before the wheels die in the turn
+    segments = sim.straight(2.0) + sim.spin(2 * math.pi, 0.8) + sim.straight(2.0) + sim.stop(5.0)
+    run = sim.simulate(segments, ROBOT, imu=sim.ImuModel(gyro_bias=(0.0, 0.0, BIAS)), seed=1)
+    t0, t1 = 5.5, 5.0 + 2 * math.pi / 0.8 - 0.5
+    ticks = run.ticks.copy()
+    ticks[(run.wheel_t >= t0) & (run.wheel_t < t1)] = 0
+    log = write_logdir(tmp_path / "log", ROBOT, run.imu_t, run.gyro, run.accel, run.wheel_t,
+                       ticks, run.truth_t, run.truth)
+    replay_logdir(log, tmp_path / "fused.csv")
+    fused = read_fused_csv(tmp_path / "fused.csv")
+    dead = (fused["t"] > t0 + 0.05) & (fused["t"] < t1 - 0.05)
+    assert (fused["encoder_fault"][dead] == 1).all()
+    assert np.abs(_yaw_error_deg(run, fused)).max() < 1.0

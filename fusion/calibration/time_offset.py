@@ -143,11 +143,12 @@ def estimate_imu_lag(imu_t: ArrayLike, gyro: ArrayLike, up: ArrayLike, odom_t: A
         sl = slice(start, start + n_piece)
         if _turn(b[sl], valid[sl]) < PIECE_TURN:
             continue
-        piece_lag, piece_corr = _best_lag(a[sl], b[sl], valid[sl])
+        corr_piece = _correlations(a[sl], b[sl], valid[sl])
+        piece_lag, piece_corr = _peak(corr_piece)
         if piece_lag is not None and piece_corr >= MIN_CORRELATION:
             lags.append(piece_lag)
             peaks.append(piece_corr)
-            fits.append(_correlation_at(a[sl], b[sl], valid[sl], lag))
+            fits.append(_correlation_at(corr_piece, lag))
     return ImuLag(lag, corr, tuple(lags), piece, 2 * half * GRID, tuple(peaks), tuple(fits))
 
 
@@ -183,7 +184,11 @@ def _best_lag(a: NDArray[np.float64], b: NDArray[np.float64], valid: NDArray[np.
     """The shift of ``a`` (s) that best matches ``b`` (``a[i + k]`` with ``b[i]``) by the
     Pearson correlation over the points valid in both, refined by a parabola through the
     peak, and that correlation; ``(None, 0)`` for a peak on the edge of the search."""
-    corr = _correlations(a, b, valid)
+    return _peak(_correlations(a, b, valid))
+
+
+def _peak(corr: NDArray[np.float64]) -> tuple[float | None, float]:
+    """:func:`_best_lag` of the correlations ``corr`` (:func:`_correlations`)."""
     kmax = corr.size // 2
     if not np.any(np.isfinite(corr)):
         return None, 0.0
@@ -198,11 +203,10 @@ def _best_lag(a: NDArray[np.float64], b: NDArray[np.float64], valid: NDArray[np.
     return shift * GRID, float(corr[j])
 
 
-def _correlation_at(a: NDArray[np.float64], b: NDArray[np.float64],
-                    valid: NDArray[np.bool_], lag: float) -> float:
-    """The Pearson correlation of ``a`` shifted by ``lag`` s with ``b`` (as in
-    :func:`_best_lag`), interpolated between the grid's shifts; NaN outside the search."""
-    corr = _correlations(a, b, valid)
+def _correlation_at(corr: NDArray[np.float64], lag: float) -> float:
+    """The correlation at a shift of ``lag`` s of the correlations ``corr``
+    (:func:`_correlations`), interpolated between the grid's shifts; NaN outside the search
+    (or where ``corr`` is)."""
     kmax = corr.size // 2
     return float(np.interp(lag / GRID, np.arange(-kmax, kmax + 1), corr,
                            left=np.nan, right=np.nan))

@@ -193,8 +193,12 @@ A_GYRO_T = 70  # filter time of the last gyro sample fused (NaN: none yet)
 A_SPIKE_RUN = 71  # gyro samples rejected as spikes since the last one fused
 A_GYRO_SPIKES = 72  # gyro samples rejected as spikes in all
 A_FAULT_TURN = 73  # rad: the rate state integrated over the odometry's encoder-fault intervals
-A_MOVED_T = 74  # effective time of the last wheel frame with ticks (NaN: none yet)
-AUX_SIZE = 75
+# for _spinning: the effective time of the last wheel frame with ticks, or twist above zero
+# (s; NaN: none yet), and the wheels' recent yaw rate (rad/s; NaN: none yet), averaged over
+# SPIN_TAU s of the frames not taken for encoder faults
+A_MOVED_T = 74
+A_MOVED_W = 75
+AUX_SIZE = 76
 #: rad/s^2: no ground robot's yaw rate changes faster (a differential drive's wheels at 5
 #: m/s^2 on a 0.3 m track: 33 rad/s^2); a gyro reading further from the predicted rate
 #: than this times the time since the last fused sample, plus SPIKE_SIGMAS standard
@@ -1023,6 +1027,24 @@ def _straight_update(x, P, aux, par, z, R, interval):
     _rate_update(x, P, aux, y, H1, R1)
 
 
+#: A zero frame is in a turn the wheels went dead in when the filter's yaw rate is within
+#: this share of itself from the wheels' recent rate (wheel distance and scrub errors are a
+#: few %; a skid-steer's twist turns up to 1.5 times the gyro).
+SPIN_MATCH = 0.5
+#: s: the time constant the wheels' recent yaw rate is averaged over, frame by frame (one
+#: frame's rate is no measure at a turn's tail: a lone tick on a 0.3 m track at 20 ms is
+#: 4.8 deg/s, which matched a 9.5 deg/s bias step in a review).
+SPIN_TAU = 0.2
+
+
+@njit
+def _track_wheel_rate(aux, rate, interval):
+    """Average the yaw rate ``rate`` (rad/s) a wheel frame or twist measured over
+    ``interval`` s into ``A_MOVED_W`` (:data:`SPIN_TAU`), for :func:`_spinning`."""
+    if math.isnan(aux[A_MOVED_W]):
+        aux[A_MOVED_W] = rate
+    else:
+        aux[A_MOVED_W] += min(1.0, interval / SPIN_TAU) * (rate - aux[A_MOVED_W])
 #: s: how long the ZUPTs of a stop must keep finding the same unexplained yaw rate before
 #: the bias is relearnt (a twist would have to be this late to hide a turn's start)
 STEADY_TIME = 0.5
@@ -1064,12 +1086,19 @@ def _relearn_bias_at_stop(x, P, aux, par, imu_still):
 
 @njit
 def _spinning(x, P, aux, par, kind, t):
-    """True at a zero wheel frame or twist (``kind``, effective time ``t`` s) when the gyro
-    says the robot turns, whatever the IMU's shaking says: the rate ``w`` less ``sqrt(gate)``
-    standard deviations of the bias and one gyro sample (what a wrong bias could explain;
-    not w's own variance, which a motion onset widens for a moment) is above
-    :data:`TURN_RATE` and, at that rate, the wheels would have turned by more than two ticks
-    since they last read any (a twist: faster than twice its zero speed).
+    """True at a zero wheel frame or twist (``kind``, effective time ``t`` s) in a turn the
+    wheels were making when they last turned and the gyro says goes on, whatever the IMU's
+    shaking says. All of:
+
+    - the rate ``w`` less ``sqrt(gate)`` standard deviations of the bias and one gyro sample
+      (what a wrong bias could explain; not w's own variance, which a motion onset widens
+      for a moment) is above :data:`TURN_RATE`;
+    - the wheels' recent yaw rate (:func:`_track_wheel_rate`, over the frames not taken for
+      faults: a stop's zero frames bring it to 0) is within :data:`SPIN_MATCH` of ``w``
+      (the wheels went dead in this turn);
+    - at that rate the wheels would have turned by more than two ticks since they last read
+      any (a twist: faster than twice its zero speed);
+    - a gyro was heard within :data:`GYRO_SILENT` s (without one w is the wheels' own).
 
     Why: a steady turn does not shake an IMU on a smooth floor, so the window statistic
     calls it still (:mod:`fusion.planar.imu_motion`), and zero wheel speed in such a turn was
@@ -1077,27 +1106,24 @@ def _spinning(x, P, aux, par, kind, t):
     heading lost (130 deg in a review's spin on the kinematic simulator). Since the wheels
     last turned, not over one frame: a slow spin (0.2 rad/s on a 0.3 m track) turns each
     wheel by 1.2 ticks of 0.5 mm per 20 ms frame, so no single zero frame proves it, but
-    two ZUPT frames in a row would have. A stop with a wrong bias is no spin: the bias's
-    own variance and TURN_RATE (6 deg/s) cover it. Needs a gyro heard within
-    :data:`GYRO_SILENT` s (without one w is the wheels' own, and says nothing when they
-    stop), and a ZUPT taken before: until the robot has stood still once, its bias may be
-    off by more than its prior admits (a moving start with a 25 deg/s bias, past the
-    MPU6050's +-20 deg/s tolerance, lost 117 deg when its first stop was taken for a spin;
-    that stop's ZUPTs relearn the bias instead)."""
+    two ZUPT frames in a row would have. Why the wheels' last rate: a rate the gyro shows
+    at a stop may be a bias the filter does not know yet (a moving start's first stop with
+    25 deg/s, past the MPU6050's +-20 deg/s tolerance) or one that stepped while standing
+    (a review: 6.5-20 deg/s steps); without it both were taken for spins, every frame a
+    fault, no ZUPT to relearn the bias, and the heading lost (117 deg; up to 180). The
+    wheels' measured rate holds no gyro bias: a robot that stopped had slowed its turn
+    first. Not covered: encoders that die at rest before the robot turns (or a robot turned
+    by hand), which still pass for a stop."""
     if not aux[A_T] - aux[A_GYRO_T] <= GYRO_SILENT:  # NaN: no gyro sample yet
         return False
-    if aux[A_ZUPTS] == 0.0:
-        return False
-    low = abs(x[4]) - math.sqrt(par[P_GATE] * (P[5, 5] + par[P_GYRO_VAR]))
-    if low <= TURN_RATE:
+    w = x[4]
+    low = abs(w) - math.sqrt(par[P_GATE] * (P[5, 5] + par[P_GYRO_VAR]))
+    if low <= TURN_RATE or not abs(w - aux[A_MOVED_W]) <= SPIN_MATCH * abs(w):  # NaN: never
         return False
     rim = 0.5 * par[P_WHEEL_DISTANCE] * low  # m/s, each wheel's speed in a spin at `low`
     if kind != EV_WHEELS:
         return rim > 2.0 * par[P_TWIST_ZERO_V]
-    since = par[P_PERIOD]
-    if t - aux[A_MOVED_T] > since:  # NaN: the wheels never turned, one period
-        since = t - aux[A_MOVED_T]
-    return rim * since > 2.0 * par[P_SPEED_RATIO]
+    return rim * max(t - aux[A_MOVED_T], par[P_PERIOD]) > 2.0 * par[P_SPEED_RATIO]
 
 
 @njit
@@ -1166,7 +1192,8 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
     or a fault already under way while the IMU is not still (and known), or a gyro rate
     that is a turn whatever the bias (:func:`_spinning`), it is an
     encoder fault, flagged and not fused (status 7): the pose coasts on the motion model, its
-    covariance growing; the fault lasts until the ticks come back or the IMU is still. A stop
+    covariance growing; the fault lasts until the ticks come back or the IMU is still (in a
+    turn the gyro proves: until the turn ends). A stop
     that lasts ``zupt_frames`` frames with a still IMU (or no IMU information) gives a ZUPT;
     before that, or with the IMU unsure, the zero speed is fused as an ordinary frame.
     """
@@ -1212,6 +1239,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
                 # forgotten after max_extrapolation
                 aux[A_V_T] = aux[A_T]
             return math.nan, 7
+        _track_wheel_rate(aux, 0.0, interval)
         aux[A_ZERO_COUNT] += 1.0
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES] and (imu == MOTION_STILL
                                                         or imu == MOTION_UNKNOWN):
@@ -1227,7 +1255,6 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
             _remember_twist(x, aux, par, t)
             return d2, status
     else:
-        aux[A_MOVED_T] = t
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES]:
             # motion onset after a stop: the speed may have grown during this period at the
             # moving robot's pace, not the still one's
@@ -1244,6 +1271,9 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         # a twist from someone else's wheel odometry (nav_msgs/Odometry)
         z, R = twist_measurement(a, b, par[P_TWIST_V_STD], par[P_TWIST_W_STD],
                                  par[P_SCALE_STD], par[P_SEP_STD], par[P_WHEEL_W_STD])
+    if not still:
+        aux[A_MOVED_T] = t
+        _track_wheel_rate(aux, z[1], interval)
     # the wheels' yaw-rate error is correlated over wheel_w_corr_time s (skid, slip, tyre
     # creep): frames closer together than that do not average it down
     # in a turn the wheels' yaw rate is off by a share of the rate (scrub, tyre creep), which
@@ -1343,8 +1373,8 @@ def step_core(x, P, aux, par, kind, t, a, b):
     (or a saturated gyro sample skipped, or a gyro spike: :data:`MAX_ANGULAR_ACCEL`),
     3 S not positive definite,
     4 zero-velocity update, 5 dropped as too late, 6 invalid input,
-    7 encoder fault (zero wheel speed while the IMU or the speed says the robot moves; not
-    fused).
+    7 encoder fault (zero wheel speed while the IMU, the speed or a turn the gyro proves
+    says the robot moves; not fused).
     """
     if not (math.isfinite(t) and math.isfinite(a) and math.isfinite(b)) or _implausible(
             kind, a, b, par):

@@ -918,6 +918,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         self._aux[core.A_T] = math.nan
         self._aux[core.A_WHEEL_T] = math.nan
         self._aux[core.A_MOVED_T] = math.nan
+        self._aux[core.A_MOVED_W] = math.nan
         self._aux[core.A_YAW_BUDGET] = n.yaw_fix_burst
         # the wheels' yaw rate: no disagreement seen, not yet proven in turns (A_AGREED 0)
         self._aux[core.A_CLIPPED] = math.nan
