@@ -11,8 +11,9 @@ of GPS RMSE against 1.46). Beyond it the IMU's stamps are moved with a note, whe
 two pieces of the run line up at the same lag; when they do not (a driver restarted with
 another lag, turns that repeat at one period), or when the run is too short or turned too
 little to check on two pieces, nothing is moved and the note says why. A piece keeps
-another lag only if its own is further than that limit from the run's and fits it clearly
-better (:data:`FIT_Z`): slipping wheels move a piece's peak without that.
+another lag if its own is further than twice that limit from the run's, or further than
+the limit and fits it clearly better (:data:`FIT_Z`): slipping wheels move a piece's peak
+without that.
 """
 
 from __future__ import annotations

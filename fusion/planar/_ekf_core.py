@@ -1045,6 +1045,8 @@ def _track_wheel_rate(aux, rate, interval):
         aux[A_MOVED_W] = rate
     else:
         aux[A_MOVED_W] += min(1.0, interval / SPIN_TAU) * (rate - aux[A_MOVED_W])
+
+
 #: s: how long the ZUPTs of a stop must keep finding the same unexplained yaw rate before
 #: the bias is relearnt (a twist would have to be this late to hide a turn's start)
 STEADY_TIME = 0.5
@@ -1106,7 +1108,7 @@ def _spinning(x, P, aux, par, kind, t):
     heading lost (130 deg in a review's spin on the kinematic simulator). Since the wheels
     last turned, not over one frame: a slow spin (0.2 rad/s on a 0.3 m track) turns each
     wheel by 1.2 ticks of 0.5 mm per 20 ms frame, so no single zero frame proves it, but
-    two ZUPT frames in a row would have. Why the wheels' last rate: a rate the gyro shows
+    two ZUPT frames in a row would have. Why the wheels' recent rate: a rate the gyro shows
     at a stop may be a bias the filter does not know yet (a moving start's first stop with
     25 deg/s, past the MPU6050's +-20 deg/s tolerance) or one that stepped while standing
     (a review: 6.5-20 deg/s steps); without it both were taken for spins, every frame a
@@ -1189,8 +1191,8 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
     Zero wheel speed is a stop only if the IMU agrees: with the IMU moving while the state
     expects the wheels to turn by more than two ticks per period (a twist: twice
     ``twist_zero_v``), or, unless the IMU is still, a stop harder than ``stop_decel`` allows,
-    or a fault already under way while the IMU is not still (and known), or a gyro rate
-    that is a turn whatever the bias (:func:`_spinning`), it is an
+    or a fault already under way while the IMU is not still (and known), or a turn the gyro
+    proves whatever the bias and the wheels were making (:func:`_spinning`), it is an
     encoder fault, flagged and not fused (status 7): the pose coasts on the motion model, its
     covariance growing; the fault lasts until the ticks come back or the IMU is still (in a
     turn the gyro proves: until the turn ends). A stop
