@@ -25,6 +25,17 @@ ROBOT = DiffDriveParams(wheel_distance=0.3, speed_ratio=0.0005, encode_sampling_
 BIAS = math.radians(0.5)  # rad/s, the gyro's z bias
 
 
+def _replay(run, tmp_path, gyro=None, ticks=None):
+    """Write ``run`` (with ``gyro``/``ticks`` in place of its own where given) as a log
+    directory, replay it; the replay's result and its fused table."""
+    gyro = run.gyro if gyro is None else gyro
+    ticks = run.ticks if ticks is None else ticks
+    log = write_logdir(tmp_path / "log", ROBOT, run.imu_t, gyro, run.accel, run.wheel_t,
+                       ticks, run.truth_t, run.truth)
+    result = replay_logdir(log, tmp_path / "fused.csv")
+    return result, read_fused_csv(tmp_path / "fused.csv")
+
+
 def _spin_run(rate: float, tmp_path, kill: bool = True):
     """Stop 5 s, 2 m straight, one turn on the spot at ``rate`` rad/s, 2 m straight, stop 5 s;
     with ``kill`` the wheels read zero from 0.5 s into the turn to 0.5 s before its end.
@@ -37,10 +48,8 @@ def _spin_run(rate: float, tmp_path, kill: bool = True):
     ticks = run.ticks.copy()
     if kill:
         ticks[(run.wheel_t >= window[0]) & (run.wheel_t < window[1])] = 0
-    log = write_logdir(tmp_path / "log", ROBOT, run.imu_t, run.gyro, run.accel, run.wheel_t,
-                       ticks, run.truth_t, run.truth)
-    result = replay_logdir(log, tmp_path / "fused.csv")
-    return run, window, result, read_fused_csv(tmp_path / "fused.csv")
+    result, fused = _replay(run, tmp_path, ticks=ticks)
+    return run, window, result, fused
 
 
 def _yaw_error_deg(run, fused) -> np.ndarray:
@@ -88,10 +97,7 @@ def test_a_moving_starts_first_stop_is_a_stop_whatever_the_bias(tmp_path):
                 + sim.stop(5.0))
     bias = math.radians(25.0)
     run = sim.simulate(segments, ROBOT, imu=sim.ImuModel(gyro_bias=(0.0, 0.0, bias)), seed=1)
-    log = write_logdir(tmp_path / "log", ROBOT, run.imu_t, run.gyro, run.accel, run.wheel_t,
-                       run.ticks, run.truth_t, run.truth)
-    result = replay_logdir(log, tmp_path / "fused.csv")
-    fused = read_fused_csv(tmp_path / "fused.csv")
+    result, fused = _replay(run, tmp_path)
     assert result.stats["encoder_faults"] == 0
     assert np.abs(_yaw_error_deg(run, fused)).max() < 1.0
     assert fused["gyro_bias_z"][-1] == pytest.approx(bias, abs=math.radians(0.05))
@@ -108,10 +114,7 @@ def test_a_bias_that_steps_during_a_stop_is_relearnt_not_taken_for_a_spin(tmp_pa
     gyro = run.gyro.copy()
     step = math.radians(10.0)
     gyro[run.imu_t >= 13.0, 2] += step
-    log = write_logdir(tmp_path / "log", ROBOT, run.imu_t, gyro, run.accel, run.wheel_t,
-                       run.ticks, run.truth_t, run.truth)
-    result = replay_logdir(log, tmp_path / "fused.csv")
-    fused = read_fused_csv(tmp_path / "fused.csv")
+    result, fused = _replay(run, tmp_path, gyro=gyro)
     assert result.stats["encoder_faults"] == 0
     assert fused["gyro_bias_z"][-1] == pytest.approx(BIAS + step, abs=math.radians(0.05))
 
@@ -123,10 +126,7 @@ def test_a_spin_whose_wheels_die_before_any_stop_is_a_fault(tmp_path):
     t0, t1 = 5.5, 5.0 + 2 * math.pi / 0.8 - 0.5
     ticks = run.ticks.copy()
     ticks[(run.wheel_t >= t0) & (run.wheel_t < t1)] = 0
-    log = write_logdir(tmp_path / "log", ROBOT, run.imu_t, run.gyro, run.accel, run.wheel_t,
-                       ticks, run.truth_t, run.truth)
-    replay_logdir(log, tmp_path / "fused.csv")
-    fused = read_fused_csv(tmp_path / "fused.csv")
+    _, fused = _replay(run, tmp_path, ticks=ticks)
     dead = (fused["t"] > t0 + 0.05) & (fused["t"] < t1 - 0.05)
     assert (fused["encoder_fault"][dead] == 1).all()
     assert np.abs(_yaw_error_deg(run, fused)).max() < 1.0
