@@ -53,6 +53,7 @@ from fusion.jobs.streams import (
     with_gyro_limit,
     with_mount_estimate,
 )
+from fusion.jobs.twist_rest import with_twist_rest_floor
 from fusion.jobs.wheel_checks import wheel_count_warnings
 from fusion.jobs.wheel_glitches import in_log, stamped, without_glitches
 from fusion.pipeline.core import FusionPipeline, PipelineStats
@@ -544,6 +545,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                                      "(--imu-lag)")
     streams.check_gyro(f"{path}: topic {imu_topic}", robot.chassis)
     robot, limit_note = with_gyro_limit(robot, streams)
+    robot, rest_note = with_twist_rest_floor(robot, streams)
     fixes, fix_note = bag.fixes, ""
     if fixes is not None:
         if stamps == "header":
@@ -585,7 +587,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
     notes = [n for n in (mount_note, bag.note, *bag.topic_notes, *signs.notes, lag.note,
-                         limit_note,
+                         limit_note, rest_note,
                          fix_note, spliced.note, tilt and streams.level_note()) if n]
     if motion.t.size > 1:
         still = ((np.abs(motion.v) <= robot.ekf.twist_zero_v)
@@ -675,7 +677,8 @@ def _gyro_at_stops_track(robot: RobotConfig, imu, motion: OdometryMotion
 
     R = mount_matrix(robot.imu_mount_rpy)
     b = gyro_at_stops_twist(imu.t, imu_to_base(R, imu.gyro), imu_to_base(R, imu.accel),
-                            motion.t, motion.v, motion.w)
+                            motion.t, motion.v, motion.w, still_v=robot.ekf.twist_zero_v,
+                            still_w=robot.ekf.twist_zero_w)
     return b.t, b.poses[:, :2]
 
 

@@ -38,6 +38,7 @@ __all__ = [
     "rest_vibration",
     "speed_scale_warnings",
     "stillness_warnings",
+    "two_digits_up",
     "with_gyro_limit",
     "with_mount_estimate",
 ]
@@ -423,14 +424,14 @@ def stillness_warnings(streams: Streams, robot: RobotConfig, zupts: int) -> list
     # in a row (1.5 times the median took half of the parked runs' frames, 1.25 times the
     # 95th percentile nearly all)
     gyro_top, accel_top = rest_vibration(stds, streams.imu_t, spans, _REST_QUANTILE)
-    gyro_set = max(th.gyro_still, _two_digits_up(_REST_MARGIN * gyro_top))
-    accel_set = max(th.accel_still, _two_digits_up(_REST_MARGIN * accel_top))
+    gyro_set = max(th.gyro_still, two_digits_up(_REST_MARGIN * gyro_top))
+    accel_set = max(th.accel_still, two_digits_up(_REST_MARGIN * accel_top))
     settings = f"[imu_motion] gyro_still = {gyro_set:g}, accel_still = {accel_set:g}"
     if gyro_set > th.gyro_move or accel_set > th.accel_move:
         # the motion thresholds well above the stillness ones, or a stop's vibration peaks
         # read as motion
-        gyro_move = max(th.gyro_move, _two_digits_up(1.5 * gyro_set))
-        accel_move = max(th.accel_move, _two_digits_up(1.5 * accel_set))
+        gyro_move = max(th.gyro_move, two_digits_up(1.5 * gyro_set))
+        accel_move = max(th.accel_move, two_digits_up(1.5 * accel_set))
         settings += (f", gyro_move = {gyro_move:g}, accel_move = {accel_move:g} (which also "
                      "makes a dead encoder feed while driving harder to tell from a stop)")
     if gyro_set > th.gyro_still:
@@ -455,7 +456,7 @@ def stillness_warnings(streams: Streams, robot: RobotConfig, zupts: int) -> list
          "suggested_gyro_still": gyro_set, "suggested_accel_still": accel_set})]
 
 
-def _two_digits_up(x: float) -> float:
+def two_digits_up(x: float) -> float:
     """``x`` > 0 rounded up to two significant digits."""
     scale = 10.0 ** (math.floor(math.log10(x)) - 1)
     return math.ceil(x / scale - 1e-9) * scale

@@ -1,0 +1,105 @@
+"""fusion.jobs.twist_rest: a twist odometry's noise at rest, read where the IMU is still, raises
+the EKF's stop thresholds (and only then). Constructed streams: a robot that drives (the IMU
+shaking by 0.5 m/s^2, as a drive does) and stops six times for 5 s (the IMU still: MPU-6050
+noise), its twists at 10 Hz. End to end on a simulated bag: tests/test_terrain_bag.py."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fusion.geometry.kinematics import DiffDriveParams
+from fusion.jobs.streams import Streams
+from fusion.jobs.twist_rest import MAX_ZERO_V, MAX_ZERO_W, with_twist_rest_floor
+from fusion.planar.ekf import EkfNoise
+from fusion.planar.robot import RobotConfig
+
+ROBOT = RobotConfig(chassis=DiffDriveParams(wheel_distance=0.4, speed_ratio=1e-4))
+
+
+def _streams(rest_v, rest_w, seed=0):
+    """Streams of 60 s: 5 s stops starting every 10 s; ``rest_v(n, rng)``, ``rest_w(n, rng)``
+    give the n twists of the stops."""
+    rng = np.random.default_rng(seed)
+    imu_t = np.arange(0.0, 60.0, 0.01)
+    stopped = (imu_t % 10.0) >= 5.0
+    gyro = rng.normal(0.0, 7e-4, (imu_t.size, 3)) + np.array([0.0, 0.0, 0.004])  # a bias
+    accel = rng.normal(0.0, 0.04, (imu_t.size, 3)) + np.array([0.0, 0.0, 9.81])
+    accel[~stopped] += rng.normal(0.0, 0.5, (np.count_nonzero(~stopped), 3))
+    gyro[~stopped] += rng.normal(0.0, 0.05, (np.count_nonzero(~stopped), 3))
+    twist_t = np.arange(0.05, 60.0, 0.1)
+    rest = (twist_t % 10.0) >= 5.0
+    v = np.full(twist_t.size, 0.4)
+    w = 0.3 * np.sin(twist_t)
+    v[rest] = rest_v(np.count_nonzero(rest), rng)
+    w[rest] = rest_w(np.count_nonzero(rest), rng)
+    return Streams(imu_t, gyro, accel, twist_t=twist_t, twist_v=v, twist_w=w)
+
+
+def _noise(std):
+    return lambda n, rng: rng.normal(0.0, std, n)
+
+
+def _zero(n, rng):
+    return np.zeros(n)
+
+
+def test_noise_at_rest_raises_both_thresholds_to_cover_it():
+    robot, note = with_twist_rest_floor(ROBOT, _streams(_noise(0.002), _noise(0.003)))
+    # 4 x the median magnitude of N(0, s) = 2.7 s, rounded up to two digits
+    assert robot.ekf.twist_zero_v == pytest.approx(2.7 * 0.002, rel=0.15)
+    assert robot.ekf.twist_zero_w == pytest.approx(2.7 * 0.003, rel=0.15)
+    assert "twist_zero_v = " in note and "twist_zero_w = " in note and "[ekf]" in note
+    # what the EKF would now take for a stop: nearly every twist at rest, no driving one
+    s = _streams(_noise(0.002), _noise(0.003))
+    stop = ((np.abs(s.twist_v) <= robot.ekf.twist_zero_v)
+            & (np.abs(s.twist_w) <= robot.ekf.twist_zero_w))
+    rest = (s.twist_t % 10.0) >= 5.0
+    assert np.mean(stop[rest]) > 0.97 and not np.any(stop[~rest])
+    # the rest of the configuration untouched
+    assert dataclasses.replace(robot.ekf, twist_zero_v=1e-3, twist_zero_w=1e-3) == EkfNoise()
+
+
+def test_twists_that_read_zero_at_rest_change_nothing():
+    robot, note = with_twist_rest_floor(ROBOT, _streams(_zero, _zero))
+    assert robot is ROBOT and note == ""
+
+
+def test_a_steady_creep_is_not_taken_for_noise():
+    # the IMU still while the twists read +1 cm/s and a slow +0.3 deg/s turn: motion (one
+    # sign), not noise; a zero-velocity update would pin it to zero and, for the turn, teach
+    # the gyro bias the turn's rate
+    creep = lambda n, rng: 0.01 + rng.normal(0.0, 0.001, n)  # noqa: E731
+    turn = lambda n, rng: 0.005 + rng.normal(0.0, 0.0005, n)  # noqa: E731
+    robot, note = with_twist_rest_floor(ROBOT, _streams(creep, turn))
+    assert robot is ROBOT and note == ""
+    # noise on v with a slow turn: v raised, w not
+    robot, note = with_twist_rest_floor(ROBOT, _streams(_noise(0.002), turn))
+    assert robot.ekf.twist_zero_v > 0.004 and robot.ekf.twist_zero_w == 1e-3
+    assert "twist_zero_w" not in note
+
+
+def test_large_noise_is_capped_and_said():
+    robot, note = with_twist_rest_floor(ROBOT, _streams(_noise(0.02), _noise(0.02)))
+    assert robot.ekf.twist_zero_v == MAX_ZERO_V and robot.ekf.twist_zero_w == MAX_ZERO_W
+    assert "capped" in note
+
+
+def test_thresholds_robot_toml_set_higher_are_kept():
+    mine = dataclasses.replace(ROBOT, ekf=dataclasses.replace(ROBOT.ekf, twist_zero_v=0.015,
+                                                              twist_zero_w=0.012))
+    robot, note = with_twist_rest_floor(mine, _streams(_noise(0.002), _noise(0.002)))
+    assert robot is mine and note == ""
+
+
+def test_no_still_imu_no_change():
+    # an IMU that shakes at rest too (an engine): nothing says where the robot stood
+    s = _streams(_noise(0.002), _noise(0.002))
+    shaking = s.accel + np.random.default_rng(1).normal(0.0, 0.5, s.accel.shape)
+    robot, note = with_twist_rest_floor(ROBOT, dataclasses.replace(s, accel=shaking))
+    assert robot is ROBOT and note == ""
+    # nor without an IMU, or with wheel ticks instead of twists
+    assert with_twist_rest_floor(ROBOT, dataclasses.replace(s, imu_t=None)) == (ROBOT, "")
+    assert with_twist_rest_floor(ROBOT, Streams(s.imu_t, s.gyro, s.accel)) == (ROBOT, "")
