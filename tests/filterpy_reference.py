@@ -508,12 +508,27 @@ class FilterpyReference:
                 moving = abs(z[0]) > n.twist_zero_v
                 turning = abs(z[1]) > 0.1 or abs(kf.x[4]) > 0.1  # a turn tests the wheels
                 gr = kf.x[4] + kf.x[5]
-                if moving:
-                    self.lin += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
-                linear = _linear_slope(self.lin) is not None
                 # no gyro fused for 0.5 s (none in the log, a gap): the wheels' yaw rate is
                 # all there is, fused without the slip gate (_ekf_core.GYRO_SILENT)
                 silent = self.gyro_t is None or not self.t - self.gyro_t <= 0.5
+                if moving and not silent:  # without a gyro w is the wheels' own
+                    self.lin += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
+                linear = _linear_slope(self.lin) is not None
+                # a gap in a gyro that had spoken: a source it had not proven, or had
+                # disproven, is fused in the gyro's scale (its slope against the gyro over
+                # the moving frames), or only its speed (_ekf_core._silent_rate_scale)
+                scale = 1.0
+                if silent and self.gyro_t is not None and (
+                        self.distrust or (kind == TWIST
+                                          and self.agreed < n.wheel_rate_proof_time)):
+                    slope = _linear_slope(self.lin)
+                    scale = 0.0 if slope is None else slope
+                if scale > 0.0 and scale != 1.0:
+                    z = np.array([z[0], z[1] / scale])
+                    R = R.copy()
+                    R[0, 1] /= scale
+                    R[1, 0] /= scale
+                    R[1, 1] /= scale * scale
                 if (kind == WHEELS and moving and not accel_slip and n.calib_k_std > 0
                         and n.wheel_scale_refit > 0 and not silent):
                     # the ticks' own fit since the last restart of k; k restarts at its slope
@@ -545,6 +560,7 @@ class FilterpyReference:
                 fuse_rate, disproven = True, False
                 if silent:
                     slip = gated = False
+                    fuse_rate, disproven = scale > 0.0, self.distrust
                 elif self.t - self.clipped_at >= n.wheel_rate_proof_time:
                     if turning:
                         w = min(1.0, interval / n.wheel_rate_trust_time)
