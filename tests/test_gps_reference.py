@@ -130,8 +130,9 @@ def test_fixes_outside_the_tracks_span_are_named():
 
 #: how _write_bag_with_fixes writes fix i (default "fix"): a fix; status NO_FIX with NaN
 #: coordinates (as receivers publish it) or with stale finite ones; no altitude (NaN); the
-#: latitude and longitude as NMEA ddmm.mmmm numbers, not converted to degrees
-FIX_KINDS = ("fix", "no-fix", "no-fix-stale", "no-altitude", "ddmm")
+#: latitude and longitude as NMEA ddmm.mmmm numbers, not converted to degrees; status FIX
+#: with latitude, longitude and altitude 0 (a driver filling in zeros without a fix)
+FIX_KINDS = ("fix", "no-fix", "no-fix-stale", "no-altitude", "ddmm", "zeros")
 
 
 def _write_bag_with_fixes(source: Path, dest: Path, *, kind=lambda i: "fix",
@@ -171,6 +172,8 @@ def _write_bag_with_fixes(source: Path, dest: Path, *, kind=lambda i: "fix",
                     h = math.nan
                 elif what == "ddmm":
                     lat, lon = 4808.2292, 1134.5674
+                elif what == "zeros":
+                    lat = lon = h = 0.0
                 ns_fix = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec + round(
                     stamp_shift * 1e9)
                 header = dataclasses.replace(
@@ -187,14 +190,14 @@ def _write_bag_with_fixes(source: Path, dest: Path, *, kind=lambda i: "fix",
 
 
 #: fixes the gps_bag fixture leaves without a fix or without an altitude
-NO_FIX, NO_ALT = (40, 41), 3
+NO_FIX, NO_ALT = (40, 41, 42), 3
 
 
 @pytest.fixture(scope="module")
 def gps_bag(datasets_dir, tmp_path_factory):
     path = tmp_path_factory.mktemp("gps") / "jackal_with_gps.bag"
     _write_bag_with_fixes(datasets_dir / "rosbag" / "jackal_sim_test2.bag", path,
-                          kind=lambda i: {40: "no-fix", 41: "no-fix-stale",
+                          kind=lambda i: {40: "no-fix", 41: "no-fix-stale", 42: "zeros",
                                           NO_ALT: "no-altitude"}.get(i, "fix"))
     return path
 
@@ -204,8 +207,10 @@ def test_fixes_are_read_with_the_no_fix_messages_left_out(gps_bag):
 
     fixes = read_bag_fixes(gps_bag, FIX)
     odom = read_bag_odometry(gps_bag, ODOM)
-    # both no-fix messages are left out: the NaN one and the one with stale coordinates
-    assert fixes.no_fix == 2 and len(fixes) == len(odom.t[::5]) - 2
+    # the no-fix messages are left out: the NaN one, the one with stale coordinates, and the
+    # one at latitude and longitude 0 whatever its status (before: kept, and the printed
+    # GPS RMSE went to 10^5 m)
+    assert fixes.no_fix == 3 and len(fixes) == len(odom.t[::5]) - 3
     assert fixes.frame_id == "gps" and np.all(fixes.status == 0)
     assert np.all(fixes.covariance_type == 0)
     np.testing.assert_array_equal(fixes.t, np.delete(odom.t[::5], NO_FIX))
@@ -232,7 +237,7 @@ def test_replay_scores_the_tracks_against_gps(gps_bag, tmp_path, capsys):
                  "--gps-topic", FIX, "-o", str(out), "--plot", str(png)])
     printed = capsys.readouterr().out
     assert code == 0 and png.stat().st_size > 10_000
-    assert "2 without a fix left out" in printed
+    assert "3 without a fix left out" in printed
     lines = {ln.split(":")[0].strip(): ln for ln in printed.splitlines()}
     score = {name: float(lines[name].split()[-2])
              for name in ("fused", "the bag's odometry", "gyro at stops")}

@@ -364,3 +364,19 @@ def test_mcap_without_ros_channels_says_so(tmp_path) -> None:
     writer.close()
     with pytest.raises(LogFormatError, match="no topic '/imu/data'; the file has no ROS topics"):
         read_bag_imu(path)
+
+
+def test_a_ros1_bag_cut_short_is_named_with_the_way_out(datasets_dir, tmp_path) -> None:
+    # a recorder killed mid-write leaves a ROS 1 bag without its index (or a .bag.active)
+    data = (datasets_dir / "rosbag" / "jackal_sim_test2.bag").read_bytes()
+    for name, way_out in (("cut.bag", "`rosbag reindex` rebuilds it"),
+                          ("run.bag.active", "`rosbag reindex` it, then rename it to .bag")):
+        cut = tmp_path / name
+        cut.write_bytes(data[: len(data) // 2])
+        with pytest.raises(LogFormatError, match=f"{cut}: not a readable ROS bag") as err:
+            read_bag_imu(cut, "/imu/data")
+        assert way_out in str(err.value)
+    # and the replay takes the .bag.active for a bag (the same error, not "not a .bag")
+    from fusion.jobs.replay import is_bag
+
+    assert is_bag(tmp_path / "run.bag.active")

@@ -56,3 +56,25 @@ def test_unsorted_stamps_or_mismatched_values_are_refused():
         spread_repeated_stamps(np.array([0.0, 0.2, 0.1]), np.zeros((3, 1)))
     with pytest.raises(ValueError, match=r"values \(N, k\)"):
         spread_repeated_stamps(np.array([0.0, 0.1]), np.zeros((3, 1)))
+
+
+def test_record_times_tell_a_frozen_stamp_from_a_burst():
+    # 30 Hz samples recorded 3 ms after they were taken; bursts of 3 published at the read
+    # (recorded together) stay bursts; a stamp frozen for 30 samples while they came one by
+    # one (recorded 33 ms apart) puts each at its record time less the usual 3 ms.
+    true, stamps = _burst_stamped(seconds=6.0)
+    record = stamps + 0.003  # a burst is published and recorded at its read
+    frozen = slice(60, 90)
+    stamps = stamps.copy()
+    stamps[frozen] = stamps[60]
+    record[frozen] = true[frozen] + 0.003
+    values = np.random.default_rng(1).standard_normal((true.size, 6))
+    fix = spread_repeated_stamps(stamps, values, "topic /imu/data", record_t=record)
+    assert fix.frozen == 30 and fix.bursts == true.size // 3 - 10
+    np.testing.assert_allclose(fix.t, true, rtol=0, atol=1e-6)
+    assert "30 messages shared a stamp while they came one by one" in fix.note
+    assert "spread back" in fix.note
+    # without record times the frozen run reads as one burst, its 0.97 s squeezed into the
+    # 0.1 s since the previous stamp
+    blind = spread_repeated_stamps(stamps, values, "topic /imu/data")
+    assert blind.frozen == 0 and np.ptp(blind.t[frozen]) < 0.11

@@ -165,8 +165,8 @@ class FixLog:
             meaningful only where ``covariance_type`` > 0.
         covariance_type: (N,) ``position_covariance_type``: 0 unknown, 1 approximated,
             2 diagonal known, 3 known.
-        no_fix: messages left out: ``status.status`` < 0 (no fix) or a latitude or longitude
-            that is not finite.
+        no_fix: messages left out: ``status.status`` < 0 (no fix), a latitude or longitude
+            that is not finite, or both exactly 0 (zeros filled in without a fix).
         frame_id, topic, source, bag_time, out_of_order: as in :class:`OdometryLog`.
     """
 
@@ -254,7 +254,13 @@ class _BagFile:
                 self._reader = rosbags.highlevel.AnyReader([self.path])
                 self._reader.open()
             except Exception as exc:  # rosbags' errors, struct errors of truncated files
-                raise LogFormatError(f"{self.path}: not a readable ROS bag ({exc})") from exc
+                hint = {".bag": "; a ROS 1 bag cut short (a recorder killed, a full disk) "
+                                "lacks its index: `rosbag reindex` rebuilds it",
+                        ".active": "; a recording rosbag record did not finish: `rosbag "
+                                   "reindex` it, then rename it to .bag"
+                        }.get(self.path.suffix.lower(), "")
+                raise LogFormatError(f"{self.path}: not a readable ROS bag ({exc}){hint}"
+                                     ) from exc
             for c in self._reader.connections:
                 name = _ros1_name(c.msgtype)
                 old = self.topics.get(c.topic, (name, 0))
@@ -530,7 +536,8 @@ class _Collector:
                          "acceleration (linear_acceleration_covariance[0] = -1): read as zero "
                          "(stillness from the gyro alone; without any, no tilt compensation)")
         if self.kind in _SPREAD_COLUMNS:
-            fix = spread_repeated_stamps(t, rows[:, _SPREAD_COLUMNS[self.kind]], where)
+            fix = spread_repeated_stamps(t, rows[:, _SPREAD_COLUMNS[self.kind]], where,
+                                         record_t=bag_t if self.use_header else None)
             if fix.note:
                 t, bag_t, rows = fix.t, bag_t[fix.keep], rows[fix.keep]
                 notes.append(fix.note)
@@ -698,7 +705,11 @@ def _twist_log(c: _Collector) -> TwistLog:
 
 def _fix_log(c: _Collector) -> FixLog:
     t, bag_t, rows, ooo = c.arrays()
-    has = (rows[:, 3] >= 0) & np.isfinite(rows[:, 0]) & np.isfinite(rows[:, 1])
+    # latitude and longitude both exactly 0 ("null island", in the Gulf of Guinea): a receiver
+    # or driver that fills in zeros without a fix, whatever its status says (an independent
+    # probe's three such fixes made the printed GPS RMSE 186541 m)
+    has = ((rows[:, 3] >= 0) & np.isfinite(rows[:, 0]) & np.isfinite(rows[:, 1])
+           & ~((rows[:, 0] == 0.0) & (rows[:, 1] == 0.0)))
     wild = np.flatnonzero(has & ((np.abs(rows[:, 0]) > 90.0) | (np.abs(rows[:, 1]) > 180.0)))
     if wild.size:
         i = int(wild[0])
@@ -708,7 +719,7 @@ def _fix_log(c: _Collector) -> FixLog:
             f"[-180, 180] (NMEA ddmm.mmmm values not converted?)")
     if not np.any(has):
         raise LogFormatError(f"{c.path}: topic {c.topic}: none of its {len(t)} messages holds "
-                             f"a fix (status.status < 0 or no latitude/longitude)")
+                             f"a fix (status.status < 0, no latitude/longitude, or both 0)")
     alt = rows[has, 2]
     known = np.isfinite(alt)
     alt = np.where(known, alt, alt[known][0] if np.any(known) else 0.0)

@@ -12,7 +12,12 @@ messages, 3001 rows). :func:`spread_repeated_stamps` repairs that before the rep
   ``stamp - (n - 1 - k) * spacing`` for the k-th, with ``spacing`` the time since the
   previous stamp over ``n`` (the burst filled that interval), at most the sampling period:
   the median of that spacing over all runs (a burst after a pause is not stretched over
-  the pause; the first run, with no stamp before it, takes the period).
+  the pause; the first run, with no stamp before it, takes the period);
+- unless the messages' record times are known (a bag) and the run's span more than
+  :data:`FROZEN_SHARE` of the time its samples would have taken: then the messages came one
+  by one after the stamp, which froze (a driver bug), and each gets its record time less the
+  topic's median record delay. Spread back, an independent probe's 1 s of frozen IMU stamps
+  was squeezed into a millisecond and its turn lost (GPS RMSE 1.55 -> 3.13 m).
 
 Stamps in s; what was done is said in :attr:`StampRepair.note` (empty when nothing was).
 """
@@ -24,7 +29,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["StampRepair", "spread_repeated_stamps"]
+__all__ = ["FROZEN_SHARE", "StampRepair", "spread_repeated_stamps"]
+
+#: A run of equal stamps whose record times span more than this share of the run's sampling
+#: time ((n - 1) periods) came one by one: frozen stamps, not a burst read at once (whose
+#: messages are recorded within a millisecond or two of each other).
+FROZEN_SHARE = 0.5
 
 
 @dataclass(frozen=True)
@@ -38,6 +48,8 @@ class StampRepair:
         duplicates: messages left out as copies of the previous one.
         spread: messages whose stamp was moved back within a burst.
         bursts: runs of messages that shared a stamp and were spread.
+        frozen: messages of runs that came one by one (see the module docstring), put at
+            their record times.
         note: one sentence for the user ("" when nothing was done).
     """
 
@@ -47,16 +59,19 @@ class StampRepair:
     spread: int
     bursts: int
     note: str
+    frozen: int = 0
 
 
 def spread_repeated_stamps(t: NDArray[np.float64], values: NDArray[np.float64],
-                           name: str = "messages") -> StampRepair:
+                           name: str = "messages",
+                           record_t: NDArray[np.float64] | None = None) -> StampRepair:
     """Repair stamps shared by consecutive messages (module docstring).
 
     Args:
         t: (N,) s, non-decreasing (a reader's sorted stamps).
         values: (N, k) each message's values (a duplicate equals the previous in all).
         name: what the messages are, for the note (e.g. ``"topic /imu/data"``).
+        record_t: (N,) s, when each message was recorded (a bag's record times), or None.
 
     Raises:
         ValueError: ``t`` not (N,) and non-decreasing, or ``values`` not (N, k).
@@ -78,7 +93,8 @@ def spread_repeated_stamps(t: NDArray[np.float64], values: NDArray[np.float64],
     kept_t = t[keep]
     duplicates = int(t.size - kept_t.size)
     out = kept_t.copy()
-    spread = bursts = 0
+    spread = bursts = frozen = 0
+    kept_record = None if record_t is None else np.asarray(record_t, dtype=np.float64)[keep]
     starts = np.flatnonzero(np.concatenate([[True], kept_t[1:] != kept_t[:-1]]))
     lengths = np.diff(np.concatenate([starts, [kept_t.size]]))
     # each run's samples filled the time since the previous stamp: that time over the run's
@@ -86,14 +102,27 @@ def spread_repeated_stamps(t: NDArray[np.float64], values: NDArray[np.float64],
     filled = np.diff(kept_t[starts]) / lengths[1:]
     if filled.size:
         period = float(np.median(filled))
+        # the topic's usual record delay: over every message (a frozen stretch is a short
+        # part of a run, or the record times are the better stamps throughout)
+        delay = float(np.median(kept_record - kept_t)) if kept_record is not None else 0.0
         for i, (start, n) in enumerate(zip(starts.tolist(), lengths.tolist(), strict=True)):
             if n < 2:
+                continue
+            if kept_record is not None and (kept_record[start + n - 1] - kept_record[start]
+                                            > FROZEN_SHARE * (n - 1) * period):
+                out[start:start + n] = kept_record[start:start + n] - delay
+                frozen += n
                 continue
             spacing = min(filled[i - 1], period) if i > 0 else period
             out[start:start + n] = kept_t[start] - (n - 1 - np.arange(n)) * spacing
             spread += n - 1
             bursts += 1
     parts = []
+    if frozen:
+        parts.append(f"{frozen} messages shared a stamp while they came one by one (their "
+                     "record times spread as the samples did: a stamp that froze): each put "
+                     "at its record time less the topic's usual record delay "
+                     f"({delay * 1e3:.1f} ms)")
     if bursts:
         parts.append(f"{spread} messages carried the stamp of a later one ({bursts} runs of "
                      "equal stamps: a batch stamped at one time, a driver's read or a "
@@ -103,4 +132,4 @@ def spread_repeated_stamps(t: NDArray[np.float64], values: NDArray[np.float64],
         parts.append(f"{duplicates} copies of the previous message (same stamp and values) "
                      "left out")
     note = f"{name}: " + "; ".join(parts) if parts else ""
-    return StampRepair(out, keep, duplicates, spread, bursts, note)
+    return StampRepair(out, keep, duplicates, spread, bursts, note, frozen)

@@ -90,8 +90,9 @@ def choose_imu_lag(streams: Streams, chassis, given: float | None = None) -> Lag
     if _pieces_disagree(est, limit):
         return LagChoice(0.0, f"the IMU's and the odometry's stamps do not keep one lag "
                          f"through the run ({pieces}: a driver restarted with another lag, "
-                         "or turns that repeat at one period): not moved; --imu-lag S "
-                         "moves every IMU stamp by S", est)
+                         "a clock that stepped, or turns that repeat at one period): not "
+                         "moved; --imu-lag S moves every IMU stamp by S, and a bag's record "
+                         "times (--stamps bag) keep one clock through a restart", est)
     if not abs(lag) > limit:
         return LagChoice(estimate=est)
     apart = _apart(lag)

@@ -162,9 +162,11 @@ def output_format(path: Path) -> str:
 
 
 def is_bag(path: Path) -> bool:
-    """A ROS 1 .bag, an .mcap file or a ROS 2 bag folder (metadata.yaml)."""
+    """A ROS 1 .bag (or the .bag.active rosbag record leaves when it is killed), an .mcap
+    file or a ROS 2 bag folder (metadata.yaml)."""
     if path.is_file():
-        return path.suffix.lower() in (".bag", ".mcap")
+        return (path.suffix.lower() in (".bag", ".mcap")
+                or path.name.lower().endswith(".bag.active"))
     return (path / "metadata.yaml").is_file()
 
 
