@@ -69,6 +69,7 @@ class FilterpyReference:
         self.steady_t = 0.0
         self.imu_motion = 0
         self.in_fault = False
+        self.fault_run = 0  # encoder-fault frames since the last frame that was not one
         self.after_slip = False  # the last wheel frame or twist was a slip
         self.wheel_t: float | None = None
         # the last wheel frame with ticks (twist above zero): effective time, measured yaw rate
@@ -433,15 +434,33 @@ class FilterpyReference:
                     self.stats["encoder_faults"] += 1
                     self.stats["fault_turn"] += kf.x[4] * interval
                     self.in_fault = True
+                    self.fault_run += 1
                     if self.imu_motion in (UNSURE, MOVING) or spinning:  # no gap: v stays
                         self._measured(3)
                     return 7
                 self._track_wheel_rate(0.0, interval)
+                self.fault_run = 0
             else:
                 self.wheel_t = t
                 if self.zero_count >= n.zupt_frames:  # motion onset: v's freedom back
                     kf.P[3, 3] += n.accel_psd * r.encode_sampling_time
                 self.steady_w = None
+                # the first frame after 1-3 encoder faults at about (faults + 1) times the
+                # coasted speed (within 25 %, nearer than the coasted speed itself) carries
+                # the faulted frames' counts, whose motion was coasted: divided by that
+                # (_ekf_core._catch_up)
+                periods = self.fault_run + 1
+                self.fault_run = 0
+                if kind == WHEELS:
+                    v_m = 0.5 * (a + b) * r.speed_ratio / r.encode_sampling_time
+                    slow = 4 * r.speed_ratio / r.encode_sampling_time
+                else:
+                    v_m, slow = a, 10 * n.twist_zero_v
+                v = kf.x[3]
+                if (2 <= periods <= 4 and abs(v) > slow
+                        and abs(v_m - periods * v) <= 0.25 * periods * abs(v)
+                        and abs(v_m - periods * v) < abs(v_m - v)):
+                    a, b = a / periods, b / periods
             self.zero_count = self.zero_count + 1 if still else 0
             if self.zero_count >= n.zupt_frames and self.imu_motion in (0, STILL):
                 # a bias off by more than it admits: the stop's gyro samples fail the still

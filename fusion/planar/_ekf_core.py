@@ -198,7 +198,8 @@ A_FAULT_TURN = 73  # rad: the rate state integrated over the odometry's encoder-
 # SPIN_TAU s of the frames not taken for encoder faults
 A_MOVED_T = 74
 A_MOVED_W = 75
-AUX_SIZE = 76
+A_FAULT_RUN = 76  # encoder-fault frames since the last frame that was not one
+AUX_SIZE = 77
 #: rad/s^2: no ground robot's yaw rate changes faster (a differential drive's wheels at 5
 #: m/s^2 on a 0.3 m track: 33 rad/s^2); a gyro reading further from the predicted rate
 #: than this times the time since the last fused sample, plus SPIKE_SIGMAS standard
@@ -1259,6 +1260,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         if fault:
             _no_steady_offset(aux)
             aux[A_FAULTS] += 1.0
+            aux[A_FAULT_RUN] += 1.0
             # the turn the filter's rate (the gyro's, bias removed) made while the odometry,
             # dead, could not see it (the trust checks leave it out)
             aux[A_FAULT_TURN] += x[4] * interval
@@ -1271,6 +1273,7 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
                 aux[A_V_T] = aux[A_T]
             return math.nan, 7
         _track_wheel_rate(aux, 0.0, interval)
+        aux[A_FAULT_RUN] = 0.0
         aux[A_ZERO_COUNT] += 1.0
         if aux[A_ZERO_COUNT] >= par[P_ZUPT_FRAMES] and (imu == MOTION_STILL
                                                         or imu == MOTION_UNKNOWN):
@@ -1293,6 +1296,10 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         aux[A_ZERO_COUNT] = 0.0
         aux[A_WHEEL_T] = t
         _no_steady_offset(aux)
+        share = _catch_up(x, par, kind, a, b, aux[A_FAULT_RUN])
+        aux[A_FAULT_RUN] = 0.0
+        a /= share
+        b /= share
     L = par[P_WHEEL_DISTANCE]
     if kind == 1:
         z, R = ticks_measurement(a, b, par[P_SPEED_RATIO], par[P_PERIOD], L,
@@ -1341,6 +1348,41 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         gain = min(1.0, interval / par[P_OFFSET_TIME])
         aux[A_FX_OFFSET] -= gain * (x[3] - v_prior) / interval
     return d2, status
+
+
+#: Encoder-fault frames a later frame may carry the counts of (a read that came back empty,
+#: then one that caught up), and how close (relative) its speed must be to that many times
+#: the coasted speed. More is a dead feed, whose return reads one period's counts.
+MAX_CATCH_UP = 3
+CATCH_UP_TOLERANCE = 0.25
+
+
+@njit
+def _catch_up(x, par, kind, a, b, run):
+    """How many periods of motion the first frame after ``run`` encoder-fault frames carries
+    (1 but for a catch-up): a driver whose read missed its counts sends zero, then the
+    missed counts with the next period's, twice the speed; a twist computed from the counts
+    does the same. The faulted frames' motion was already coasted at the filter's speed
+    ``x[3]`` (:func:`_wheel_event`), so a frame whose speed (a twist's ``a``, or the mean of
+    the ticks ``a``, ``b`` over a period) is within
+    :data:`CATCH_UP_TOLERANCE` of ``run + 1`` times it, and nearer that than the coasted
+    speed itself, is divided by ``run + 1``. Fused whole, an independent probe's bag with
+    every tenth twist zero and the next doubled drove 7 % too far (GPS RMSE 1.55 -> 2.66 m)."""
+    if run < 1.0 or run > MAX_CATCH_UP:
+        return 1.0
+    v = x[3]
+    if kind == EV_WHEELS:
+        v_m = 0.5 * (a + b) * par[P_SPEED_RATIO] / par[P_PERIOD]
+        slow = 4.0 * par[P_SPEED_RATIO] / par[P_PERIOD]
+    else:
+        v_m = a
+        slow = 10.0 * par[P_TWIST_ZERO_V]
+    if abs(v) <= slow:
+        return 1.0
+    n = run + 1.0
+    if abs(v_m - n * v) <= CATCH_UP_TOLERANCE * n * abs(v) and abs(v_m - n * v) < abs(v_m - v):
+        return n
+    return 1.0
 
 
 @njit
