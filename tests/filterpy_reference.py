@@ -84,7 +84,7 @@ class FilterpyReference:
                                     "gyro_saturated", "encoder_faults", "updates",
                                     "speed_resets", "predictions", "accel_slips",
                                     "straight_frames", "wheel_scale_refits",
-                                    "bias_relearnt", "gyro_spikes"), 0)
+                                    "bias_relearnt", "gyro_spikes", "catch_ups"), 0)
         self.stats["fault_turn"] = 0.0  # rad: w over the encoder faults' intervals
         # the wheels' yaw rates are fused only while few turning frames fail the slip gate
         self.slip_share = 0.0
@@ -461,6 +461,7 @@ class FilterpyReference:
                         and abs(v_m - periods * v) <= 0.25 * periods * abs(v)
                         and abs(v_m - periods * v) < abs(v_m - v)):
                     a, b = a / periods, b / periods
+                    self.stats["catch_ups"] += 1
             self.zero_count = self.zero_count + 1 if still else 0
             if self.zero_count >= n.zupt_frames and self.imu_motion in (0, STILL):
                 # a bias off by more than it admits: the stop's gyro samples fail the still

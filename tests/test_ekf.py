@@ -254,6 +254,10 @@ def test_a_frame_that_catches_up_a_missed_read_is_not_counted_twice(short_run, t
     # fault_turn sums in another order: equal to rounding
     assert fast.stats == pytest.approx(ref.stats, rel=1e-9)
     assert fast.stats["encoder_faults"] == missed.size == (status == 7).sum() >= 40
+    # each next frame carried the counts; all but the first are taken so: there the robot
+    # sped up from 8 to 40 ticks a frame, and 24.5 + 40 is not within 25 % of twice the
+    # coasted speed
+    assert fast.stats["catch_ups"] == missed.size - 1
     clean = PlanarEKF(ROBOT, noise)
     clean_out, _ = clean.process_batch(*events(run.ticks)[:4])
     caught, _ = PlanarEKF(ROBOT, noise).process_batch(kinds, t, a, b)

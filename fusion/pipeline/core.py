@@ -205,6 +205,9 @@ class PipelineStats:
             wheel_scale_refit``: a skid-steer base or a wrong wheel_distance in robot.toml).
         encoder_faults: wheel frames (or twists) with zero speed while the IMU showed motion
             (or the stop would have been impossibly hard): flagged and not fused.
+        catch_ups: frames right after 1-3 encoder faults that carried their counts too (a
+            read that came back empty, then one that caught up): fused as the periods they
+            cover (the EKF's ``_catch_up``).
         fault_turn: rad, the EKF's yaw rate state (the gyro's, bias removed) integrated
             over those frames' intervals: the turn the odometry, dead, could not see (the
             EKF's ``fault_turn``;
@@ -266,6 +269,7 @@ class PipelineStats:
     odometry_rate_correlation: float | None = None
     zupts: int = 0
     encoder_faults: int = 0
+    catch_ups: int = 0
     fault_turn: float = 0.0
     bias_relearnt: int = 0
     gyro_spikes: int = 0
@@ -1357,6 +1361,7 @@ class FusionPipeline(Lifecycle):
             self.stats.odometry_rate_correlation = None if math.isnan(fit[2]) else fit[2]
         self.stats.zupts = s["zupts"]
         self.stats.encoder_faults = s["encoder_faults"]
+        self.stats.catch_ups = s["catch_ups"]
         self.stats.fault_turn = s["fault_turn"]
         self.stats.bias_relearnt = s["bias_relearnt"]
         self.stats.gyro_spikes = s["gyro_spikes"]

@@ -199,7 +199,8 @@ A_FAULT_TURN = 73  # rad: the rate state integrated over the odometry's encoder-
 A_MOVED_T = 74
 A_MOVED_W = 75
 A_FAULT_RUN = 76  # encoder-fault frames since the last frame that was not one
-AUX_SIZE = 77
+A_CATCH_UPS = 77  # frames taken as catching up the counts of the encoder faults before them
+AUX_SIZE = 78
 #: rad/s^2: no ground robot's yaw rate changes faster (a differential drive's wheels at 5
 #: m/s^2 on a 0.3 m track: 33 rad/s^2); a gyro reading further from the predicted rate
 #: than this times the time since the last fused sample, plus SPIKE_SIGMAS standard
@@ -1298,8 +1299,10 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
         _no_steady_offset(aux)
         share = _catch_up(x, par, kind, a, b, aux[A_FAULT_RUN])
         aux[A_FAULT_RUN] = 0.0
-        a /= share
-        b /= share
+        if share > 1.0:
+            aux[A_CATCH_UPS] += 1.0
+            a /= share
+            b /= share
     L = par[P_WHEEL_DISTANCE]
     if kind == 1:
         z, R = ticks_measurement(a, b, par[P_SPEED_RATIO], par[P_PERIOD], L,

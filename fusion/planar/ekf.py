@@ -958,6 +958,7 @@ class PlanarEKF(ExtendedKalmanFilter):
             "gyro_saturated": int(a[core.A_SATURATED]),
             "gyro_spikes": int(a[core.A_GYRO_SPIKES]),
             "encoder_faults": int(a[core.A_FAULTS]),
+            "catch_ups": int(a[core.A_CATCH_UPS]),
             "fault_turn": float(a[core.A_FAULT_TURN]),
             "updates": int(a[core.A_UPDATES]),
             "speed_resets": int(a[core.A_SPEED_RESETS]),
