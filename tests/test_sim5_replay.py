@@ -57,3 +57,25 @@ def test_its_dead_feed_is_said_where_it_was(sim5, tmp_path):
     assert float(said[1]) == pytest.approx(end - start, abs=0.1)
     assert float(said[2]) == pytest.approx(start, abs=0.1)
     assert "heading_divergence" not in [w.name for w in res.warnings]
+
+
+def test_a_warming_gyro_is_fused_with_the_walk_its_stops_show(sim5, tmp_path):
+    # Seed 11 of 'all' (every error on, 300 s): the gyro's bias rises by 0.66 deg/s over the
+    # run (warm-up and temperature), between stops by up to 0.28 deg/s, where bias_psd's
+    # walk allows 0.07. The stops say so (fusion.jobs.bias_walk), and the log is fused again
+    # with the walk they fit: yaw RMSE 3.75 -> 3.11 deg against the truth (the final position
+    # 0.73 -> 1.05 % of the distance); the one-pass replay (as live) only says it. The
+    # simulator's seed 11 was first run while this was built (the stops' variance floor,
+    # STOP_BIAS_STD, went from 0.02 to the issue's 0.01 deg/s after its moving start had
+    # not been caught): in-sample for that choice.
+    sim5.write_run(str(tmp_path), "all", 11, 300.0)
+    fused = replay_logdir(tmp_path / "log", tmp_path / "fused.csv")
+    live = replay_logdir(tmp_path / "log", tmp_path / "live.csv", one_pass=True)
+    (note,) = [n for n in fused.notes if "bias moved between stops" in n]
+    assert "fused again" in note
+    psd = float(re.search(r"fit best is bias_psd = ([\d.e+-]+)", note)[1])
+    assert psd > 5e-8  # the configured walk is 1e-8
+    (said,) = [n for n in live.notes if "bias moved between stops" in n]
+    assert "a live run would follow it" in said
+    assert fused.truth["fused_yaw_deg"] < live.truth["fused_yaw_deg"] - 0.4, (
+        fused.truth, live.truth)

@@ -38,6 +38,7 @@ from fusion.io.odometry_motion import OdometryMotion, odometry_motion
 from fusion.io.pose_track import own_track
 from fusion.io.robot_toml import read_robot_toml
 from fusion.io.uart2 import read_uart2_capture
+from fusion.jobs.bias_walk import fit_bias_walk
 from fusion.jobs.dead_feed import dead_feed_notes
 from fusion.jobs.engine import run_tasks
 from fusion.jobs.imu_lag import choose_imu_lag, shifted
@@ -177,29 +178,52 @@ def find_log_dirs(path: Path) -> list[Path]:
 
 def fuse_streams(robot: RobotConfig, streams: Streams, output: Path | None, *,
                  tilt: bool = True, progress: Progress | None = None,
-                 one_pass: bool = False, checked: Sequence[TrustWarning] = ()
+                 one_pass: bool = False, checked: Sequence[TrustWarning] = (),
+                 bias_walk: bool = True
                  ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats,
-                            list[TrustWarning], MovingStart | None]:
+                            list[TrustWarning], MovingStart | None, str]:
     """Run ``streams`` through a :class:`FusionPipeline` into ``output`` (.csv/.mcap/.jsonl;
     None: no file, the table only).
 
-    Returns ``(table, pipeline, stats, warnings, moving_start)``: ``table`` (N, 22) in the
-    fused CSV's columns (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state after every
-    IMU sample (after every wheel frame or twist without an IMU); the trust warnings
-    (:func:`fusion.jobs.status.pipeline_warnings`), also in a .jsonl output's last line, the
-    status record (:func:`fusion.jobs.status.status_record`); where the robot drove off at
-    once, the gyro bias its first stop taught (:mod:`fusion.jobs.moving_start`), which a
-    second pass took as the prior from the start (not with ``one_pass``: as a live run;
+    Returns ``(table, pipeline, stats, warnings, moving_start, walk_note)``: ``table`` (N, 22)
+    in the fused CSV's columns (:data:`fusion.io.fused_csv.FUSED_CSV_COLUMNS`), the state
+    after every IMU sample (after every wheel frame or twist without an IMU); the trust
+    warnings (:func:`fusion.jobs.status.pipeline_warnings`), also in a .jsonl output's last
+    line, the status record (:func:`fusion.jobs.status.status_record`); where the robot drove
+    off at once, the gyro bias its first stop taught (:mod:`fusion.jobs.moving_start`), which
+    a second pass took as the prior from the start (not with ``one_pass``: as a live run;
     its ``fused_again`` is then False and its note says what the first pass cost), else
-    None. ``progress`` sees the first pass as the first half of the work. An IMU whose
-    accelerometer does not read gravity (:meth:`Streams.level_note`: not provided, gravity
-    removed, other units) is fused level (``tilt`` False): an attitude from the gyro alone
-    drifts, and projecting the rates through it cost more than the tilt it compensates
-    (benchmarks/terrain's outdoor bag: 6.3 m of GPS RMSE against 1.6 m level; gravity
-    removed: 13.1 m against 1.5 m). ``checked``: warnings found on the inputs before the
-    fusion (a bag's twist against its pose), put first.
+    None. ``bias_walk``: where the stops show the gyro bias walking faster than
+    ``[ekf] bias_psd`` (:mod:`fusion.jobs.bias_walk`), the log is fused again with the walk
+    they fit (not with ``one_pass``), and ``walk_note`` says so ("" otherwise).
+    ``progress`` sees the first pass as the first half of the work, and not the walk's pass.
+    An IMU whose accelerometer does not read gravity (:meth:`Streams.level_note`: not
+    provided, gravity removed, other units) is fused level (``tilt`` False): an attitude from
+    the gyro alone drifts, and projecting the rates through it cost more than the tilt it
+    compensates (benchmarks/terrain's outdoor bag: 6.3 m of GPS RMSE against 1.6 m level;
+    gravity removed: 13.1 m against 1.5 m). ``checked``: warnings found on the inputs before
+    the fusion (a bag's twist against its pose), put first.
     """
     tilt = tilt and not streams.level_note()
+    fused = _fuse_from_the_start(robot, streams, output, tilt, progress, one_pass, checked)
+    table, pipe = fused[0], fused[1]
+    walk = fit_bias_walk(table[:, 0], table[:, 6], pipe.state_rows[:, 1 + NX + 5],
+                         table[:, 19] > 0, robot.ekf.bias_psd) if bias_walk else None
+    if walk is None or not walk.rejected:
+        return (*fused, "")
+    if one_pass:
+        return (*fused, walk.note(fused_again=False))
+    walked = dataclasses.replace(robot, ekf=dataclasses.replace(robot.ekf, bias_psd=walk.psd))
+    again = _fuse_from_the_start(walked, streams, output, tilt, None, one_pass, checked)
+    return (*again, walk.note(fused_again=True))
+
+
+def _fuse_from_the_start(robot: RobotConfig, streams: Streams, output: Path | None,
+                         tilt: bool, progress: Progress | None, one_pass: bool,
+                         checked: Sequence[TrustWarning]
+                         ) -> tuple[NDArray[np.float64], FusionPipeline, PipelineStats,
+                                    list[TrustWarning], MovingStart | None]:
+    """One fusion of :func:`fuse_streams`, with a moving start's second pass."""
     first = _fuse_once(robot, streams, output, tilt, progress, 0.0 if one_pass else 0.5,
                        checked=checked)
     table, pipe = first[0], first[1]
@@ -380,15 +404,15 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
         check_plot_output(Path(plot))
     streams.check_overlap(str(path), "a log's stamps are all on the host clock that stamped "
                           "the samples as they arrived")
-    table, pipe, stats, warnings, start = fuse_streams(robot, streams, output, tilt=tilt,
-                                                       progress=progress, one_pass=one_pass)
+    table, pipe, stats, warnings, start, walk_note = fuse_streams(
+        robot, streams, output, tilt=tilt, progress=progress, one_pass=one_pass)
     chassis = robot.chassis
     ekf = pipe.ekf
     wheel_t, ticks = streams.wheel_t, streams.ticks
     n_imu = int(streams.imu_t.size) if streams.has_imu else 0
     t0, t1 = streams.span()
     level = streams.level_note() if tilt else ""
-    notes = [level] if level else []
+    notes = [n for n in (level, walk_note) if n]
     if capture_stats is not None:
         bad = {k: v for k, v in capture_stats.items() if k not in ("frames", "bytes_in") and v}
         if bad:
@@ -553,9 +577,9 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
         if stamps == "header":
             fixes, fix_note = _fixes_on_odometry_clock(fixes, odom)
         _check_fixes_overlap(path, fixes, imu.t, odom.t)
-    table, pipe, stats, warnings, start = fuse_streams(robot, streams, output, tilt=tilt,
-                                                       progress=progress, one_pass=one_pass,
-                                                       checked=signs.warnings)
+    table, pipe, stats, warnings, start, walk_note = fuse_streams(
+        robot, streams, output, tilt=tilt, progress=progress, one_pass=one_pass,
+        checked=signs.warnings)
     spliced = own_track(odom.t, odom.x, odom.y, odom.yaw, odom.v, odom.w)
     own = spliced.track
     gps, gps_note = None, ""
@@ -589,7 +613,7 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
                     None, ref_label=f"the bag's own odometry ({odom_topic})", more_yaw=more,
                     more_xy=points)
     notes = [n for n in (mount_note, bag.note, *bag.topic_notes, *signs.notes, lag.note,
-                         limit_note, rest_note,
+                         limit_note, rest_note, walk_note,
                          fix_note, spliced.note, tilt and streams.level_note()) if n]
     if motion.t.size > 1:
         still = ((np.abs(motion.v) <= robot.ekf.twist_zero_v)
