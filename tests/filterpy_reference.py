@@ -446,7 +446,8 @@ class FilterpyReference:
                     kf.P[3, 3] += n.accel_psd * r.encode_sampling_time
                 self.steady_w = None
                 # the first frame after 1-3 encoder faults at about (faults + 1) times the
-                # coasted speed (within 25 %, nearer than the coasted speed itself) carries
+                # coasted speed (within 25 %, nearer than the coasted speed itself, which is
+                # above 0.25 m/s: _ekf_core.CATCH_UP_MIN_SPEED) carries
                 # the faulted frames' counts, whose motion was coasted: divided by that
                 # (_ekf_core._catch_up)
                 periods = self.fault_run + 1
@@ -457,7 +458,7 @@ class FilterpyReference:
                 else:
                     v_m, slow = a, 10 * n.twist_zero_v
                 v = kf.x[3]
-                if (2 <= periods <= 4 and abs(v) > slow
+                if (2 <= periods <= 4 and abs(v) > max(slow, 0.25)
                         and abs(v_m - periods * v) <= 0.25 * periods * abs(v)
                         and abs(v_m - periods * v) < abs(v_m - v)):
                     a, b = a / periods, b / periods

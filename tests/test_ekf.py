@@ -1183,3 +1183,26 @@ def test_an_imu_gap_before_a_twists_scale_is_known_holds_the_yaw_rate():
     assert np.all(np.abs(out[inside, 4] - 0.5) < 0.01), out[inside, 4]
     speed = np.interp(kept[inside], run.truth_t, run.truth_v)
     assert np.all(np.abs(out[inside, 3] - speed) < 0.05)
+
+
+@pytest.mark.parametrize("start", [0.1, 0.4])
+def test_a_robot_speeding_up_after_one_zero_twist_is_no_catch_up(start):
+    # A dropped twist (zero, the IMU moving), then a robot speeding up at 1.5 m/s^2: from
+    # 0.1 m/s the next twist reads 2.2 times the coasted speed, which had been taken for a
+    # catch-up and halved (review); catch-ups are taken from 0.25 m/s only
+    # (CATCH_UP_MIN_SPEED), where doubling in two periods needs 3 m/s^2 (from 0.4 m/s this
+    # one reads 1.3 times). The twists are fused as they read.
+    period = ROBOT.encode_sampling_time
+    twist_t = np.arange(1, 101) * period
+    v = np.where(twist_t <= 2.0, start, start + 1.5 * (twist_t - 2.0))
+    v[49] = 0.0  # at 2.0 s: a read that came back empty, nothing to catch up
+    imu_t = np.arange(0.0, 4.0, 0.01)
+    kinds, t, a, b, _ = merge_events(imu_t, np.zeros(imu_t.size), None, None, period,
+                                     imu_motion=np.full(imu_t.size, 3), twist_t=twist_t,
+                                     twist_v=v, twist_w=np.zeros(v.size))
+    fast, ref, _ = _core_and_reference(EkfNoise(), kinds, t, a, b)
+    assert fast.stats == pytest.approx(ref.stats, rel=1e-9)
+    assert fast.stats["encoder_faults"] == 1 and fast.stats["catch_ups"] == 0
+    after = (kinds == core.EV_TWIST) & (t > 2.0) & (t < 2.1)
+    out, _ = PlanarEKF(ROBOT, EkfNoise()).process_batch(kinds, t, a, b)
+    assert np.all(np.abs(out[after, 3] - a[after]) < 0.02), (out[after, 3], a[after])

@@ -13,10 +13,11 @@ messages, 3001 rows). :func:`spread_repeated_stamps` repairs that before the rep
   previous stamp over ``n`` (the burst filled that interval), at most the sampling period:
   the median of that spacing over all runs (a burst after a pause is not stretched over
   the pause; the first run, with no stamp before it, takes the period);
-- unless the messages' record times are known (a bag) and the run's span more than
-  :data:`FROZEN_SHARE` of the time its samples would have taken: then the messages came one
-  by one after the stamp, which froze (a driver bug), and each gets its record time less the
-  topic's median record delay. Spread back, an independent probe's 1 s of frozen IMU stamps
+- unless the messages' record times are known (a bag) and show the run's messages came one
+  by one (:data:`FROZEN_MIN_RUN` or more, their record times spanning most of the time the
+  samples took, :data:`FROZEN_SHARE`, beyond a busy recorder's jitter): then the stamp froze
+  (a driver bug), and each gets its record time less the topic's median record delay (over
+  the other messages), kept in order. Spread back, an independent probe's 1 s of frozen IMU stamps
   was squeezed into a millisecond and its turn lost (GPS RMSE 1.55 -> 3.13 m).
 
 Stamps in s; what was done is said in :attr:`StampRepair.note` (empty when nothing was).
@@ -29,12 +30,21 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["FROZEN_SHARE", "StampRepair", "spread_repeated_stamps"]
+__all__ = ["FROZEN_MIN_RUN", "FROZEN_SHARE", "RECORD_JITTER", "StampRepair",
+           "spread_repeated_stamps"]
 
 #: A run of equal stamps whose record times span more than this share of the run's sampling
-#: time ((n - 1) periods) came one by one: frozen stamps, not a burst read at once (whose
-#: messages are recorded within a millisecond or two of each other).
-FROZEN_SHARE = 0.5
+#: time ((n - 1) periods), plus :data:`RECORD_JITTER`, and step by half a period or more (the
+#: median step), came one by one: frozen stamps, not a burst read at once (whose messages are
+#: recorded together, give or take a busy recorder's delays).
+FROZEN_SHARE = 0.8
+#: s: what a busy recorder adds to a burst's record times (review: 0-12 ms at 100 Hz).
+RECORD_JITTER = 0.015
+#: The shortest run taken for frozen stamps (a FIFO read returns a few samples at once).
+FROZEN_MIN_RUN = 5
+#: Messages outside such runs the topic's record delay is read from, at least (fewer: the
+#: stamps are left to the burst rule).
+MIN_DELAY_SAMPLES = 10
 
 
 @dataclass(frozen=True)
@@ -60,6 +70,28 @@ class StampRepair:
     bursts: int
     note: str
     frozen: int = 0
+
+
+def _came_one_by_one(record: NDArray[np.float64], period: float) -> bool:
+    """Whether a run of equal stamps was recorded one message after another (frozen stamps)
+    rather than at once (a burst): see :data:`FROZEN_SHARE`."""
+    n = record.size
+    return bool(n >= FROZEN_MIN_RUN
+                and record[-1] - record[0] > FROZEN_SHARE * (n - 1) * period + RECORD_JITTER
+                and np.median(np.diff(record)) >= 0.5 * period)
+
+
+def _at_record_times(out: NDArray[np.float64], start: int, n: int,
+                     times: NDArray[np.float64]) -> None:
+    """Put ``out[start:start + n]`` at ``times``, kept strictly increasing and between the
+    stamps before and after the run (a record time's jitter must not reorder the topic)."""
+    low = out[start - 1] if start > 0 else -np.inf
+    high = out[start + n] if start + n < out.size else np.inf
+    step = 1e-6
+    times = np.clip(times, low + step, high - step * (n + 1))
+    for j in range(1, n):
+        times[j] = max(times[j], times[j - 1] + step)
+    out[start:start + n] = times
 
 
 def spread_repeated_stamps(t: NDArray[np.float64], values: NDArray[np.float64],
@@ -102,15 +134,19 @@ def spread_repeated_stamps(t: NDArray[np.float64], values: NDArray[np.float64],
     filled = np.diff(kept_t[starts]) / lengths[1:]
     if filled.size:
         period = float(np.median(filled))
-        # the topic's usual record delay: over every message (a frozen stretch is a short
-        # part of a run, or the record times are the better stamps throughout)
-        delay = float(np.median(kept_record - kept_t)) if kept_record is not None else 0.0
-        for i, (start, n) in enumerate(zip(starts.tolist(), lengths.tolist(), strict=True)):
+        runs = list(zip(starts.tolist(), lengths.tolist(), strict=True))
+        one_by_one = [kept_record is not None and n >= 2
+                      and _came_one_by_one(kept_record[start:start + n], period)
+                      for start, n in runs]
+        # the topic's usual record delay, from the messages outside such runs
+        usual = ~np.repeat(np.array(one_by_one, dtype=bool), lengths)
+        known = kept_record is not None and np.count_nonzero(usual) >= MIN_DELAY_SAMPLES
+        delay = float(np.median(kept_record[usual] - kept_t[usual])) if known else 0.0
+        for i, (start, n) in enumerate(runs):
             if n < 2:
                 continue
-            if kept_record is not None and (kept_record[start + n - 1] - kept_record[start]
-                                            > FROZEN_SHARE * (n - 1) * period):
-                out[start:start + n] = kept_record[start:start + n] - delay
+            if known and one_by_one[i]:
+                _at_record_times(out, start, n, kept_record[start:start + n] - delay)
                 frozen += n
                 continue
             spacing = min(filled[i - 1], period) if i > 0 else period

@@ -21,6 +21,7 @@ zero-velocity update may safely pin to zero.
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 
@@ -83,6 +84,32 @@ def _noise_floor(values: np.ndarray) -> tuple[float, bool]:
     return MEDIAN_FACTOR * float(np.median(np.abs(core))), imbalance <= MAX_SIGN_IMBALANCE
 
 
+#: Twists in a row a still stretch needs for its own creep test.
+MIN_STRETCH = 5
+#: Standard errors of its mean beyond which a still stretch creeps (or turns slowly) one way.
+CREEP_SIGMAS = 3.0
+
+
+def _without_creeping_stretches(values: np.ndarray, rest: np.ndarray) -> np.ndarray:
+    """``rest`` less the stretches of consecutive candidates whose ``values`` keep one sign:
+    a mean more than :data:`CREEP_SIGMAS` standard errors from zero (a robot creeping, or
+    turning slowly, with its IMU still; pooled with noisy stops elsewhere, its twists had
+    read as noise and the raised threshold took the creep for a stop, review)."""
+    keep = rest.copy()
+    idx = np.flatnonzero(rest)
+    if idx.size == 0:
+        return keep
+    breaks = np.flatnonzero(np.diff(idx) > 1)
+    for run in np.split(idx, breaks + 1):
+        if run.size < MIN_STRETCH:
+            continue
+        x = values[run]
+        spread = float(np.std(x, ddof=1))
+        if abs(float(np.mean(x))) > CREEP_SIGMAS * spread / math.sqrt(run.size):
+            keep[run] = False
+    return keep
+
+
 def with_twist_rest_floor(robot: RobotConfig, streams: Streams) -> tuple[RobotConfig, str]:
     """``robot`` with ``[ekf] twist_zero_v`` and ``twist_zero_w`` raised to the odometry
     twists' noise at rest (module docstring), and a note saying so ("" when nothing changed:
@@ -96,11 +123,15 @@ def with_twist_rest_floor(robot: RobotConfig, streams: Streams) -> tuple[RobotCo
     if np.count_nonzero(rest) < MIN_CANDIDATES:
         return robot, ""
     raised = {}
-    for name, values, cap in (("twist_zero_v", streams.twist_v[rest], MAX_ZERO_V),
-                              ("twist_zero_w", streams.twist_w[rest], MAX_ZERO_W)):
-        floor, scattered = _noise_floor(values)
-        if scattered and floor > getattr(ekf, name):
-            raised[name] = max(getattr(ekf, name), min(cap, two_digits_up(floor)))
+    for name, values, cap in (("twist_zero_v", streams.twist_v, MAX_ZERO_V),
+                              ("twist_zero_w", streams.twist_w, MAX_ZERO_W)):
+        still = _without_creeping_stretches(values, rest)
+        if np.count_nonzero(still) < MIN_CANDIDATES:
+            continue
+        floor, scattered = _noise_floor(values[still])
+        new = min(cap, two_digits_up(floor)) if floor > 0.0 else 0.0
+        if scattered and new > getattr(ekf, name):  # raised, never lowered
+            raised[name] = new
     if not raised:
         return robot, ""
     v, w = streams.twist_v[rest], streams.twist_w[rest]

@@ -1358,6 +1358,10 @@ def _wheel_event(x, P, aux, par, kind, t, a, b):
 #: the coasted speed. More is a dead feed, whose return reads one period's counts.
 MAX_CATCH_UP = 3
 CATCH_UP_TOLERANCE = 0.25
+#: m/s: the least coasted speed a catch-up is taken at. Slower, a robot speeding up at 1 m/s^2
+#: doubles its speed within two 40 ms periods, which reads as a catch-up (review: 0.1 m/s
+#: at 0.8-1.5 m/s^2); from here a doubling in two periods needs 3 m/s^2.
+CATCH_UP_MIN_SPEED = 0.25
 
 
 @njit
@@ -1380,7 +1384,7 @@ def _catch_up(x, par, kind, a, b, run):
     else:
         v_m = a
         slow = 10.0 * par[P_TWIST_ZERO_V]
-    if abs(v) <= slow:
+    if abs(v) <= max(slow, CATCH_UP_MIN_SPEED):
         return 1.0
     n = run + 1.0
     if abs(v_m - n * v) <= CATCH_UP_TOLERANCE * n * abs(v) and abs(v_m - n * v) < abs(v_m - v):
