@@ -19,6 +19,7 @@ import ast
 import importlib
 import os
 import re
+import subprocess
 from pathlib import Path
 
 import pytest
@@ -60,6 +61,26 @@ def test_ci_runs_exactly_the_readmes_test_command():
     test_command = commands[1].strip()
     assert "pytest" in test_command and "\n" not in test_command
     assert test_command in (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+
+
+def test_ci_stops_when_any_part_of_the_readmes_test_command_fails():
+    # .ci/run is `set -euo pipefail`, but bash does not stop at a failure inside an && list
+    # unless it is the last command: the README's first half failing ran on to the no-numba
+    # repeat, which passed, and CI reported success. The line after the README's command must
+    # stop the script; run here with each part of an && list of the same shape failing.
+    commands = re.findall(r"^```bash\n(.*?)^```", README.read_text(encoding="utf-8"),
+                          re.S | re.M)
+    lines = (ROOT / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+    after = lines.index(commands[1].strip()) + 1
+    check = next(line for line in lines[after:] if line and not line.startswith("#"))
+    assert "pytest" not in check, f"no status check after the README's command: {check}"
+    for shape in ("false && true && true", "true && false && true", "true && true && false"):
+        done = subprocess.run(["bash", "-c", f"set -euo pipefail\n{shape}\n{check}\n"
+                               "echo reached"], capture_output=True, text=True)
+        assert done.returncode != 0 and "reached" not in done.stdout, (shape, check)
+    ok = subprocess.run(["bash", "-c", f"set -euo pipefail\ntrue && true\n{check}\n"
+                         "echo reached"], capture_output=True, text=True)
+    assert ok.returncode == 0 and "reached" in ok.stdout
 
 
 def test_python_blocks_are_found_with_their_lines():
