@@ -218,6 +218,7 @@ def test_core_equals_filterpy_coasting_through_an_encoder_fault(short_run):
     assert fast.stats == pytest.approx(ref.stats, rel=1e-9)
 
 
+@pytest.mark.slow  # 40 s drives, twice, with the reference: not repeated without numba
 @pytest.mark.parametrize("twists", [False, True], ids=["ticks", "twists"])
 def test_a_frame_that_catches_up_a_missed_read_is_not_counted_twice(short_run, twists):
     # A driver whose read came back empty sends zero, then the missed counts with the next
@@ -1150,6 +1151,7 @@ def _heading_lost_to_imu_gaps(factor: float) -> float:
     return math.degrees(gapped - gapless)
 
 
+@pytest.mark.slow  # four 40 s drives with the reference: not repeated without numba
 def test_an_imu_gap_takes_a_skid_steers_yaw_rate_in_the_gyros_scale():
     # In a gap of the gyro's feed the odometry's yaw rate is all there is. A correct source
     # (factor 1, proven in turns by then) is fused as it reads. A skid-steer base's (1.6,

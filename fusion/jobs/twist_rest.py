@@ -10,12 +10,12 @@ from 1.6 to 4.1 m).
 
 :func:`with_twist_rest_floor` reads that noise where the IMU says the robot is still
 (:mod:`fusion.planar.imu_motion`), among the twists small enough to be a stop, and raises the
-two thresholds to cover it, for the replay only and with a note. It does so only where the
-twists there scatter around zero (about as many positive as negative ones, once a slow stop's
-one-signed tail is trimmed): a robot creeping in one direction, or turning slowly, keeps its
-sign, and is not a stop. The
-thresholds are capped (:data:`MAX_ZERO_V`, :data:`MAX_ZERO_W`) at what a stop's
-zero-velocity update may safely pin to zero.
+two thresholds to cover it, for the replay only and with a note. A robot creeping in one
+direction, or turning slowly, with its IMU still keeps its sign, and is not a stop: each still
+stretch whose mean is off zero by more than :data:`CREEP_SIGMAS` standard errors is left out
+first, and the rest must scatter around zero (about as many positive as negative twists, once
+a slow stop's one-signed tail is trimmed). The thresholds are capped (:data:`MAX_ZERO_V`,
+:data:`MAX_ZERO_W`) at what a stop's zero-velocity update may safely pin to zero.
 """
 
 from __future__ import annotations
