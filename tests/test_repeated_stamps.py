@@ -110,3 +110,31 @@ def test_stamps_frozen_for_most_of_a_topic_keep_the_others_delay():
     assert fix.frozen == np.count_nonzero(stamps[1:] == stamps[:-1]) + 2
     np.testing.assert_allclose(fix.t, true, rtol=0, atol=1e-6)
     assert np.all(np.diff(fix.t) > 0)
+
+
+def test_a_batch_stamped_as_it_is_handled_is_spread_like_one_stamp():
+    # ten samples of a 30 Hz FIFO read at once and stamped 0.1 ms apart as a driver handles
+    # them: no two stamps equal, but nine of ten steps a 300th of the period
+    rate, batch = 30.0, 10
+    true = 1.7e9 + np.arange(1, 301) / rate
+    read = np.repeat(true[batch - 1::batch], batch)
+    stamps = read + np.tile(np.arange(batch) * 1e-4, true.size // batch)
+    values = np.random.default_rng(1).standard_normal((true.size, 6))
+    fix = spread_repeated_stamps(stamps, values, "topic /imu/data")
+    assert fix.keep.all() and fix.near == 270 and fix.bursts == 30
+    np.testing.assert_allclose(fix.t, true, rtol=0, atol=1e-6)  # float64 at 1.7e9 s: 2e-7
+    # the limit: a tenth of the mean step, from the first read to the last sample's stamp
+    limit = 0.1 * (stamps[-1] - stamps[0]) / (stamps.size - 1)
+    assert f"270 messages were stamped less than {limit * 1e3:.3g} ms after" in fix.note
+
+
+@pytest.mark.parametrize("jitter", [0.0, 0.25])
+def test_jittered_or_paused_stamps_are_not_batches(jitter):
+    # 200 Hz with uniform jitter of +-25 % of the period (no step under half of it) and a
+    # 30 s pause in a 60 s log: the pause is left out of the mean, so no step is a batch's
+    rng = np.random.default_rng(2)
+    t = np.arange(12_000) / 200.0 + rng.uniform(-jitter, jitter, 12_000) / 200.0
+    t[6000:] += 30.0
+    fix = spread_repeated_stamps(t, rng.standard_normal((t.size, 1)))
+    assert fix.note == "" and fix.near == 0
+    np.testing.assert_array_equal(fix.t, t)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import csv
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,6 +39,7 @@ from fusion.io.atomic import atomic_write
 from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import read_imu_csv
 from fusion.io.read_progress import LineProgress, ReadProgress
+from fusion.io.repeated_stamps import spread_repeated_stamps
 from fusion.io.robot_toml import write_robot_toml
 from fusion.io.run_config import read_log_robot
 from fusion.io.stamp_units import check_imu_stamps, check_wheel_stamps
@@ -75,6 +76,8 @@ class LogDir:
             recorded).
         capture_stats: the DATA-uart2 parser's counters when the wheel frames came from
             ``wheels.uart2``, else None.
+        notes: what reading changed, for the user (IMU samples stamped in batches, spread
+            back onto their sampling times: :mod:`fusion.io.repeated_stamps`).
     """
 
     path: Path
@@ -89,6 +92,7 @@ class LogDir:
     truth: NDArray[np.float64] | None = None
     imu_frame: str = "base"
     capture_stats: dict[str, int] | None = None
+    notes: list[str] = field(default_factory=list)
 
     @property
     def time_span(self) -> tuple[float, float]:
@@ -225,6 +229,15 @@ def read_logdir(path: str | Path, *, imu_frame: str = "base", truth: bool = True
         log.capture_stats = cap.stats
     if log.imu_t is None and log.wheel_t is None:
         raise LogFormatError(f"{path}: no imu.csv, wheels.csv or wheels.uart2 found")
+    if log.imu_t is not None and log.imu_t.size:
+        # samples stamped as a driver handled a batch read at once, microseconds apart
+        fix = spread_repeated_stamps(log.imu_t, np.hstack([log.gyro, log.accel]),
+                                     str(path / "imu.csv"))
+        if fix.note:
+            log.imu_t = fix.t
+            log.gyro, log.accel = log.gyro[fix.keep], log.accel[fix.keep]
+            log.mag = None if log.mag is None else log.mag[fix.keep]
+            log.notes.append(fix.note)
     # times in s, and a period that fits the frames (fusion.io.stamp_units)
     if log.imu_t is not None:
         check_imu_stamps(path / "imu.csv", log.imu_t)

@@ -349,7 +349,7 @@ def replay_logdir(path: str | Path, output: str | Path, *, tilt: bool = True,
     result = _finish(path, output, robot, streams, log.truth_t, log.truth,
                      tilt=tilt, plot=plot, progress=progress, capture_stats=log.capture_stats,
                      one_pass=one_pass)
-    result.notes.extend(n for n in (note, glitch_note, lag.note, limit_note) if n)
+    result.notes.extend(n for n in (*log.notes, note, glitch_note, lag.note, limit_note) if n)
     result.imu_lag = lag.lag
     return result
 
