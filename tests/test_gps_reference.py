@@ -132,7 +132,9 @@ def test_fixes_outside_the_tracks_span_are_named():
 #: coordinates (as receivers publish it) or with stale finite ones; no altitude (NaN); the
 #: latitude and longitude as NMEA ddmm.mmmm numbers, not converted to degrees; status FIX
 #: with latitude, longitude and altitude 0 (a driver filling in zeros without a fix)
-FIX_KINDS = ("fix", "no-fix", "no-fix-stale", "no-altitude", "ddmm", "zeros")
+FIX_KINDS = ("fix", "no-fix", "no-fix-stale", "no-altitude", "ddmm", "zeros", "multipath")
+#: m north a "multipath" fix is moved
+MULTIPATH = 40.0
 
 
 def _write_bag_with_fixes(source: Path, dest: Path, *, kind=lambda i: "fix",
@@ -163,8 +165,9 @@ def _write_bag_with_fixes(source: Path, dest: Path, *, kind=lambda i: "fix",
             if k % 5 == 0:
                 p = msg.pose.pose.position
                 east, north = c * p.x - s * p.y + SHIFT[0], s * p.x + c * p.y + SHIFT[1]
-                lon, lat, h = to_globe.transform(east, north, 0.0, direction="INVERSE")
                 what = kind(k // 5)
+                north += MULTIPATH if what == "multipath" else 0.0
+                lon, lat, h = to_globe.transform(east, north, 0.0, direction="INVERSE")
                 assert what in FIX_KINDS
                 if what == "no-fix":
                     lat = lon = h = math.nan
@@ -261,6 +264,37 @@ def test_replay_scores_the_tracks_against_gps(gps_bag, tmp_path, capsys):
     assert score["fused"] > 1.0
 
 
+def test_multipath_fixes_are_left_out_of_the_printed_score(datasets_dir, gps_bag, tmp_path,
+                                                            capsys):
+    # four fixes 40 m off (multipath): before, the fused track's printed RMSE rose with them;
+    # now they are left out and said, and the figures are the clean bag's within rounding
+    jumpy = tmp_path / "jumpy.bag"
+    _write_bag_with_fixes(
+        datasets_dir / "rosbag" / "jackal_sim_test2.bag", jumpy,
+        kind=lambda i: {40: "no-fix", 41: "no-fix-stale", 42: "zeros", NO_ALT: "no-altitude",
+                        100: "multipath", 200: "multipath", 300: "multipath",
+                        400: "multipath"}.get(i, "fix"))
+    scores = {}
+    for name, bag in (("clean", gps_bag), ("jumpy", jumpy)):
+        assert main(["replay", str(bag), "--imu-topic", IMU, "--odom-topic", ODOM,
+                     "--gps-topic", FIX, "-o", str(tmp_path / f"{name}.csv")]) == 0
+        printed = capsys.readouterr().out
+        lines = {ln.split(":")[0].strip(): ln for ln in printed.splitlines()}
+        scores[name] = {track: lines[track].split(":", 1)[1].split()
+                        for track in ("fused", "the bag's odometry", "gyro at stops")}
+        if name == "jumpy":
+            assert "  (4 of the " in printed and " fixes left out: each jumped away" in printed
+    for track, clean in scores["clean"].items():
+        figure, _, every, *_ = scores["jumpy"][track]
+        # the four fixes' weight is small: the figure moves by rounding at most
+        assert float(figure) == pytest.approx(float(clean[0]), abs=0.02), track
+        assert float(every.strip("(")) > float(clean[0]) + 0.2, track
+    # the bag's odometry is what the fixes were made from: 0.00 m, and with the four 40 m
+    # fixes among the 600 compared sqrt(4 / 600) * 40 = 3.3 m
+    assert float(scores["jumpy"]["the bag's odometry"][2].strip("(")) == pytest.approx(3.3,
+                                                                                     abs=0.1)
+
+
 def test_gps_stamped_on_another_clock_is_refused_before_anything_is_written(
         datasets_dir, tmp_path, capsys):
     # recorded 1000 s after the run as well: no fix of this run's
@@ -318,3 +352,62 @@ def test_a_gps_topic_of_another_type_or_without_fixes_is_named(datasets_dir, gps
     with pytest.raises(LogFormatError, match=rf"message 8 \(t = {t8:.9f} s\) has latitude "
                                              r"4808.2292, longitude 1134.5674: not degrees"):
         read_bag_fixes(ddmm, FIX)
+
+
+def _drive(seconds=400.0, rate=5.0):
+    """Fix times (s) and a smooth true path (m) of a robot in arcs at 1 m/s."""
+    t = np.arange(0.0, seconds, 1.0 / rate)
+    yaw = 0.8 * np.sin(t / 40.0) + t / 90.0
+    xy = np.column_stack([np.cumsum(np.cos(yaw)), np.cumsum(np.sin(yaw))]) / rate
+    return t, xy
+
+
+def _turned(xy, angle):
+    c, s = math.cos(angle), math.sin(angle)
+    return xy @ np.array([[c, s], [-s, c]])
+
+
+def test_fixes_that_jump_away_from_every_track_are_left_out_and_said():
+    # 20 multipath fixes moved 50 m north in a 400 s drive with 1 m GPS noise; a good track
+    # (the truth, drifting 1 % in scale) and a poor one (a heading error growing to 20 deg,
+    # tens of metres off: a rule on the residual's size alone would keep the fixes it does
+    # not reach). Oracle: the alignment RMSE over the clean fixes, by se2_alignment.
+    rng = np.random.default_rng(3)
+    t, truth = _drive()
+    fixes = truth + rng.normal(0.0, 1.0, truth.shape)
+    bad = np.sort(rng.choice(t.size, 20, replace=False))
+    fixes[bad] += np.array([0.0, 50.0])
+    good = truth * 1.01
+    heading = np.radians(20.0) * t / t[-1]
+    step = np.diff(truth, axis=0, prepend=truth[:1])
+    poor = np.cumsum(np.column_stack([
+        np.cos(heading) * step[:, 0] - np.sin(heading) * step[:, 1],
+        np.sin(heading) * step[:, 0] + np.cos(heading) * step[:, 1]]), axis=0)
+    out = compare_with_fixes(t, _turned(fixes, 0.7), {"good": (t, good), "poor": (t, poor)})
+    assert out.outliers == 20 and out.compared == t.size
+    keep = np.ones(t.size, dtype=bool)
+    keep[bad] = False
+    for name, track in (("good", good), ("poor", poor)):
+        want = aligned_position_rmse(track[keep], _turned(fixes, 0.7)[keep])
+        assert out.rmse[name] == pytest.approx(want, rel=1e-9)
+        every = aligned_position_rmse(track, _turned(fixes, 0.7))
+        assert out.rmse_all[name] == pytest.approx(every, rel=1e-9)
+    assert out.rmse["good"] < 2.0 and out.rmse_all["good"] > 4.0  # 1.6 and 5.3 m
+
+
+def test_a_track_that_goes_astray_is_not_excused_by_its_fixes():
+    # clean fixes; one track leaves the path by 30 m for 20 s (a real error), the other
+    # follows it: no fix is far from both, so none is left out and the error counts
+    rng = np.random.default_rng(4)
+    t, truth = _drive()
+    fixes = truth + rng.normal(0.0, 1.0, truth.shape)
+    astray = truth.copy()
+    astray[(t > 200) & (t < 220), 1] += 30.0
+    out = compare_with_fixes(t, fixes, {"astray": (t, astray), "on path": (t, truth)})
+    assert out.outliers == 0
+    assert out.rmse["astray"] == pytest.approx(aligned_position_rmse(astray, fixes), rel=1e-9)
+    assert out.rmse["astray"] > 5.0
+    # alone, its stretch away is the rule's to judge: 20 s is beyond the 5 s window, so the
+    # departures from the local median stay small but at the stretch's ends
+    alone = compare_with_fixes(t, fixes, {"astray": (t, astray)})
+    assert alone.rmse["astray"] > 5.0

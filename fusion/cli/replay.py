@@ -573,6 +573,8 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
 
 def _print_gps(topic: str, fixes, gps) -> None:
     """The tracks' RMSE against the GPS fixes (:class:`fusion.evaluation.gps.GpsComparison`)."""
+    from fusion.evaluation.gps import OUTLIER_FACTOR, OUTLIER_FLOOR, OUTLIER_WINDOW
+
     skipped = f", {fixes.no_fix} without a fix left out" if fixes.no_fix else ""
     if fixes.out_of_order:
         print(f"warning: GPS fixes out of order in the bag (sorted): {fixes.out_of_order}")
@@ -582,9 +584,15 @@ def _print_gps(topic: str, fixes, gps) -> None:
           f"own error included):")
     for name, label in (("fused", "fused"), ("bag odometry", "the bag's odometry"),
                         ("gyro at stops", "gyro at stops")):
-        print(f"  {label + ':':<20} {gps.rmse[name]:.2f} m")
+        every = (f"  ({gps.rmse_all[name]:.2f} m with them)" if gps.outliers else "")
+        print(f"  {label + ':':<20} {gps.rmse[name]:.2f} m{every}")
     print("  (gyro at stops: the gyro's vertical axis, its bias re-learnt at each stop, with "
           "the odometry's speed)")
+    if gps.outliers:
+        print(f"  ({gps.outliers} of the {gps.compared} fixes left out: each jumped away "
+              f"from every track, its residual more than {OUTLIER_FLOOR:g} m and "
+              f"{OUTLIER_FACTOR:g} times the median off its neighbours' within "
+              f"{OUTLIER_WINDOW:g} s: multipath or a receiver's jump)")
 
 
 def run_bag(args: argparse.Namespace) -> int:
