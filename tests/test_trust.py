@@ -376,6 +376,30 @@ def test_wheel_scale_check_is_three_prior_sigmas_of_k_and_only_for_wheel_frames(
     assert trust_warnings({"twist_messages": 1000, "gyro_time": 60.0}, 0.0, 0.5) == []
 
 
+def test_the_heading_check_takes_a_skid_steers_twists_at_the_scale_already_said() -> None:
+    # shaped after the probe's outdoor skid-steer bag: twists turned -855 deg where the gyro
+    # turned -540 (395 s), their yaw rate 1.49 times the gyro's over the moving twists.
+    # -855 / 1.49 = -574 deg: 34 deg from the gyro's, inside the 10 % of the turns and
+    # 0.5 deg/s allowed; at face value 315 deg apart (the allowance: 15 deg + 85.5 + 197.5
+    # = 298 deg), a second warning for what odometry_scale says
+    skid = {"twist_messages": 3949, "gyro_time": 395.0, "odometry_rate_slope": 1.49,
+            "odometry_rate_correlation": 0.998, "twist_turn": math.radians(-855.0),
+            "gyro_turn": math.radians(-540.0)}
+    assert [w.name for w in trust_warnings(skid, 0.0)] == ["odometry_scale"]
+    unscaled = {**skid, "odometry_rate_correlation": 0.5}  # no steady scale: at face value
+    (w,) = trust_warnings(unscaled, 0.0)
+    assert w.name == "heading_divergence"
+    assert w.figures["divergence"] == pytest.approx(math.radians(315.0))
+    # what the scale does not explain still speaks: 600 deg more of twist turning (-1455 /
+    # 1.49 = -977 deg, 437 apart against 15 + 97.7 + 197.5 = 310 allowed)
+    more = {**skid, "twist_turn": math.radians(-855.0 - 600.0)}
+    names = [w.name for w in trust_warnings(more, 0.0)]
+    assert names == ["odometry_scale", "heading_divergence"]
+    (hd,) = [w for w in trust_warnings(more, 0.0) if w.name == "heading_divergence"]
+    assert hd.figures["odometry_turn"] == pytest.approx(math.radians(-1455.0) / 1.49)
+    assert "its twists' turn over 1.49, odometry_scale's" in hd.message
+
+
 def test_odometry_scale_check_needs_twists_a_scale_off_and_a_correlation() -> None:
     # a skid-steer base's twists (terrain benchmark bags: slope 1.49-1.50, correlation
     # 0.998-0.999 over the moving twists) warn; a twist within the wheel-scale limit, one
