@@ -515,13 +515,21 @@ class _Collector:
         # a NavSatFix without a fix has NaN coordinates by definition: _fix_log leaves it out
         check = {"twist": rows, "fix": rows[:, 3:4]}.get(self.kind, rows[:, :6])
         bad = np.flatnonzero(~np.all(np.isfinite(check), axis=1))
-        if bad.size:
-            i = int(bad[0])
-            raise LogFormatError(
-                f"{where}: message {i + 1} (t = {t[i]:.9f} s) has a non-finite value: "
-                f"{check[i].tolist()}")
         bag_t = np.asarray(self.bag_t, dtype=np.float64)
         notes = []
+        if bad.size:
+            i = int(bad[0])
+            first = (f"message {i + 1} (t = {t[i]:.9f} s) has a non-finite value: "
+                     f"{check[i].tolist()}")
+            if bad.size > NONFINITE_SHARE * t.size:
+                raise LogFormatError(f"{where}: {bad.size} of its {t.size} messages have a "
+                                     f"non-finite value (more than {NONFINITE_SHARE:.0%}: a "
+                                     f"driver's fault, not a glitch); {first}")
+            keep = np.ones(t.size, dtype=bool)
+            keep[bad] = False
+            t, bag_t, rows = t[keep], bag_t[keep], rows[keep]
+            notes.append(f"{where}: {bad.size} message(s) with a non-finite value left out "
+                         f"(the first: {first})")
         if self.use_header:
             t, bag_t, rows, stray_note = _without_stray_stamps(where, t, bag_t, rows)
             if stray_note:
@@ -544,6 +552,10 @@ class _Collector:
         self.note = "; ".join(notes)
         return t, bag_t, rows, out_of_order
 
+
+#: Largest share of a topic's messages with a NaN or infinite value that are left out, with a
+#: note, as glitches (one in an hour-long bag had refused the whole bag); more is refused.
+NONFINITE_SHARE = 0.1
 
 #: s: two publishers of one topic whose record-time spans overlap by more than this publish
 #: at once (refused); less is one node after the other (a restart under a new name).
