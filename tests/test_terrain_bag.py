@@ -14,6 +14,7 @@ simulator's own sensor error, and still with the odometry stamped 0.2 s late.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import sys
 from decimal import Decimal
@@ -980,3 +981,34 @@ def test_twists_with_noise_at_rest_still_stop_the_robot(replayed, tmp_path):
 
     noisy_rmse, clean_rmse = yaw_rmse(r.table[:, 3]), yaw_rmse(table["yaw"])
     assert noisy_rmse < clean_rmse + 0.2, (noisy_rmse, clean_rmse)
+
+
+def test_a_skid_steers_gyro_in_degrees_per_second_is_named(replayed, tmp_path):
+    # The bag's gyro written in deg/s: its twists turn 1.49 times the gyro's rad/s, so the
+    # fit is 1.49 / 57.3. An independent probe's bag so was told "a skid-steer base's
+    # odometry" (odometry_scale), its stops blamed on vibration and a dead encoder feed, at
+    # 25 m of GPS RMSE: now gyro_axis names deg/s and the dead-feed note carries the caveat.
+    from reshaped_bag import rewrite_messages
+
+    from fusion.evaluation.trust import imu_units_wrong
+    from fusion.jobs.replay import replay_bag
+
+    bag = replayed[6]
+
+    def in_degrees(msg, record_ns):
+        w = msg.angular_velocity
+        w.x, w.y, w.z = (math.degrees(v) for v in (w.x, w.y, w.z))
+        return record_ns
+
+    degs = tmp_path / "degs.bag"
+    rewrite_messages(bag, degs, "/imu/data", in_degrees)
+    r = replay_bag(degs, tmp_path / "degs.csv", imu_topic="/imu/data", odom_topic="/odom",
+                   imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    names = [w.name for w in r.warnings]
+    assert "gyro_axis" in names and "odometry_scale" not in names, names
+    (axis,) = [w for w in r.warnings if w.name == "gyro_axis"]
+    assert imu_units_wrong(axis) and "a skid-steer base's" in axis.message
+    dead = [n for n in r.notes if "read zero while the IMU showed the robot moving" in n]
+    assert dead, r.notes  # a gyro 57 times too fast never looks still
+    assert all(n.endswith("gyro_axis says the IMU is in other units: fix that first, then "
+                          "look again)") for n in dead), dead

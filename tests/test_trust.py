@@ -376,6 +376,34 @@ def test_wheel_scale_check_is_three_prior_sigmas_of_k_and_only_for_wheel_frames(
     assert trust_warnings({"twist_messages": 1000, "gyro_time": 60.0}, 0.0, 0.5) == []
 
 
+def test_a_skid_steers_gyro_in_degrees_or_flipped_is_named() -> None:
+    # a skid-steer's twists turn 1.49 times the gyro's (terrain benchmark bags): a gyro in
+    # deg/s then fits at 1.49 / 57.3 = 0.026, a flipped one at -1.49; both had been read as
+    # "a skid-steer base's odometry" (odometry_scale), the deg/s one at 25 m of GPS RMSE
+    from fusion.evaluation.trust import SKID_FACTOR_MAX, imu_units_wrong
+
+    skid = {"twist_messages": 3949, "gyro_time": 395.0, "odometry_rate_correlation": 0.998}
+    deg = 1.49 / math.degrees(1.0)
+    (w,) = trust_warnings({**skid, "odometry_rate_slope": deg}, 0.0)
+    assert w.name == "gyro_axis" and "its rates look like deg/s" in w.message
+    assert "the odometry turns 1.49 times the rest: a skid-steer base's" in w.message
+    assert imu_units_wrong(w)
+    (w,) = trust_warnings({**skid, "odometry_rate_slope": -1.49}, 0.0)
+    assert w.name == "gyro_axis" and "one of the two turns the wrong way" in w.message
+    assert not imu_units_wrong(w)
+    # a diff-drive's deg/s gyro is said as before, without the skid-steer's words
+    (w,) = trust_warnings({**skid, "odometry_rate_slope": 1.0 / math.degrees(1.0)}, 0.0)
+    assert "its rates look like deg/s, the inputs take rad/s" in w.message
+    assert "skid-steer" not in w.message
+    # beyond the largest skid factor: not deg/s, an odometry in other units of its own
+    assert SKID_FACTOR_MAX == 3.0
+    far = 1.05 * SKID_FACTOR_MAX / math.degrees(1.0)
+    assert [w.name for w in trust_warnings({**skid, "odometry_rate_slope": far}, 0.0)] == [
+        "odometry_scale"]
+    assert [w.name for w in trust_warnings({**skid, "odometry_rate_slope": -3.2}, 0.0)] == [
+        "odometry_scale"]
+
+
 def test_the_heading_check_takes_a_skid_steers_twists_at_the_scale_already_said() -> None:
     # shaped after the probe's outdoor skid-steer bag: twists turned -855 deg where the gyro
     # turned -540 (395 s), their yaw rate 1.49 times the gyro's over the moving twists.

@@ -70,7 +70,11 @@ Checks (each a :class:`TrustWarning` with its figures):
     (``|odometry_rate_correlation|`` >= :data:`ODOMETRY_CORRELATION`) at a slope within
     :data:`ACCEL_SCALE_TOLERANCE` of -1 (the gyro's vertical axis points down: an IMU
     upside down against imu_mount_rpy, or an axis sign flipped in the driver) or of pi/180
-    (gyro rates in deg/s where rad/s are taken). No model state explains either; the
+    (gyro rates in deg/s where rad/s are taken), or beyond 1 as far as a skid-steer base's
+    odometry overstates turns (:data:`SKID_FACTOR_MAX`: -1.49 or 1.49 x pi/180 on the
+    terrain benchmark's bags; an independent probe's skid-steer bag with its gyro in deg/s
+    had been told "a skid-steer base's odometry", 25 m of GPS RMSE, and its stops blamed on
+    vibration and a dead encoder feed). No model state explains either; the
     warning names the cause that ``slip`` and ``heading_divergence`` only show. Takes the
     place of ``odometry_scale``.
 ``accel_scale``
@@ -144,11 +148,13 @@ __all__ = [
     "MOUNT_TILT_LIMIT",
     "ODOMETRY_CORRELATION",
     "RADIUS_MISMATCH_LIMIT",
+    "SKID_FACTOR_MAX",
     "SLIP_FRACTION_LIMIT",
     "WHEEL_SCALE_LIMIT",
     "TrustWarning",
     "imu_units_wrong",
     "trust_warnings",
+    "units_caveat",
     "units_first",
 ]
 
@@ -367,12 +373,28 @@ def _within(value: float | None, limit: float) -> float:
     return max(-limit, min(limit, float(value)))
 
 
+#: The most a skid-steer or tracked base's odometry overstates its turns (the twist's yaw
+#: rate over the true one; the terrain benchmark's bags: 1.49-1.50).
+SKID_FACTOR_MAX = 3.0
+
+
+def _near(ratio: float) -> bool:
+    """Whether ``ratio`` (the odometry's yaw rate over a gyro's read at face value) is 1, give
+    or take :data:`ACCEL_SCALE_TOLERANCE` below and up to :data:`SKID_FACTOR_MAX` above."""
+    return 1.0 - ACCEL_SCALE_TOLERANCE <= ratio <= SKID_FACTOR_MAX
+
+
+def _in_degrees(slope: float) -> bool:
+    """Whether the odometry-over-gyro yaw-rate ``slope`` says a gyro in deg/s."""
+    return _near(slope * math.degrees(1.0))
+
+
 def _gyro_axis_warning(slope: float | None, corr: float | None,
                        stats: Mapping[str, Any] | None = None) -> TrustWarning | None:
     """The ``gyro_axis`` check of the module docstring (None: passed or not applicable)."""
     if slope is None or corr is None or not abs(corr) >= ODOMETRY_CORRELATION:
         return None
-    if abs(slope + 1.0) <= ACCEL_SCALE_TOLERANCE:
+    if _near(-slope):
         n = int((stats or {}).get("imu_samples", 0))
         total = (stats or {}).get("accel_sum")
         upright = (n >= MOUNT_MIN_SAMPLES and total is not None
@@ -386,9 +408,12 @@ def _gyro_axis_warning(slope: float | None, corr: float | None,
                  ") or the odometry (its left and right wheels swapped, both wheels' signs "
                  "flipped, its speed then running backwards too, or its driver's yaw rate "
                  "sign)")
-    elif abs(slope * math.degrees(1.0) - 1.0) <= ACCEL_SCALE_TOLERANCE:
+    elif _in_degrees(slope):
         cause = ("the gyro turns 57.3 times as fast: its rates look like deg/s, the inputs "
-                 "take rad/s")
+                 "take rad/s" + ("" if abs(slope * math.degrees(1.0) - 1.0)
+                                 <= ACCEL_SCALE_TOLERANCE else
+                                 f" (and the odometry turns {slope * math.degrees(1.0):.2f} "
+                                 "times the rest: a skid-steer base's)"))
     else:
         return None
     return TrustWarning(
@@ -477,12 +502,11 @@ IMU_MOTION_CHECKS = ("encoder_fault", "stillness")
 def imu_units_wrong(warning: TrustWarning) -> bool:
     """Whether ``warning`` says the IMU's readings are in other units: ``accel_scale`` (but
     for gravity removed by the driver, below :data:`NO_GRAVITY_RATIO`: the units may be
-    right), or ``gyro_axis`` at the 57.3 times of deg/s."""
+    right), or ``gyro_axis`` at the 57.3 times of deg/s (a skid-steer's factor on top)."""
     if warning.name == "accel_scale":
         return not warning.figures.get("gravity_ratio", 1.0) < NO_GRAVITY_RATIO
     slope = warning.figures.get("odometry_rate_slope")
-    return (warning.name == "gyro_axis" and slope is not None
-            and abs(slope * math.degrees(1.0) - 1.0) <= ACCEL_SCALE_TOLERANCE)
+    return warning.name == "gyro_axis" and slope is not None and _in_degrees(slope)
 
 
 def units_first(warnings: list[TrustWarning]) -> list[TrustWarning]:
@@ -491,13 +515,22 @@ def units_first(warnings: list[TrustWarning]) -> list[TrustWarning]:
     gyro in deg/s was named (``gyro_axis``), and beside it ``encoder_fault`` said to check
     the wheel encoders' wiring: a gyro 57 times too fast never looks still, so every stop
     read as a dead encoder. Marked, not dropped: a real fault may hide under it too."""
+    caveat = units_caveat(warnings)
+    if not caveat:
+        return warnings
+    return [TrustWarning(w.name, w.message + caveat, w.figures)
+            if w.name in IMU_MOTION_CHECKS else w for w in warnings]
+
+
+def units_caveat(warnings: list[TrustWarning]) -> str:
+    """What to add to a finding read from the IMU's motion (a check, or the replay's dead
+    feed note) when ``warnings`` say the IMU is in other units (:func:`imu_units_wrong`);
+    "" when none does."""
     units = [w.name for w in warnings if imu_units_wrong(w)]
     if not units:
-        return warnings
+        return ""
     named = list(dict.fromkeys(units))
     said = " and ".join(named) + (" say" if len(named) > 1 else " says")
-    return [TrustWarning(w.name, w.message + f" (but this reads the IMU's motion, and {said} "
-                         "the IMU is in other units: fix that first, then look again)",
-                         w.figures)
-            if w.name in IMU_MOTION_CHECKS else w for w in warnings]
+    return (f" (but this reads the IMU's motion, and {said} the IMU is in other units: fix "
+            "that first, then look again)")
 

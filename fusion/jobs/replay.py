@@ -27,7 +27,7 @@ from numpy.typing import NDArray
 from scipy.integrate import trapezoid
 
 from fusion.evaluation.gps import GpsComparison, compare_with_fixes, fixes_to_enu
-from fusion.evaluation.trust import TrustWarning, units_first
+from fusion.evaluation.trust import TrustWarning, units_caveat, units_first
 from fusion.evaluation.truth_compare import compare_with_truth
 from fusion.geometry.angles import wrap_angle
 from fusion.io.errors import LogFormatError
@@ -421,8 +421,9 @@ def _finish(path: Path, output: Path, robot: RobotConfig, streams: Streams, trut
         notes.extend(coverage_warnings(streams.imu_t, wheel_t, robot.ekf.max_extrapolation,
                                        "wheel frames", fused=table))
     if n_imu:  # without an IMU a fault is only a stop harder than stop_decel allows
-        notes.extend(dead_feed_notes(wheel_t, ~ticks.any(axis=1), table,
-                                     chassis.encode_sampling_time, "wheel frames"))
+        notes.extend(n + units_caveat(warnings)
+                     for n in dead_feed_notes(wheel_t, ~ticks.any(axis=1), table,
+                                              chassis.encode_sampling_time, "wheel frames"))
     t_out = table[:, 0]
     wheel = WheelOdometry(chassis).update_batch(ticks[:, 0], ticks[:, 1])
     truth_res = None
@@ -618,9 +619,10 @@ def replay_bag(path: str | Path, output: str | Path, *, imu_topic: str, odom_top
     if motion.t.size > 1:
         still = ((np.abs(motion.v) <= robot.ekf.twist_zero_v)
                  & (np.abs(motion.w) <= robot.ekf.twist_zero_w))
-        notes.extend(dead_feed_notes(motion.t, still, table,
-                                     float(np.median(np.diff(motion.t))),
-                                     f"odometry twists ({odom_topic})"))
+        notes.extend(n + units_caveat(warnings)
+                     for n in dead_feed_notes(motion.t, still, table,
+                                              float(np.median(np.diff(motion.t))),
+                                              f"odometry twists ({odom_topic})"))
     coverage = coverage_warnings(imu.t, motion.t, robot.ekf.max_extrapolation, fused=table)
     return BagReplay(table, pipe, stats, odom.t, own, imu, odom, warnings, fixes, gps,
                      gps_note, motion, start, notes, coverage, lag.lag)
