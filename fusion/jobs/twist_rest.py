@@ -16,6 +16,20 @@ stretch whose mean is off zero by more than :data:`CREEP_SIGMAS` standard errors
 first, and the rest must scatter around zero (about as many positive as negative twists, once
 a slow stop's one-signed tail is trimmed). The thresholds are capped (:data:`MAX_ZERO_V`,
 :data:`MAX_ZERO_W`) at what a stop's zero-velocity update may safely pin to zero.
+
+A driver may instead report a steady offset at rest: a base whose odometry's yaw rate comes
+from its own gyro reads that gyro's residual bias, a speed estimator its own offset. Every
+still stretch is then one-signed, so each read as a creep and nothing was raised: an
+independent probe's outdoor bag with 5 mrad/s added to every twist's yaw rate lost all 98 of
+its zero-velocity updates, silently (GPS RMSE 1.55 -> 6.58 m; a note said the robot never
+stopped). Twists and an IMU cannot tell such an offset from a robot that turns (or creeps)
+at that very rate whenever it stops (a constant added to the twists is a gyro bias the other
+way): :func:`_steady_offset` takes the offset reading where :data:`MIN_OFFSET_STRETCHES` or
+more still stretches each hold one steady value (a median absolute deviation under
+:data:`STEADY_SHARE` of their median)
+and agree on it (within :data:`OFFSET_AGREEMENT`): a motion repeated at one rate at every
+stop is the less likely of the two. The threshold then covers the offset and its noise,
+within the same caps, and the note names both readings.
 """
 
 from __future__ import annotations
@@ -110,6 +124,39 @@ def _without_creeping_stretches(values: np.ndarray, rest: np.ndarray) -> np.ndar
     return keep
 
 
+#: Still stretches (of :data:`MIN_STRETCH` twists or more) that must hold one offset.
+MIN_OFFSET_STRETCHES = 3
+#: A stretch holds a steady value when its median absolute deviation is at most this share
+#: of its median (a slow stop's decaying tail spreads about as much as its middle value).
+STEADY_SHARE = 0.5
+#: Stretch medians agree on an offset when each is within this share of their median.
+OFFSET_AGREEMENT = 0.25
+
+
+def _steady_offset(values: np.ndarray, rest: np.ndarray) -> float | None:
+    """The offset every still stretch of ``values`` holds (module docstring), or None."""
+    idx = np.flatnonzero(rest)
+    if idx.size == 0:
+        return None
+    means = []
+    for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
+        if run.size < MIN_STRETCH:
+            continue
+        x = values[run]
+        middle = float(np.median(x))  # robust to the stop's edges the IMU already calls still
+        if middle == 0.0 or not (float(np.median(np.abs(x - middle)))
+                                 <= STEADY_SHARE * abs(middle)):
+            return None  # zero at rest, noise around it, or a tail: no steady offset
+        means.append(middle)
+    if len(means) < MIN_OFFSET_STRETCHES:
+        return None
+    m = np.asarray(means)
+    offset = float(np.median(m))
+    if not np.all(np.abs(m - offset) <= OFFSET_AGREEMENT * abs(offset)):
+        return None
+    return offset
+
+
 def with_twist_rest_floor(robot: RobotConfig, streams: Streams) -> tuple[RobotConfig, str]:
     """``robot`` with ``[ekf] twist_zero_v`` and ``twist_zero_w`` raised to the odometry
     twists' noise at rest (module docstring), and a note saying so ("" when nothing changed:
@@ -122,27 +169,41 @@ def with_twist_rest_floor(robot: RobotConfig, streams: Streams) -> tuple[RobotCo
     rest = _candidates(streams, robot)
     if np.count_nonzero(rest) < MIN_CANDIDATES:
         return robot, ""
-    raised = {}
+    raised, offsets = {}, {}
     for name, values, cap in (("twist_zero_v", streams.twist_v, MAX_ZERO_V),
                               ("twist_zero_w", streams.twist_w, MAX_ZERO_W)):
         still = _without_creeping_stretches(values, rest)
-        if np.count_nonzero(still) < MIN_CANDIDATES:
+        if np.count_nonzero(still) >= MIN_CANDIDATES:
+            floor, scattered = _noise_floor(values[still])
+            new = min(cap, two_digits_up(floor)) if floor > 0.0 else 0.0
+            if scattered and new > getattr(ekf, name):  # raised, never lowered
+                raised[name] = new
+                continue
+        offset = _steady_offset(values, rest)
+        if offset is None:
             continue
-        floor, scattered = _noise_floor(values[still])
-        new = min(cap, two_digits_up(floor)) if floor > 0.0 else 0.0
-        if scattered and new > getattr(ekf, name):  # raised, never lowered
+        floor, scattered = _noise_floor(values[rest] - offset)
+        new = two_digits_up(abs(offset) + floor)
+        if scattered and new <= cap and new > getattr(ekf, name):
             raised[name] = new
+            offsets[name] = offset
     if not raised:
         return robot, ""
     v, w = streams.twist_v[rest], streams.twist_w[rest]
     settings = ", ".join(f"{k} = {x:g}" for k, x in raised.items())
     capped = any(raised[k] == c for k, c in (("twist_zero_v", MAX_ZERO_V),
                                              ("twist_zero_w", MAX_ZERO_W)) if k in raised)
+    units = {"twist_zero_v": ("v", "m/s"), "twist_zero_w": ("w", "rad/s")}
+    steady = "; ".join(f"{units[k][0]} held {x:+.2g} {units[k][1]} at every stop"
+                       for k, x in offsets.items())
+    what = ("scattered around zero: its driver reports noise at rest" if not offsets else
+            f"{steady}: its driver's offset at rest (a base whose odometry's yaw rate is its "
+            "own gyro's, a speed estimator's bias), taken so, or the robot moved at that rate "
+            "whenever it stopped (then lower the setting below again)")
     note = (f"the odometry's twists where the IMU was still ({v.size} of them) read "
             f"|v| {np.median(np.abs(v)):.2g} m/s and |w| {np.median(np.abs(w)):.2g} rad/s "
-            "(medians), scattered around zero: its driver reports noise at rest, which the "
-            f"stop thresholds would never take for a stop; this replay uses {settings} "
-            "(set them in robot.toml's [ekf] to keep them)"
+            f"(medians), {what}, which the stop thresholds would never take for a stop; "
+            f"this replay uses {settings} (set them in robot.toml's [ekf] to keep them)"
             + ("; capped: noise this large also hides slow motion, so some stops may still be "
                "missed" if capped else ""))
     return dataclasses.replace(robot, ekf=dataclasses.replace(ekf, **raised)), note
