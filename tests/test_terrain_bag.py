@@ -296,9 +296,7 @@ def test_an_imu_stamped_as_each_sample_of_a_read_is_handled_keeps_its_track(repl
     # the median interval's 10 kHz and its tilt, so the gyro's vertical axis, was lost: an
     # independent probe's 395 s bag turned 3217 deg away from its odometry, GPS RMSE 25.9 m
     # against 1.55 m on time.
-    from reshaped_bag import rewrite_messages
 
-    from fusion.jobs.replay import replay_bag
 
     _, topics, _, _, table, _, bag = replayed
     true_t = np.array([s + 1e-9 * ns for s, ns, _ in topics["/imu/data"]])
@@ -313,10 +311,7 @@ def test_an_imu_stamped_as_each_sample_of_a_read_is_handled_keeps_its_track(repl
         msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(ns, 1_000_000_000)
         return ns + 2_000_000  # recorded 2 ms after
 
-    handled = tmp_path / "handled.bag"
-    rewrite_messages(bag, handled, "/imu/data", handled_at_the_read)
-    r = replay_bag(handled, tmp_path / "handled.csv", imu_topic="/imu/data",
-                   odom_topic="/odom", imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    r = _replay_rewritten(bag, tmp_path, "handled", "/imu/data", handled_at_the_read)
     said = [n for n in r.notes if "stamped less than" in n]
     assert len(said) == 1 and "/imu/data" in said[0] and "spread back" in said[0], r.notes
     assert r.table.shape[0] == true_t.size
@@ -947,9 +942,7 @@ def test_twists_with_noise_at_rest_still_stop_the_robot(replayed, tmp_path):
     # Before fusion.jobs.twist_rest no twist was a stop (probe, 395 s hills bag: 162 updates
     # fell to 8, the GPS RMSE rose from 1.6 to 4.1 m, nothing said). Now the noise is read
     # where the IMU is still, the stop thresholds raised over it, and said.
-    from reshaped_bag import rewrite_messages
 
-    from fusion.jobs.replay import replay_bag
 
     _, _, _, _, table, run, bag = replayed
     rng = np.random.default_rng(7)
@@ -959,16 +952,26 @@ def test_twists_with_noise_at_rest_still_stop_the_robot(replayed, tmp_path):
         msg.twist.twist.angular.z += rng.normal(0.0, 0.002)
         return record_ns
 
-    noisy_bag = tmp_path / "noisy.bag"
-    rewrite_messages(bag, noisy_bag, "/odom", noisy)
-    r = replay_bag(noisy_bag, tmp_path / "noisy.csv", imu_topic="/imu/data",
-                   odom_topic="/odom", imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    r = _replay_rewritten(bag, tmp_path, "noisy", "/odom", noisy)
     said = [n for n in r.notes if "noise at rest" in n]
     assert len(said) == 1 and "twist_zero_v = " in said[0], r.notes
     # rows fused under a zero-velocity update: as many as the clean bag's (measured 385
     # against 350; 12 without the raised thresholds); the heading as good as the clean
     # bag's (measured 1.95 deg against 1.89; 2.26 without the raised thresholds)
     _assert_stops_and_heading_like_the_clean_replay(r.table, table, run, 0.2)
+
+
+def _replay_rewritten(bag, tmp_path, name, topic, edit):
+    """The replay (fusion.jobs.replay.replay_bag, the bag's mount) of ``bag`` with each
+    ``topic`` message passed through ``edit`` (tests/reshaped_bag.rewrite_messages)."""
+    from reshaped_bag import rewrite_messages
+
+    from fusion.jobs.replay import replay_bag
+
+    edited = tmp_path / f"{name}.bag"
+    rewrite_messages(bag, edited, topic, edit)
+    return replay_bag(edited, tmp_path / f"{name}.csv", imu_topic="/imu/data",
+                      odom_topic="/odom", imu_mount_rpy=tuple(float(v) for v in MOUNT))
 
 
 def _assert_stops_and_heading_like_the_clean_replay(fused, table, run, worse_deg):
@@ -996,9 +999,7 @@ def test_twists_with_a_steady_yaw_rate_offset_still_stop_the_robot(replayed, tmp
     # as a slow turn, none was a stop (an independent probe's 395 s bags: 98 updates fell
     # to 0, GPS RMSE 1.55 -> 6.58 m, and "the robot never stopped"). Now one steady value
     # at every stop is taken for the driver's offset, and said.
-    from reshaped_bag import rewrite_messages
 
-    from fusion.jobs.replay import replay_bag
 
     _, _, _, _, table, run, bag = replayed
 
@@ -1006,10 +1007,7 @@ def test_twists_with_a_steady_yaw_rate_offset_still_stop_the_robot(replayed, tmp
         msg.twist.twist.angular.z += 0.005
         return record_ns
 
-    offset_bag = tmp_path / "offset.bag"
-    rewrite_messages(bag, offset_bag, "/odom", offset)
-    r = replay_bag(offset_bag, tmp_path / "offset.csv", imu_topic="/imu/data",
-                   odom_topic="/odom", imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    r = _replay_rewritten(bag, tmp_path, "offset", "/odom", offset)
     said = [n for n in r.notes if "w held +0.005 rad/s at every stop" in n]
     assert len(said) == 1 and "twist_zero_w = " in said[0], r.notes
     _assert_stops_and_heading_like_the_clean_replay(r.table, table, run, 0.3)
@@ -1020,10 +1018,8 @@ def test_a_skid_steers_gyro_in_degrees_per_second_is_named(replayed, tmp_path):
     # fit is 1.49 / 57.3. An independent probe's bag so was told "a skid-steer base's
     # odometry" (odometry_scale), its stops blamed on vibration and a dead encoder feed, at
     # 25 m of GPS RMSE: now gyro_axis names deg/s and the dead-feed note carries the caveat.
-    from reshaped_bag import rewrite_messages
 
     from fusion.evaluation.trust import imu_units_wrong
-    from fusion.jobs.replay import replay_bag
 
     bag = replayed[6]
 
@@ -1032,10 +1028,7 @@ def test_a_skid_steers_gyro_in_degrees_per_second_is_named(replayed, tmp_path):
         w.x, w.y, w.z = (math.degrees(v) for v in (w.x, w.y, w.z))
         return record_ns
 
-    degs = tmp_path / "degs.bag"
-    rewrite_messages(bag, degs, "/imu/data", in_degrees)
-    r = replay_bag(degs, tmp_path / "degs.csv", imu_topic="/imu/data", odom_topic="/odom",
-                   imu_mount_rpy=tuple(float(v) for v in MOUNT))
+    r = _replay_rewritten(bag, tmp_path, "degs", "/imu/data", in_degrees)
     names = [w.name for w in r.warnings]
     assert "gyro_axis" in names and "odometry_scale" not in names, names
     (axis,) = [w for w in r.warnings if w.name == "gyro_axis"]
