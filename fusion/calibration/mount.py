@@ -42,8 +42,10 @@ from fusion.geometry.mount import imu_to_base, mount_matrix
 __all__ = [
     "MAX_YAW_STD",
     "MIN_EXCITATION",
+    "Handedness",
     "MountEstimate",
     "estimate_imu_mount",
+    "imu_handedness",
 ]
 
 #: m/s^2: RMS of the horizontal specific force the odometry explains (forward dv/dt, left
@@ -170,6 +172,97 @@ def estimate_imu_mount(imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike,
                          excitation, yaw_std if known else math.nan, corr, scale)
 
 
+def _binned_pairs(t: NDArray[np.float64], rate: NDArray[np.float64],
+                  horizontal: NDArray[np.float64], speed_t: NDArray[np.float64],
+                  speed: NDArray[np.float64]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], float] | None:
+    """``(a, b, excitation)``: the levelled horizontal specific force ``a`` and the
+    odometry's ``b`` = (dv/dt, v * w) (K, 2) m/s^2, as means over :data:`_BIN` s bins less
+    their running mean over :data:`_HIGH_PASS` s, and the RMS of ``b`` before that; None
+    with too few bins (fewer than 2 :data:`_BLOCKS` of them)."""
+    ok = np.isfinite(speed_t) & np.isfinite(speed)
+    speed_t, speed = speed_t[ok], speed[ok]
+    if speed_t.size < 2:
+        return None
+    lo, hi = max(t[0], speed_t[0]), min(t[-1], speed_t[-1])
+    edges = np.arange(lo, hi + 1e-9, _BIN)
+    if edges.size <= 2 * _BLOCKS:
+        return None
+    # the odometry's speed at each IMU sample and at the bin edges (linear between its
+    # stamps): bin means of v * w, and dv/dt's exact bin mean from the speeds at the edges,
+    # are then what the accelerometer's bin means hold (a smoother dv/dt, e.g. a central
+    # difference of bin means, shrinks the forward component alone and turns the fit)
+    v = np.interp(t, speed_t, speed)
+    rows = np.column_stack([horizontal, v * rate])
+    means, has = _bin_means(t, rows, edges)
+    if has.sum() < 2 * _BLOCKS:
+        return None
+    forward = np.diff(np.interp(edges, speed_t, speed)) / np.diff(edges)
+    a = means[has, :2]
+    b = np.column_stack([forward[has], means[has, 2]])
+    excitation = float(np.sqrt(np.mean(np.sum(b * b, axis=1))))
+    width = max(1, round(_HIGH_PASS / _BIN))
+    a = a - uniform_filter1d(a, width, axis=0, mode="nearest")
+    b = b - uniform_filter1d(b, width, axis=0, mode="nearest")
+    return a, b, excitation
+
+
+@dataclass(frozen=True)
+class Handedness:
+    """Whether the IMU's axes are right-handed, from a log's turns.
+
+    Attributes:
+        correlation: of the levelled sideways specific force (left of the forward axis the
+            driving accelerations fit) with the odometry's ``v * w`` (``w`` the gyro's
+            vertical rate): positive for right-handed axes (a turn's centripetal
+            acceleration points into it), negative when one axis is flipped.
+        std: its standard error, a jackknife over :data:`_BLOCKS` consecutive blocks.
+        excitation: m/s^2, as :attr:`MountEstimate.excitation`.
+    """
+
+    correlation: float
+    std: float
+    excitation: float
+
+
+def _sideways_correlation(a: NDArray[np.float64], b: NDArray[np.float64]) -> float:
+    """Correlation of ``a``'s component left of the forward axis fitted to ``b[:, 0]`` alone
+    with ``b[:, 1]`` (arrays as :func:`_binned_pairs`' ``a`` and ``b``)."""
+    yaw = math.atan2(-float(np.sum(b[:, 0] * a[:, 1])), float(np.sum(b[:, 0] * a[:, 0])))
+    left = math.sin(yaw) * a[:, 0] + math.cos(yaw) * a[:, 1]
+    energy = math.sqrt(float(np.sum(left * left)) * float(np.sum(b[:, 1] * b[:, 1])))
+    return float(np.sum(left * b[:, 1])) / energy if energy > 0 else math.nan
+
+
+def imu_handedness(imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike, speed_t: ArrayLike,
+                   speed: ArrayLike) -> Handedness | None:
+    """Whether the IMU's axes are right-handed (:class:`Handedness`), from the log's driving
+    (arguments as :func:`estimate_imu_mount`'s, any mount: a rotation keeps handedness);
+    None when the log has too little of it to compare. The forward axis alone is fitted
+    (the larger signal); the sideways axis is then left of it, where a left turn's
+    centripetal specific force points."""
+    t = np.asarray(imu_t, dtype=float)
+    g = np.asarray(gyro, dtype=float)
+    a = np.asarray(accel, dtype=float)
+    f = a.mean(axis=0)
+    if not np.all(np.isfinite(f)) or not np.linalg.norm(f) > 0:
+        return None
+    level = mount_matrix((math.atan2(f[1], f[2]), math.atan2(-f[0], math.hypot(f[1], f[2])),
+                          0.0))
+    pairs = _binned_pairs(t, imu_to_base(level, g)[:, 2], imu_to_base(level, a)[:, :2],
+                          np.asarray(speed_t, dtype=float), np.asarray(speed, dtype=float))
+    if pairs is None:
+        return None
+    a2, b2, excitation = pairs
+    corr = _sideways_correlation(a2, b2)
+    blocks = np.array_split(np.arange(a2.shape[0]), _BLOCKS)
+    left_out = np.array([_sideways_correlation(np.delete(a2, k, axis=0),
+                                               np.delete(b2, k, axis=0)) for k in blocks])
+    spread = left_out - left_out.mean()
+    std = math.sqrt((_BLOCKS - 1) / _BLOCKS * float(np.sum(spread * spread)))
+    return Handedness(corr, std, excitation)
+
+
 def _fit_yaw(t: NDArray[np.float64], rate: NDArray[np.float64], horizontal: NDArray[np.float64],
              speed_t: NDArray[np.float64], speed: NDArray[np.float64]
              ) -> tuple[float, float, float, float, float]:
@@ -181,30 +274,10 @@ def _fit_yaw(t: NDArray[np.float64], rate: NDArray[np.float64], horizontal: NDAr
     consecutive blocks left out (a jackknife; NaN when not fitted); ``odometry_scale`` as
     :class:`MountEstimate`'s."""
     none = (0.0, math.nan, 0.0, math.nan, math.nan)
-    ok = np.isfinite(speed_t) & np.isfinite(speed)
-    speed_t, speed = speed_t[ok], speed[ok]
-    if speed_t.size < 2:
+    pairs = _binned_pairs(t, rate, horizontal, speed_t, speed)
+    if pairs is None:
         return none
-    lo, hi = max(t[0], speed_t[0]), min(t[-1], speed_t[-1])
-    edges = np.arange(lo, hi + 1e-9, _BIN)
-    if edges.size <= 2 * _BLOCKS:
-        return none
-    # the odometry's speed at each IMU sample and at the bin edges (linear between its
-    # stamps): bin means of v * w, and dv/dt's exact bin mean from the speeds at the edges,
-    # are then what the accelerometer's bin means hold (a smoother dv/dt, e.g. a central
-    # difference of bin means, shrinks the forward component alone and turns the fit)
-    v = np.interp(t, speed_t, speed)
-    rows = np.column_stack([horizontal, v * rate])
-    means, has = _bin_means(t, rows, edges)
-    if has.sum() < 2 * _BLOCKS:
-        return none
-    forward = np.diff(np.interp(edges, speed_t, speed)) / np.diff(edges)
-    a = means[has, :2]
-    b = np.column_stack([forward[has], means[has, 2]])
-    excitation = float(np.sqrt(np.mean(np.sum(b * b, axis=1))))
-    width = max(1, round(_HIGH_PASS / _BIN))
-    a = a - uniform_filter1d(a, width, axis=0, mode="nearest")
-    b = b - uniform_filter1d(b, width, axis=0, mode="nearest")
+    a, b, excitation = pairs
     cross = a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0]
     dot = a[:, 0] * b[:, 0] + a[:, 1] * b[:, 1]
     yaw = math.atan2(float(cross.sum()), float(dot.sum()))

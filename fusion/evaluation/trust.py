@@ -205,7 +205,8 @@ class TrustWarning:
     """One failed check: ``name`` (``slip``, ``encoder_fault``, ``gyro_bias``, ``wheel_scale``,
     ``odometry_scale``, ``mount``, ``gyro_axis``, ``accel_scale``, ``implausible``,
     ``heading_divergence``;
-    ``twist_pose`` from :mod:`fusion.jobs.odometry_signs`), a
+    ``twist_pose`` from :mod:`fusion.jobs.odometry_signs`; ``gyro_axes``, ``handedness`` and
+    others from :mod:`fusion.jobs.streams`), a
     sentence for the user with the figures, and the figures (SI: rad, rad/s, s, fractions)."""
 
     name: str

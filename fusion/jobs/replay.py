@@ -49,6 +49,7 @@ from fusion.jobs.streams import (
     Streams,
     coverage_warnings,
     gyro_axes_warnings,
+    handedness_warnings,
     speed_scale_warnings,
     stillness_warnings,
     with_gyro_limit,
@@ -273,7 +274,7 @@ def _fuse_once(robot: RobotConfig, streams: Streams, output: Path | None, tilt: 
                          twist_w=streams.twist_w)
         warnings = units_first([
             *checked, *with_mount_estimate(pipeline_warnings(pipe), robot, streams),
-            *gyro_axes_warnings(streams, robot),
+            *gyro_axes_warnings(streams, robot), *handedness_warnings(streams, robot),
             *stillness_warnings(streams, robot, pipe.finish_stats().zupts),
             *speed_scale_warnings(streams, robot), *wheel_count_warnings(streams, robot)])
         write_status(pipe, status_record(pipe, warnings))

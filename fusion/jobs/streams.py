@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from fusion.calibration.gyro_axes import axis_angle, components, gyro_yaw_axis
-from fusion.calibration.mount import estimate_imu_mount
+from fusion.calibration.mount import estimate_imu_mount, imu_handedness
 from fusion.evaluation.trust import ACCEL_SCALE_TOLERANCE, TrustWarning
 from fusion.geometry.mount import imu_to_base, mount_matrix
 from fusion.io.errors import LogFormatError
@@ -27,6 +27,8 @@ from fusion.types.constants import STANDARD_GRAVITY
 __all__ = [
     "DEAD_GYRO_TURN",
     "GYRO_AXES_LIMIT",
+    "HANDED_CORRELATION",
+    "HANDED_SIGMAS",
     "JOINT_GAP",
     "MIN_STILL_ODOMETRY",
     "SPEED_SCALE_LIMIT",
@@ -34,6 +36,7 @@ __all__ = [
     "coverage_warnings",
     "gyro_axes_warnings",
     "gyro_plateau",
+    "handedness_warnings",
     "joint_gap_warnings",
     "rest_vibration",
     "speed_scale_warnings",
@@ -47,6 +50,16 @@ __all__ = [
 #: far from down) are the ``gyro_axes`` warning's (:func:`gyro_axes_warnings`): a tilted
 #: mount moves both together; hills tilt the turning axis by a few degrees on average.
 GYRO_AXES_LIMIT = math.radians(30.0)
+
+#: A turn's sideways specific force against the odometry's v * w at or below this
+#: correlation (:func:`fusion.calibration.mount.imu_handedness`), and :data:`HANDED_SIGMAS`
+#: standard errors below zero, is the ``handedness`` warning's: the mirror of what clean
+#: runs read where their turns show (+0.14 to +0.89: the black-box simulator's seeds
+#: 445-446, the terrain bags, the Jackal bag; an independent probe's bag with one IMU axis
+#: negated -0.33, 6 standard errors; a simulator whose vibration hides the turns reads
+#: about 0, at most 3 standard errors either way, and says nothing).
+HANDED_CORRELATION = -0.2
+HANDED_SIGMAS = 4.0
 
 #: The odometry's accelerations this many times the accelerometer's (or as many times less)
 #: are the ``speed_scale`` warning's (:func:`speed_scale_warnings`): units (cm/s: 100, mm/s:
@@ -248,6 +261,30 @@ def gyro_axes_warnings(streams: Streams, robot: RobotConfig) -> list[TrustWarnin
         {"gyro_axes_angle": angle, "gyro_yaw_axis_x": fit.axis[0],
          "gyro_yaw_axis_y": fit.axis[1], "gyro_yaw_axis_z": fit.axis[2],
          "gyro_yaw_axis_correlation": fit.correlation})]
+
+
+def handedness_warnings(streams: Streams, robot: RobotConfig) -> list[TrustWarning]:
+    """A ``handedness`` warning when the accelerometer's sideways readings in the turns run
+    against the gyro's (:data:`HANDED_CORRELATION`, :data:`HANDED_SIGMAS`): one IMU axis
+    negated in its driver leaves axes no mount can rotate onto the base's (an independent
+    probe: x or z negated cost 28-37 % of GPS RMSE with only a heading_divergence said; y,
+    the mount it suggested left 35 %)."""
+    odometry = streams.odometry_rates(robot.chassis) if streams.has_imu else None
+    if odometry is None or streams.level_note():
+        return []
+    fit = imu_handedness(streams.imu_t, streams.gyro, streams.accel, odometry[0], odometry[1])
+    if fit is None or not (fit.correlation <= HANDED_CORRELATION
+                           and fit.correlation <= -HANDED_SIGMAS * fit.std):
+        return []
+    return [TrustWarning(
+        "handedness",
+        f"in the turns the accelerometer's sideways reading runs against the odometry's "
+        f"speed times the gyro's yaw rate (correlation {fit.correlation:+.2f} +- "
+        f"{fit.std:.2f}, where a right-handed IMU reads it positive: a turn's centripetal "
+        "acceleration points into it): the IMU's axes are left-handed, one of them negated "
+        "in its driver or its configuration; no --imu-mount-rpy can undo that (a mount is a "
+        "rotation): fix the axis's sign, then replay",
+        {"handedness_correlation": fit.correlation, "handedness_std": fit.std})]
 
 
 def coverage_warnings(imu_t: NDArray[np.float64], odom_t: NDArray[np.float64],
