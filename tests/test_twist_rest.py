@@ -110,6 +110,11 @@ def test_one_steady_offset_at_every_stop_is_taken_for_the_drivers_and_said():
         rest = (s.twist_t % 10.0) >= 5.0
         stop = np.abs(s.twist_w) <= robot.ekf.twist_zero_w
         assert np.mean(stop[rest]) > 0.97
+    # noise on v beside the offset on w: both raised, both said
+    robot, note = with_twist_rest_floor(ROBOT, _streams(_noise(0.002), _per_stop([0.005] * 6)))
+    assert robot.ekf.twist_zero_v > 0.004 and robot.ekf.twist_zero_w > 0.005
+    assert "w held +0.005 rad/s at every stop" in note
+    assert "the other scattered around zero: its driver reports noise at rest" in note
     # an offset the cap cannot cover, 0.02 rad/s (1.1 deg/s), is left alone
     robot, note = with_twist_rest_floor(ROBOT, _streams(_zero, _per_stop([0.02] * 6)))
     assert robot is ROBOT and note == ""

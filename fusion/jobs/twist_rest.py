@@ -26,10 +26,9 @@ stopped). Twists and an IMU cannot tell such an offset from a robot that turns (
 at that very rate whenever it stops (a constant added to the twists is a gyro bias the other
 way): :func:`_steady_offset` takes the offset reading where :data:`MIN_OFFSET_STRETCHES` or
 more still stretches each hold one steady value (a median absolute deviation under
-:data:`STEADY_SHARE` of their median)
-and agree on it (within :data:`OFFSET_AGREEMENT`): a motion repeated at one rate at every
-stop is the less likely of the two. The threshold then covers the offset and its noise,
-within the same caps, and the note names both readings.
+:data:`STEADY_SHARE` of their median) and agree on it (within :data:`OFFSET_AGREEMENT`): a
+motion repeated at one rate at every stop is the less likely of the two. The threshold then
+covers the offset and its noise, within the same caps, and the note names both readings.
 """
 
 from __future__ import annotations
@@ -138,7 +137,7 @@ def _steady_offset(values: np.ndarray, rest: np.ndarray) -> float | None:
     idx = np.flatnonzero(rest)
     if idx.size == 0:
         return None
-    means = []
+    middles = []
     for run in np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1):
         if run.size < MIN_STRETCH:
             continue
@@ -147,10 +146,10 @@ def _steady_offset(values: np.ndarray, rest: np.ndarray) -> float | None:
         if middle == 0.0 or not (float(np.median(np.abs(x - middle)))
                                  <= STEADY_SHARE * abs(middle)):
             return None  # zero at rest, noise around it, or a tail: no steady offset
-        means.append(middle)
-    if len(means) < MIN_OFFSET_STRETCHES:
+        middles.append(middle)
+    if len(middles) < MIN_OFFSET_STRETCHES:
         return None
-    m = np.asarray(means)
+    m = np.asarray(middles)
     offset = float(np.median(m))
     if not np.all(np.abs(m - offset) <= OFFSET_AGREEMENT * abs(offset)):
         return None
@@ -196,10 +195,12 @@ def with_twist_rest_floor(robot: RobotConfig, streams: Streams) -> tuple[RobotCo
     units = {"twist_zero_v": ("v", "m/s"), "twist_zero_w": ("w", "rad/s")}
     steady = "; ".join(f"{units[k][0]} held {x:+.2g} {units[k][1]} at every stop"
                        for k, x in offsets.items())
-    what = ("scattered around zero: its driver reports noise at rest" if not offsets else
+    noise = "scattered around zero: its driver reports noise at rest"
+    what = (noise if not offsets else
             f"{steady}: its driver's offset at rest (a base whose odometry's yaw rate is its "
             "own gyro's, a speed estimator's bias), taken so, or the robot moved at that rate "
-            "whenever it stopped (then lower the setting below again)")
+            "whenever it stopped (then lower the setting below again)"
+            + (f"; the other {noise}" if len(raised) > len(offsets) else ""))
     note = (f"the odometry's twists where the IMU was still ({v.size} of them) read "
             f"|v| {np.median(np.abs(v)):.2g} m/s and |w| {np.median(np.abs(w)):.2g} rad/s "
             f"(medians), {what}, which the stop thresholds would never take for a stop; "
