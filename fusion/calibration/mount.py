@@ -130,6 +130,12 @@ def _bin_means(t: NDArray[np.float64], values: NDArray[np.float64], edges: NDArr
     return means, has
 
 
+def _levelling(f: NDArray[np.float64]) -> tuple[float, float]:
+    """URDF roll and pitch (rad) of a mount that turns the mean specific force ``f`` (3,)
+    m/s^2 onto the base's +z."""
+    return math.atan2(f[1], f[2]), math.atan2(-f[0], math.hypot(f[1], f[2]))
+
+
 def estimate_imu_mount(imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike,
                        speed_t: ArrayLike | None = None, speed: ArrayLike | None = None
                        ) -> MountEstimate:
@@ -158,8 +164,7 @@ def estimate_imu_mount(imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike,
     norm = float(np.linalg.norm(f))
     if not norm > 0:
         raise ValueError("the accelerometer's mean is zero: no gravity to level the mount by")
-    roll = math.atan2(f[1], f[2])
-    pitch = math.atan2(-f[0], math.hypot(f[1], f[2]))
+    roll, pitch = _levelling(f)
     level = mount_matrix((roll, pitch, 0.0))
     yaw, yaw_std, excitation, corr, scale = 0.0, math.nan, 0.0, math.nan, math.nan
     if speed_t is not None and speed is not None:
@@ -247,8 +252,7 @@ def imu_handedness(imu_t: ArrayLike, gyro: ArrayLike, accel: ArrayLike, speed_t:
     f = a.mean(axis=0)
     if not np.all(np.isfinite(f)) or not np.linalg.norm(f) > 0:
         return None
-    level = mount_matrix((math.atan2(f[1], f[2]), math.atan2(-f[0], math.hypot(f[1], f[2])),
-                          0.0))
+    level = mount_matrix((*_levelling(f), 0.0))
     pairs = _binned_pairs(t, imu_to_base(level, g)[:, 2], imu_to_base(level, a)[:, :2],
                           np.asarray(speed_t, dtype=float), np.asarray(speed, dtype=float))
     if pairs is None:
