@@ -295,6 +295,39 @@ def test_multipath_fixes_are_left_out_of_the_printed_score(datasets_dir, gps_bag
                                                                                      abs=0.1)
 
 
+def test_fixes_stamped_late_are_compared_at_their_epochs_and_said(datasets_dir, gps_bag,
+                                                                  tmp_path, capsys):
+    # every fix stamped and recorded 1.5 s after the odometry pose it was made from (a fix
+    # stamped on receipt): the bag's odometry, which the fixes are, scored metres at their
+    # stamps. The lag is found where that track fits again (0.00 m, its rounding); the
+    # figures at the stamps as recorded are printed beside, and the clean bag finds none.
+    late = tmp_path / "late.bag"
+    _write_bag_with_fixes(
+        datasets_dir / "rosbag" / "jackal_sim_test2.bag", late, stamp_shift=1.5,
+        record_shift=1.5,
+        kind=lambda i: {40: "no-fix", 41: "no-fix-stale", 42: "zeros",
+                        NO_ALT: "no-altitude"}.get(i, "fix"))
+    printed = {}
+    for name, bag in (("clean", gps_bag), ("late", late)):
+        assert main(["replay", str(bag), "--imu-topic", IMU, "--odom-topic", ODOM,
+                     "--gps-topic", FIX, "-o", str(tmp_path / f"{name}.csv")]) == 0
+        printed[name] = capsys.readouterr().out
+    assert "taken as stamped" not in printed["clean"]
+    said = [ln for ln in printed["late"].splitlines() if "taken as stamped" in ln]
+    assert len(said) == 1 and " s late (a receiver's or its driver's latency" in said[0]
+    lag = float(said[0].split("taken as stamped ")[1].split(" s late")[0])
+    assert lag == pytest.approx(1.5, abs=0.02)
+    lines = {ln.split(":")[0].strip(): ln for ln in printed["late"].splitlines()}
+    assert float(lines["the bag's odometry"].split()[-2]) <= 0.01
+    recorded = float(said[0].split("the bag's odometry ")[1].split(" m")[0])
+    # the Jackal drives at up to 2 m/s: 1.5 s of it along a turning path (measured 1.96 m)
+    assert recorded > 0.5
+    clean = {ln.split(":")[0].strip(): ln for ln in printed["clean"].splitlines()}
+    for track in ("fused", "gyro at stops"):
+        assert float(lines[track].split()[-2]) == pytest.approx(
+            float(clean[track].split()[-2]), abs=0.05), track
+
+
 def test_gps_stamped_on_another_clock_is_refused_before_anything_is_written(
         datasets_dir, tmp_path, capsys):
     # recorded 1000 s after the run as well: no fix of this run's
@@ -411,3 +444,54 @@ def test_a_track_that_goes_astray_is_not_excused_by_its_fixes():
     # departures from the local median stay small but at the stretch's ends
     alone = compare_with_fixes(t, fixes, {"astray": (t, astray)})
     assert alone.rmse["astray"] > 5.0
+
+
+def _late(t, truth, lag):
+    """The path ``truth`` (at ``t``) as fixes stamped ``lag`` s after each position."""
+    return np.column_stack([np.interp(t - lag, t, truth[:, 0]),
+                            np.interp(t - lag, t, truth[:, 1])])
+
+
+def test_fixes_stamped_late_are_compared_where_they_were_taken():
+    # 1 m GPS noise on a 400 s drive in arcs at 1 m/s, the fixes stamped 2 s late. Oracle:
+    # se2_alignment's RMSE between each track and the fixes at their true epochs (and at
+    # their stamps, for the figure kept beside).
+    rng = np.random.default_rng(5)
+    t, truth = _drive()
+    noise = rng.normal(0.0, 1.0, truth.shape)
+    fixes = _late(t, truth, 2.0) + noise
+    good = truth * 1.01
+    out = compare_with_fixes(t, fixes, {"truth": (t, truth), "good": (t, good)})
+    # the truth alone pins it to 0.05 s; the 1 % scale of the other track reads as part of
+    # a lag and pulls the joint fit a little
+    assert out.lag == pytest.approx(2.0, abs=0.3)
+    late = 10  # fixes (5 Hz) in 2 s: fix i was taken where the robot was at row i - 10
+    for name, track in (("truth", truth), ("good", good)):
+        at_epochs = aligned_position_rmse(track[:-late], fixes[late:])
+        assert out.rmse[name] == pytest.approx(at_epochs, rel=0.05), name
+        assert out.rmse_at_stamps[name] == pytest.approx(
+            aligned_position_rmse(track, fixes), rel=1e-9)
+        # measured 1.97 and 1.96 m at the stamps, 1.42 and 1.59 at the lag found (1.84 s)
+        assert out.rmse_at_stamps[name] > 1.15 * out.rmse[name], name
+    # without the search: the figures at the stamps, as before
+    plain = compare_with_fixes(t, fixes, {"truth": (t, truth)}, find_lag=False)
+    assert plain.lag == 0.0 and not plain.rmse_at_stamps
+    assert plain.rmse["truth"] == pytest.approx(aligned_position_rmse(truth, fixes), rel=1e-9)
+
+
+def test_no_lag_is_applied_where_the_fixes_are_on_time_or_the_path_cannot_show_it():
+    rng = np.random.default_rng(6)
+    t, truth = _drive()
+    fixes = truth + rng.normal(0.0, 1.0, truth.shape)
+    tracks = {"truth": (t, truth), "poor": (t, truth * 1.05)}
+    on_time = compare_with_fixes(t, fixes, tracks)
+    assert on_time.lag == 0.0 and not on_time.rmse_at_stamps
+    # 0.1 s late: below LAG_MIN, the noise's doing as much as the lag's
+    assert compare_with_fixes(t, _late(t, truth, 0.1) + rng.normal(0.0, 1.0, truth.shape),
+                              tracks).lag == 0.0
+    # a straight line at constant speed: 2 s late is a shift along it, which the alignment
+    # takes out whatever the lag; none is claimed
+    line = np.column_stack([t, 0.5 * t])
+    straight = compare_with_fixes(t, _late(t, line, 2.0) + rng.normal(0.0, 1.0, line.shape),
+                                  {"line": (t, line)})
+    assert straight.lag == 0.0

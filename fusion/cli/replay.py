@@ -571,6 +571,11 @@ def _run_folder(args: argparse.Namespace, logs: list[Path]) -> int:
     return _exit_status(args, warned)
 
 
+#: The tracks a bag's replay compares with GPS (fusion.jobs.replay.replay_bag) and their labels.
+_GPS_TRACKS = (("fused", "fused"), ("bag odometry", "the bag's odometry"),
+               ("gyro at stops", "gyro at stops"))
+
+
 def _print_gps(topic: str, fixes, gps) -> None:
     """The tracks' RMSE against the GPS fixes (:class:`fusion.evaluation.gps.GpsComparison`)."""
     from fusion.evaluation.gps import OUTLIER_FACTOR, OUTLIER_FLOOR, OUTLIER_WINDOW
@@ -582,12 +587,20 @@ def _print_gps(topic: str, fixes, gps) -> None:
     print(f"against GPS ({topic}: {len(fixes)} fixes{skipped}; {gps.compared} compared, "
           f"{first:.3f}-{last:.3f} s), position RMSE after one SE(2) alignment each (the GPS's "
           f"own error included):")
-    for name, label in (("fused", "fused"), ("bag odometry", "the bag's odometry"),
-                        ("gyro at stops", "gyro at stops")):
+    for name, label in _GPS_TRACKS:
         every = (f"  ({gps.rmse_all[name]:.2f} m with them)" if gps.outliers else "")
         print(f"  {label + ':':<20} {gps.rmse[name]:.2f} m{every}")
     print("  (gyro at stops: the gyro's vertical axis, its bias re-learnt at each stop, with "
           "the odometry's speed)")
+    if gps.lag:
+        why = ("a receiver's or its driver's latency, or the odometry stamped that much early"
+               if gps.lag > 0 else "the odometry stamped that much late, or the fixes on "
+               "another clock")
+        recorded = ", ".join(f"{label} {gps.rmse_at_stamps[name]:.2f} m"
+                             for name, label in _GPS_TRACKS)
+        print(f"  (the fixes fit the tracks best taken as stamped {abs(gps.lag):.2f} s "
+              f"{'late' if gps.lag > 0 else 'early'} ({why}), and were compared so; at "
+              f"their stamps as recorded: {recorded})")
     if gps.outliers:
         print(f"  ({gps.outliers} of the {gps.compared} fixes left out: each jumped away "
               f"from every track, its residual more than {OUTLIER_FLOOR:g} m and "
