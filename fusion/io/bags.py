@@ -11,6 +11,9 @@ each message's ``header.stamp`` (``stamps="header"``), or the time the bag recor
 (``stamps="bag"``, the only choice for Twist). Errors name the file and topic; a missing
 topic lists the topics present.
 
+A ROS 1 recording split by ``rosbag record --split`` is read as one bag from its first part
+(``<prefix>_0.bag``; :mod:`fusion.io.split_bags`), and :attr:`BagLog.note` names the parts.
+
 An ``.mcap`` file without its summary section (a live recording whose writer was killed or lost
 power: :class:`fusion.sinks.bag.McapSink` ``live=True``) is read front to back up to its last
 complete record; :attr:`BagLog.note` says so.
@@ -31,6 +34,7 @@ from numpy.typing import NDArray
 from fusion.io.errors import LogFormatError
 from fusion.io.imu_csv import ImuLog
 from fusion.io.repeated_stamps import spread_repeated_stamps
+from fusion.io.split_bags import split_parts
 
 __all__ = [
     "BagImuLog",
@@ -239,7 +243,8 @@ class _BagFile:
             raise FileNotFoundError(f"{path}: no such bag file or folder")
         self.is_mcap_file = path.is_file() and path.suffix.lower() == ".mcap"
         self.topics: dict[str, tuple[str, int]] = {}
-        self.note = ""  # what was recovered from an unfinished MCAP recording
+        # what was recovered from an unfinished MCAP recording; a split recording's parts
+        self.note = ""
         self.truncated = False
 
     def __enter__(self) -> _BagFile:
@@ -250,8 +255,10 @@ class _BagFile:
             if self.path.is_dir() and not (self.path / "metadata.yaml").is_file():
                 raise LogFormatError(f"{self.path}: a folder without metadata.yaml is not a "
                                      "ROS 2 bag")
+            parts, self.note = (split_parts(self.path) if self.path.suffix == ".bag"
+                                else ([self.path], ""))
             try:
-                self._reader = rosbags.highlevel.AnyReader([self.path])
+                self._reader = rosbags.highlevel.AnyReader(parts)
                 self._reader.open()
             except Exception as exc:  # rosbags' errors, struct errors of truncated files
                 hint = {".bag": "; a ROS 1 bag cut short (a recorder killed, a full disk) "
