@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 
 from fusion.jobs.moving_start import (
+    MAX_WHEEL_SCALE,
     MIN_STOP,
     MOVING_START_DELAY,
     STOP_EDGE,
     STOP_MERGE_GAP,
     first_stop,
+    wheel_prior,
 )
 from fusion.planar.ekf import EkfNoise, PlanarEKF
 
@@ -122,3 +124,29 @@ def test_a_folder_replay_passes_one_pass_to_each_log(tmp_path):
     # the second pass starts from the first stop's bias; one pass from 0
     assert two["gyro_bias_z"][0] != 0.0 and one["gyro_bias_z"][0] == pytest.approx(0.0,
                                                                                    abs=1e-3)
+
+
+def test_the_wheel_calibration_is_the_runs_last_with_its_walk_back_to_the_start():
+    t = np.linspace(1000.0, 1300.0, 301)
+    k, c = np.linspace(0.0, -0.04, t.size), np.linspace(0.0, 0.002, t.size)
+    k_var, c_var = np.full(t.size, 4e-6), np.full(t.size, 1e-6)
+    prior = wheel_prior(t, k, k_var, c, c_var, 1e-9, 2e-9)
+    assert (prior.k, prior.c) == (-0.04, 0.002)
+    assert prior.k_std == pytest.approx(math.sqrt(4e-6 + 1e-9 * 300.0), rel=1e-12)
+    assert prior.c_std == pytest.approx(math.sqrt(1e-6 + 2e-9 * 300.0), rel=1e-12)
+    assert "yaw-rate scale -0.0400 +- 0.0021" in prior.describe()
+    # a scale error past the bound (a gyro in deg/s: k -> -0.98) is a fault, not a prior
+    k[-1] = -MAX_WHEEL_SCALE
+    assert wheel_prior(t, k, k_var, c, c_var, 1e-9, 2e-9) is None
+    with pytest.raises(ValueError, match="wheel_rate_scale must be finite, in"):
+        EkfNoise(wheel_rate_scale=-MAX_WHEEL_SCALE)
+
+
+def test_the_wheel_calibration_prior_is_the_filters_initial_state():
+    noise = EkfNoise(wheel_rate_scale=-0.03, calib_k_std=0.001, wheel_rate_per_speed=0.004,
+                     calib_c_std=0.0005)
+    from fusion.geometry.kinematics import DiffDriveParams
+
+    ekf = PlanarEKF(DiffDriveParams(wheel_distance=0.3, speed_ratio=1e-4), noise)
+    assert (ekf.x[6], ekf.x[7]) == (-0.03, 0.004)
+    assert (ekf.P[6, 6], ekf.P[7, 7]) == pytest.approx((0.001 ** 2, 0.0005 ** 2), rel=1e-12)

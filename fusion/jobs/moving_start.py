@@ -24,6 +24,25 @@ takes the bias the filter ended with instead (learnt from straight driving; its 
 grown over the whole run). The terrain test bag's first 40 s with a +3 deg/s gyro bias
 ended 7.3 m from the unbiased replay's end fused once, 0.04 m fused again (2026-11-29).
 
+The wheels' yaw-rate calibration (``k``, ``c``: the EKF's ``wheel_rate_scale`` and
+``wheel_rate_per_speed``) is taken from the first pass's end the same way
+(:func:`wheel_prior`): it is constant, and a whole run with its stops knows it best. Started
+from 0 instead, the radius mismatch ``c`` (rad/m) soaks up the bias's error while the robot
+drives straight at a steady speed (``c * v`` and the bias read alike on the wheels' yaw rate),
+so before the first stop the straight driving taught the bias little: an independent
+simulator's moving start whose gyro warmed up by 0.38 deg/s over the 82 s before its first
+stop (benchmarks/sim5 s7) kept the bias within 0.07 deg/s of the stop's, 0.24 deg/s off the
+truth at 20 s, and reached the stop 13.5 deg off (with the prior: 0.09 deg/s, 7.7 deg; yaw
+RMSE 10.3 -> 8.2 deg; tests/test_sim5_replay.py). Held out (2026-12-08, fresh seeds, yaw RMSE
+deg, before -> after): sim5's moving starts, seeds 17-20, 4.99 3.08 8.79 4.14 -> 4.96 2.74
+8.35 2.43 (its reference, the gyro less its true bias: 4.76 3.08 6.33 1.38); the black-box
+simulator's, seeds 447-450, 3.61 2.57 4.27 2.80 -> 3.58 2.53 4.26 2.80; the terrain
+simulator's (seeds 70-71) hills and level moving starts 2.50 2.79 2.31 3.47 -> 2.39 2.77
+2.22 3.45, its skid-steer bags within 0.01 deg and 0.01 m of GPS RMSE (their twists' yaw
+rate is not fused, so nothing learns ``k`` or ``c``). A gyro scale far off the wheels'
+(:data:`MAX_WHEEL_SCALE`) or wheel scale refits (``EkfNoise.wheel_scale_refit``) carry
+nothing.
+
 Measured on data none of this was chosen on (2026-11-28; yaw RMSE, deg, one pass -> two):
 the independent black-box simulator's moving starts (benchmarks/blackbox), seeds 201-204,
 4.86 5.45 5.16 1.59 -> 4.64 1.76 1.80 0.93 (bias error RMS 0.04-0.09 -> 0.007-0.019 deg/s);
@@ -41,8 +60,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["MIN_STOP", "MOVING_START_DELAY", "STOP_EDGE", "STOP_MERGE_GAP", "MovingStart",
-           "first_stop", "last_estimate"]
+__all__ = ["MAX_WHEEL_SCALE", "MIN_STOP", "MOVING_START_DELAY", "STOP_EDGE", "STOP_MERGE_GAP",
+           "MovingStart", "WheelPrior", "first_stop", "last_estimate", "wheel_prior"]
 
 #: s: a first zero-velocity update later than this after the first row is a moving start (a
 #: robot at rest gets its first within a few wheel frames).
@@ -52,9 +71,28 @@ STOP_MERGE_GAP = 1.0
 #: s: the shortest stop whose bias is taken back (a pause of a few frames, e.g. before a turn
 #: in place, teaches little and is where a late twist lets the turn's start in).
 MIN_STOP = 1.0
+#: The largest wheel yaw-rate scale error ``|k|`` carried into a second pass (the bound
+#: ``EkfNoise.wheel_rate_scale`` takes: a gyro in deg/s ends with k = -0.98).
+MAX_WHEEL_SCALE = 0.5
 #: s: left out of the stop's readings at either end: where a twist stamped late still says
 #: "still" while the robot has started moving, the gyro's first motion is in them.
 STOP_EDGE = 0.5
+
+
+@dataclass(frozen=True)
+class WheelPrior:
+    """The wheels' yaw-rate calibration a run ended with, as the prior of its second pass:
+    ``k`` (1) and ``c`` (rad/m) with their standard deviations (``EkfNoise.wheel_rate_scale``,
+    ``calib_k_std``, ``wheel_rate_per_speed``, ``calib_c_std``)."""
+
+    k: float
+    k_std: float
+    c: float
+    c_std: float
+
+    def describe(self) -> str:
+        return (f"the wheels' yaw-rate scale {self.k:+.4f} +- {self.k_std:.4f} and radius "
+                f"mismatch {self.c:+.5f} +- {self.c_std:.5f} rad/m it ended with")
 
 
 @dataclass(frozen=True)
@@ -74,6 +112,7 @@ class MovingStart:
     never_stopped: bool = False
     prior: float = 0.0
     fused_again: bool = True
+    wheels: WheelPrior | None = None
 
     @property
     def note(self) -> str:
@@ -95,12 +134,18 @@ class MovingStart:
                     f"{self.stop_end - self.start:.1f} s; the gyro bias the filter ended with, "
                     f"{math.degrees(self.bias):+.3f} +- {math.degrees(self.bias_std):.3f} deg/s "
                     "(its random walk back to the start included), is the prior from the "
-                    "start (a second pass; --one-pass fuses as a live run would)")
+                    f"start {self._with_wheels}(a second pass; --one-pass fuses as a live run "
+                    "would)")
         return (f"moving start: the robot drove {self.stop_begin - self.start:.1f} s before "
                 f"its first stop; the gyro bias learnt there, "
                 f"{math.degrees(self.bias):+.3f} +- {math.degrees(self.bias_std):.3f} deg/s "
                 "(its random walk back to the start included), is the prior from the start "
-                "(a second pass; --one-pass fuses as a live run would)")
+                f"{self._with_wheels}(a second pass; --one-pass fuses as a live run would)")
+
+    @property
+    def _with_wheels(self) -> str:
+        """The second pass's wheel prior, for the note ("" where it had none)."""
+        return "" if self.wheels is None else f"with {self.wheels.describe()} "
 
 
 def first_stop(t: NDArray[np.float64], rate: NDArray[np.float64], bias: NDArray[np.float64],
@@ -156,3 +201,18 @@ def last_estimate(t: NDArray[np.float64], bias: NDArray[np.float64],
     return MovingStart(start=float(t[0]), stop_begin=float(t[-1]), stop_end=float(t[-1]),
                        bias=float(bias[-1]), bias_std=math.sqrt(max(var, 0.0)),
                        never_stopped=True)
+
+
+def wheel_prior(t: NDArray[np.float64], k: NDArray[np.float64], k_var: NDArray[np.float64],
+                c: NDArray[np.float64], c_var: NDArray[np.float64], k_psd: float,
+                c_psd: float) -> WheelPrior | None:
+    """The wheels' yaw-rate scale ``k`` (1) and radius mismatch ``c`` (rad/m) of a fused run's
+    last row (``t`` s; the states and their variances per row), each variance grown by its
+    random walk (``k_psd`` 1/s, ``c_psd`` (rad/m)^2/s) over the run back to its start; None
+    where ``|k|`` reached :data:`MAX_WHEEL_SCALE` (wheels and gyro in other units or
+    geometry: a fault the trust checks name, not a calibration to start from)."""
+    if not abs(float(k[-1])) < MAX_WHEEL_SCALE:
+        return None
+    span = float(t[-1] - t[0])
+    return WheelPrior(k=float(k[-1]), k_std=math.sqrt(max(float(k_var[-1]) + k_psd * span, 0.0)),
+                      c=float(c[-1]), c_std=math.sqrt(max(float(c_var[-1]) + c_psd * span, 0.0)))

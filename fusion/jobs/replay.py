@@ -42,7 +42,7 @@ from fusion.jobs.bias_walk import fit_bias_walk
 from fusion.jobs.dead_feed import dead_feed_notes
 from fusion.jobs.engine import run_tasks
 from fusion.jobs.imu_lag import choose_imu_lag, shifted
-from fusion.jobs.moving_start import MovingStart, first_stop, last_estimate
+from fusion.jobs.moving_start import MovingStart, first_stop, last_estimate, wheel_prior
 from fusion.jobs.odometry_signs import check_twist_signs
 from fusion.jobs.status import pipeline_warnings, status_record, write_status
 from fusion.jobs.streams import (
@@ -235,11 +235,20 @@ def _fuse_from_the_start(robot: RobotConfig, streams: Streams, output: Path | No
     if start is None or not start.bias_std < robot.ekf.initial_bias_std:
         start = None
     else:
+        n, rows = robot.ekf, pipe.state_rows
+        # wheels whose scale is refitted when it jumps (opt-in) have no one calibration
+        wheels = None if n.wheel_scale_refit > 0 else wheel_prior(
+            table[:, 0], table[:, 7], rows[:, 1 + NX + 6], table[:, 8], rows[:, 1 + NX + 7],
+            n.calib_k_psd, n.calib_c_psd)
         start = dataclasses.replace(start, prior=robot.ekf.initial_bias,
-                                    fused_again=not one_pass)
+                                    fused_again=not one_pass, wheels=wheels)
     if start is not None and not one_pass:
         noise = dataclasses.replace(robot.ekf, initial_bias=start.bias,
                                     initial_bias_std=start.bias_std)
+        if start.wheels is not None:
+            w = start.wheels
+            noise = dataclasses.replace(noise, wheel_rate_scale=w.k, calib_k_std=w.k_std,
+                                        wheel_rate_per_speed=w.c, calib_c_std=w.c_std)
         second = _fuse_once(dataclasses.replace(robot, ekf=noise), streams, output, tilt,
                             progress, 0.5, 0.5, checked)
         return (*second, start)

@@ -256,6 +256,11 @@ class EkfNoise:
         wheel_w_std: extra white noise on the wheel yaw rate, rad/s.
         calib_k_std, calib_c_std: prior standard deviations of the wheel calibration states
             ``k`` (1) and ``c`` (rad/m).
+        wheel_rate_scale, wheel_rate_per_speed: prior means of ``k`` (1; the wheels' yaw rate
+            is ``1 + k`` times the gyro's) and ``c`` (rad/m): 0 (unknown), or what a whole
+            run taught (``fusion replay``'s "wheel yaw-rate calibration seen by the gyro";
+            its moving start's second pass starts from the first pass's end,
+            :mod:`fusion.jobs.moving_start`).
         calib_k_psd, calib_c_psd: their random walks, 1/s and (rad/m)^2/s.
         zupt_v_std, zupt_w_std: noise of the zero-velocity pseudo-measurement, m/s and rad/s.
         zupt_frames: consecutive all-zero wheel frames before a ZUPT; from then on the robot is
@@ -475,6 +480,8 @@ class EkfNoise:
     calib_c_std: float = 0.05
     calib_k_psd: float = 1e-9
     calib_c_psd: float = 1e-9
+    wheel_rate_scale: float = 0.0
+    wheel_rate_per_speed: float = 0.0
     zupt_v_std: float = 1e-3
     zupt_w_std: float = 1e-4
     zupt_frames: int = 2
@@ -522,10 +529,10 @@ class EkfNoise:
         for name, value in asdict(self).items():
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ValueError(f"EkfNoise.{name} must be a number, got {value!r}")
-            if name == "gyro_scale":
+            if name in ("gyro_scale", "wheel_rate_scale"):
                 ok, need = math.isfinite(value) and abs(value) < 0.5, "finite, in (-0.5, 0.5)"
-            elif name == "initial_bias":
-                ok, need = math.isfinite(value), "finite (rad/s)"
+            elif name in ("initial_bias", "wheel_rate_per_speed"):
+                ok, need = math.isfinite(value), "finite (rad/s, rad/m)"
             elif name in ("gyro_limit", "yaw_fix_rate", "yaw_fix_burst"):
                 ok, need = value > 0, "> 0 (rad/s or rad; or inf)"
             elif name == "zupt_frames":
@@ -791,7 +798,8 @@ class PlanarEKF(ExtendedKalmanFilter):
             ``encode_sampling_time`` s).
         noise: :class:`EkfNoise`.
         x0: initial state ``[x, y, yaw, v, w, b, k, c, g, s]`` (default zeros, except
-            ``b = noise.initial_bias`` and ``g = noise.gyro_scale``).
+            ``b = noise.initial_bias``, ``k = noise.wheel_rate_scale``,
+            ``c = noise.wheel_rate_per_speed`` and ``g = noise.gyro_scale``).
         P0: initial covariance (default: pose variance 1e-9, v/w/b/k/c/g/s from ``noise``;
             with the default, w counts as unknown at the first gyro sample, which sets it
             alone: see ``EkfNoise.initial_rate_std``; a ``P0`` given here is taken as is).
@@ -848,6 +856,8 @@ class PlanarEKF(ExtendedKalmanFilter):
         if x0 is None:
             self.x = np.zeros(NX)
             self.x[5] = n.initial_bias  # 0 unless known before the log
+            self.x[6] = n.wheel_rate_scale  # 0 unless known (a replay's second pass)
+            self.x[7] = n.wheel_rate_per_speed
             self.x[8] = n.gyro_scale  # a calibrated gyro's scale error, 0 if uncalibrated
         else:
             self.x = _state_vector("x0", x0)
