@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
+from fusion.evaluation.trust import RADIUS_MISMATCH_LIMIT, WHEEL_SCALE_LIMIT
 from fusion.jobs.moving_start import (
-    MAX_WHEEL_SCALE,
     MIN_STOP,
     MOVING_START_DELAY,
     STOP_EDGE,
@@ -126,20 +126,29 @@ def test_a_folder_replay_passes_one_pass_to_each_log(tmp_path):
                                                                                    abs=1e-3)
 
 
-def test_the_wheel_calibration_is_the_runs_last_with_its_walk_back_to_the_start():
+def test_the_wheel_calibration_is_the_runs_last_with_its_walk_and_half_its_weight():
     t = np.linspace(1000.0, 1300.0, 301)
     k, c = np.linspace(0.0, -0.04, t.size), np.linspace(0.0, 0.002, t.size)
     k_var, c_var = np.full(t.size, 4e-6), np.full(t.size, 1e-6)
-    prior = wheel_prior(t, k, k_var, c, c_var, 1e-9, 2e-9)
-    assert (prior.k, prior.c) == (-0.04, 0.002)
-    assert prior.k_std == pytest.approx(math.sqrt(4e-6 + 1e-9 * 300.0), rel=1e-12)
-    assert prior.c_std == pytest.approx(math.sqrt(1e-6 + 2e-9 * 300.0), rel=1e-12)
-    assert "yaw-rate scale -0.0400 +- 0.0021" in prior.describe()
-    # a scale error past the bound (a gyro in deg/s: k -> -0.98) is a fault, not a prior
-    k[-1] = -MAX_WHEEL_SCALE
-    assert wheel_prior(t, k, k_var, c, c_var, 1e-9, 2e-9) is None
-    with pytest.raises(ValueError, match="wheel_rate_scale must be finite, in"):
-        EkfNoise(wheel_rate_scale=-MAX_WHEEL_SCALE)
+
+    def prior(k=k, c=c, k_var=k_var, c_var=c_var):
+        return wheel_prior(t, k, k_var, c, c_var, 0.05, 0.05, 1e-9, 2e-9)
+
+    got = prior()
+    assert (got.k, got.c) == (-0.04, 0.002)
+    # the walk back over the run's 300 s, then twice the variance: the data is fused twice
+    assert got.k_std == pytest.approx(math.sqrt(2 * (4e-6 + 1e-9 * 300.0)), rel=1e-12)
+    assert got.c_std == pytest.approx(math.sqrt(2 * (1e-6 + 2e-9 * 300.0)), rel=1e-12)
+    assert "yaw-rate scale -0.0400 +- 0.0029" in got.describe()
+    # beyond the trust checks' limits (a gyro in deg/s ends with k = -0.98): a fault
+    assert prior(k=np.full(t.size, -WHEEL_SCALE_LIMIT - 0.01)) is None
+    assert prior(c=np.full(t.size, RADIUS_MISMATCH_LIMIT + 0.01)) is None
+    # neither learnt (odometry whose yaw rate was never fused): the note claims nothing
+    assert prior(k_var=np.full(t.size, 0.05 ** 2), c_var=np.full(t.size, 0.05 ** 2)) is None
+    assert prior(k_var=np.full(t.size, 0.05 ** 2)) is not None  # c was
+    bad = c.copy()
+    bad[-1] = np.nan
+    assert prior(c=bad) is None
 
 
 def test_the_wheel_calibration_prior_is_the_filters_initial_state():
@@ -150,3 +159,7 @@ def test_the_wheel_calibration_prior_is_the_filters_initial_state():
     ekf = PlanarEKF(DiffDriveParams(wheel_distance=0.3, speed_ratio=1e-4), noise)
     assert (ekf.x[6], ekf.x[7]) == (-0.03, 0.004)
     assert (ekf.P[6, 6], ekf.P[7, 7]) == pytest.approx((0.001 ** 2, 0.0005 ** 2), rel=1e-12)
+    with pytest.raises(ValueError, match="wheel_rate_scale must be finite, in"):
+        EkfNoise(wheel_rate_scale=-0.5)
+    with pytest.raises(ValueError, match="wheel_rate_per_speed must be finite"):
+        EkfNoise(wheel_rate_per_speed=math.inf)

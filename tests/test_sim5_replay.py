@@ -105,9 +105,9 @@ def test_a_moving_start_on_a_warming_gyro_learns_the_bias_from_the_straight_driv
     at = np.searchsorted(fused["t"], t0 + np.array([20.0, 40.0, 60.0]))
     true_bias = np.interp(fused["t"][at], aux["imu_t"], aux["bias_z_true"])
     off = np.degrees(np.abs(fused["gyro_bias_z"][at] - true_bias))
-    assert np.all(off < [0.12, 0.05, 0.05]), off   # measured 0.09, 0.00, 0.03
+    assert np.all(off < [0.12, 0.05, 0.05]), off   # measured 0.10, 0.01, 0.02
     stop = res.moving_start.stop_begin
     i = int(np.searchsorted(fused["t"], stop))
     yaw_true = np.interp(fused["t"][i], truth["t"], np.unwrap(truth["yaw"]))
     heading = np.degrees(abs(np.angle(np.exp(1j * (fused["yaw"][i] - yaw_true)))))
-    assert heading < 10.0, heading   # measured 7.7 deg (13.5 before)
+    assert heading < 10.0, heading   # measured 8.8 deg (13.5 before)

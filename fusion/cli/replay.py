@@ -578,7 +578,7 @@ _GPS_TRACKS = (("fused", "fused"), ("bag odometry", "the bag's odometry"),
 
 def _print_gps(topic: str, fixes, gps) -> None:
     """The tracks' RMSE against the GPS fixes (:class:`fusion.evaluation.gps.GpsComparison`)."""
-    from fusion.evaluation.gps import OUTLIER_FACTOR, OUTLIER_FLOOR, OUTLIER_WINDOW
+    from fusion.evaluation.gps import LAG_MAX, OUTLIER_FACTOR, OUTLIER_FLOOR, OUTLIER_WINDOW
 
     skipped = f", {fixes.no_fix} without a fix left out" if fixes.no_fix else ""
     if fixes.out_of_order:
@@ -601,6 +601,10 @@ def _print_gps(topic: str, fixes, gps) -> None:
         print(f"  (the fixes fit the tracks best taken as stamped {abs(gps.lag):.2f} s "
               f"{'late' if gps.lag > 0 else 'early'} ({why}), and were compared so; at "
               f"their stamps as recorded: {recorded})")
+    if gps.lag_beyond:
+        print(f"  (the fixes fit the tracks better {LAG_MAX:g} s off their stamps than on them, "
+              "and best further off, beyond the lag searched: the GPS stamped on another "
+              "clock? compared at the stamps as recorded)")
     if gps.outliers:
         print(f"  ({gps.outliers} of the {gps.compared} fixes left out: each jumped away "
               f"from every track, its residual more than {OUTLIER_FLOOR:g} m and "

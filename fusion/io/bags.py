@@ -255,7 +255,7 @@ class _BagFile:
             if self.path.is_dir() and not (self.path / "metadata.yaml").is_file():
                 raise LogFormatError(f"{self.path}: a folder without metadata.yaml is not a "
                                      "ROS 2 bag")
-            parts, self.note = (split_parts(self.path) if self.path.suffix == ".bag"
+            parts, self.note = (split_parts(self.path) if self.path.suffix.lower() == ".bag"
                                 else ([self.path], ""))
             try:
                 self._reader = rosbags.highlevel.AnyReader(parts)
@@ -266,6 +266,12 @@ class _BagFile:
                         ".active": "; a recording rosbag record did not finish: `rosbag "
                                    "reindex` it, then rename it to .bag"
                         }.get(self.path.suffix.lower(), "")
+                if self.path.suffix.lower() == ".bag" and self.path.suffix != ".bag":
+                    hint = (f"; rosbags knows a ROS 1 bag by its lowercase .bag suffix: "
+                            f"rename it to {self.path.stem}.bag")
+                if len(parts) > 1:
+                    others = ", ".join(p.name for p in parts[1:])
+                    hint += f" (read as one with its split parts {others}: it may be one of them)"
                 raise LogFormatError(f"{self.path}: not a readable ROS bag ({exc}){hint}"
                                      ) from exc
             for c in self._reader.connections:

@@ -236,10 +236,13 @@ def _fuse_from_the_start(robot: RobotConfig, streams: Streams, output: Path | No
         start = None
     else:
         n, rows = robot.ekf, pipe.state_rows
-        # wheels whose scale is refitted when it jumps (opt-in) have no one calibration
-        wheels = None if n.wheel_scale_refit > 0 else wheel_prior(
-            table[:, 0], table[:, 7], rows[:, 1 + NX + 6], table[:, 8], rows[:, 1 + NX + 7],
-            n.calib_k_psd, n.calib_c_psd)
+        # wheels whose scale is refitted when it jumps (opt-in) have no one calibration; a
+        # run that never stopped learnt c and the bias together (c * v reads as a bias on
+        # straights), and carrying the two apart would claim what it never separated
+        wheels = None if (one_pass or n.wheel_scale_refit > 0 or start.never_stopped) else \
+            wheel_prior(table[:, 0], table[:, 7], rows[:, 1 + NX + 6], table[:, 8],
+                        rows[:, 1 + NX + 7], n.calib_k_std, n.calib_c_std, n.calib_k_psd,
+                        n.calib_c_psd)
         start = dataclasses.replace(start, prior=robot.ekf.initial_bias,
                                     fused_again=not one_pass, wheels=wheels)
     if start is not None and not one_pass:
