@@ -554,15 +554,15 @@ class FilterpyReference:
                         and n.wheel_scale_refit > 0 and not silent):
                     # the ticks' own fit since the last restart of k; k restarts at its slope
                     # once it holds wheel_rate_proof_time s of turns, correlates by 0.9 and is
-                    # that many prior sigmas off, c at 0, both at their priors, and the fit
-                    # starts afresh (_ekf_core._refit_wheel_scale)
+                    # that many prior sigmas off, c at its prior mean, both at their prior
+                    # variances, and the fit starts afresh (_ekf_core._refit_wheel_scale)
                     self.ticks_fit += (1.0, gr, z[1], gr * gr, gr * z[1], z[1] * z[1])
                     self.ticks_turning += interval if turning else 0.0
                     slope = _linear_slope(self.ticks_fit)
                     if (self.ticks_turning >= n.wheel_rate_proof_time and slope is not None
                             and abs(slope - 1.0 - kf.x[6])
                             > n.wheel_scale_refit * n.calib_k_std):
-                        kf.x[6], kf.x[7] = slope - 1.0, 0.0
+                        kf.x[6], kf.x[7] = slope - 1.0, n.wheel_rate_per_speed
                         kf.P[6:8, :] = 0.0
                         kf.P[:, 6:8] = 0.0
                         kf.P[6, 6] = n.calib_k_std ** 2

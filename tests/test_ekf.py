@@ -974,18 +974,21 @@ def test_the_wheel_scale_restart_is_opt_in():
     assert ekf.stats["wheel_scale_refits"] == 0
 
 
-@pytest.mark.parametrize("twist_factor", [None, 1.5])
-def test_core_equals_filterpy_through_a_wheel_scale_restart(twist_factor):
+@pytest.mark.parametrize(("twist_factor", "radius_mismatch"), [(None, 0.0), (1.5, 0.0),
+                                                               (None, 0.02)])
+def test_core_equals_filterpy_through_a_wheel_scale_restart(twist_factor, radius_mismatch):
     # 40 s of the skid-steer ticks driving off at once, alone or with a skid-steer's twists
     # beside them: the restart of k and c (_refit_wheel_scale) happens in the reference at
     # the same frame, with the same P. The twists do not enter the ticks' fit: the first
     # version fitted both, and twists turning 1.5 times too fast beside correct ticks
-    # restarted k 5 times (review).
+    # restarted k 5 times (review). With a calibrated radius mismatch (robot.toml's [ekf]
+    # wheel_rate_per_speed) c restarts there, not at 0 (review: a calibration thrown away).
     run = _skid_ticks_run(0.5, 40.0)
     twists = {} if twist_factor is None else _odometry_twists(run, twist_factor)
     kinds, t, a, b, _ = merge_events(run.imu_t, run.gyro[:, 2], run.wheel_t, run.ticks,
                                      ROBOT.encode_sampling_time, **twists)
-    fast, ref, _ = _core_and_reference(EkfNoise(wheel_scale_refit=3.0), kinds, t, a, b)
+    noise = EkfNoise(wheel_scale_refit=3.0, wheel_rate_per_speed=radius_mismatch)
+    fast, ref, _ = _core_and_reference(noise, kinds, t, a, b)
     assert fast.stats == ref.stats
     assert fast.stats["wheel_scale_refits"] == 1
 

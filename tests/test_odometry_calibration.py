@@ -9,7 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fusion.calibration.odometry import calibrate_odometry, rest_bias, umbmark
+from fusion.calibration.odometry import (
+    calibrate_odometry,
+    radius_mismatch_rate,
+    radius_ratio_from_mismatch,
+    rest_bias,
+    umbmark,
+)
 from fusion.evaluation.synthetic import (
     EXAMPLE_ROBOT,
     EncoderModel,
@@ -242,10 +248,16 @@ def test_cli_calibrate_odometry(tmp_path, capsys):
     from fusion.io.robot_toml import read_robot_toml
 
     assert main(["calibrate", "odometry", str(d), "--write", str(tmp_path / "new.toml")]) == 0
-    capsys.readouterr()
+    out = capsys.readouterr().out
     cfg = read_robot_toml(tmp_path / "new.toml")
     assert cfg.chassis.wheel_distance == pytest.approx(run.true_wheel_distance, rel=0.003)
     assert cfg.chassis.encode_sampling_time == ROBOT.encode_sampling_time
+    # the radius ratio (0.5 % simulated) as the EKF's radius mismatch and its 1 sigma
+    c_true = radius_mismatch_rate(run.true_right_ratio / run.true_left_ratio,
+                                  run.true_wheel_distance)
+    assert cfg.ekf.wheel_rate_per_speed == pytest.approx(c_true, rel=0.05)
+    assert 0 < cfg.ekf.calib_c_std < 0.1 * abs(c_true)
+    assert f"wheel_rate_per_speed = {cfg.ekf.wheel_rate_per_speed:.6g}" in out
     assert main(["calibrate", "odometry", str(d), "--write", str(d / "robot.toml")]) == 2
     assert "refusing to overwrite" in capsys.readouterr().err
 
@@ -333,6 +345,11 @@ def test_cli_umbmark(tmp_path, capsys):
     out = capsys.readouterr().out
     assert _value(out, "wheel_distance") == pytest.approx(0.3 * 1.03, rel=0.01)
     assert "E_d = D_R/D_L = 1.005" in out
+    # E_d as the EKF's radius mismatch (robot.toml's [ekf]), against the simulated radii:
+    # UMBmark is first-order, its E_d 1.0054 for the true 1.0050 (c 8 % off)
+    c_true = radius_mismatch_rate(1.0025 / 0.9975, 0.3 * 1.03)
+    assert "\n[ekf]\nwheel_rate_per_speed = " in out
+    assert _value(out, "wheel_rate_per_speed") == pytest.approx(c_true, rel=0.12)
     assert "repeat until the return errors stop shrinking" in out
     # the truth shows what the runs are: an independent probe's exchanged lists (E_d came out
     # inverted), a wrong --side (wheel_distance 4 % off) were corrected with confidence
@@ -382,3 +399,43 @@ def test_calibration_with_dropped_frames_jitter_and_latency():
     true_mean = 0.5 * (run.true_left_ratio + run.true_right_ratio)
     assert cal.speed_ratio == pytest.approx(true_mean, rel=0.003)
     assert cal.windows_used > 100
+
+
+@pytest.mark.parametrize("ratio", [0.98, 1.0, 1.005, 1.03])
+def test_a_radius_ratio_is_the_ekfs_radius_mismatch_on_a_straight_drive(ratio):
+    # the two wheels roll 2 cm each in one period; with the right radius `ratio` times the
+    # left (the mean metres per tick kept) their ticks, read by the EKF's own wheel
+    # measurement at the nominal metres per tick, turn by c times the speed they read
+    from fusion.planar.model import ticks_measurement
+
+    sr, period, wheel_distance, travel = 1e-4, 0.04, 0.3, 0.02
+    left, right = travel / (sr * 2 / (1 + ratio)), travel / (sr * 2 * ratio / (1 + ratio))
+    (v_m, w_m), _ = ticks_measurement(left, right, sr, period, wheel_distance, 1.0, 0.0, 0.0,
+                                      0.0)
+    assert w_m == pytest.approx(radius_mismatch_rate(ratio, wheel_distance) * v_m, abs=1e-15)
+    c = radius_mismatch_rate(ratio, wheel_distance)
+    assert radius_ratio_from_mismatch(c, wheel_distance) == pytest.approx(ratio, rel=1e-12)
+    with pytest.raises(ValueError, match="no radius ratio gives"):
+        radius_ratio_from_mismatch(2.0 / wheel_distance, wheel_distance)
+    with pytest.raises(ValueError, match="must be > 0"):
+        radius_mismatch_rate(-ratio, wheel_distance)
+
+
+@pytest.mark.parametrize("mismatch", [0.01, -0.01])
+def test_the_ekf_learns_the_radius_mismatch_the_ratio_gives(mismatch, tmp_path):
+    # the synthetic robot's wheels differ in radius by 1 % (either way); over 150 s the
+    # fused EKF's own radius-mismatch state ends at the value the simulated radii give
+    # (measured within 0.3 %): the sign and the size robot.toml's [ekf] wheel_rate_per_speed
+    # takes from a calibration
+    from fusion.io.robot_toml import read_robot_toml
+    from fusion.jobs.replay import replay_logdir
+
+    run = degraded_mission(seed=3, duration=150.0, radius_mismatch=mismatch,
+                           separation_error=0.0, slip_patches=0)
+    d = write_synthetic_run(tmp_path / "log", run)
+    replay_logdir(d, tmp_path / "fused.csv")
+    fused = np.genfromtxt(tmp_path / "fused.csv", delimiter=",", names=True)
+    wheel_distance = read_robot_toml(d / "robot.toml").chassis.wheel_distance
+    want = radius_mismatch_rate(run.true_right_ratio / run.true_left_ratio, wheel_distance)
+    assert abs(want) > 0.03
+    assert fused["wheel_rate_per_speed"][-1] == pytest.approx(want, rel=0.02)

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from fusion.calibration.odometry import radius_mismatch_rate
 from fusion.cli import main
 from fusion.evaluation.crossval import kfold_splits
 from fusion.evaluation.synthetic import degraded_mission
@@ -52,6 +53,13 @@ def test_tune_odometry_recovers_the_true_wheel_separation(logs, tmp_path, capsys
     base = read_robot_toml(logs / "log0" / "robot.toml")
     true_robot = job.apply_parameters(base, {"wheel_distance": TRUE}, job.TARGETS["odometry"])
     assert re.search(r"# right/left wheel radius ratio 1\.000\d* ", printed)  # none simulated
+    # the ratio goes to the EKF's radius mismatch, printed and in the robot.toml written
+    ratio = float(re.search(r"radius ratio ([\d.]+)", printed)[1])
+    c = read_robot_toml(out).ekf.wheel_rate_per_speed
+    # the ratio is printed to 8 digits (+-5e-8: c within 2 * 5e-8 / 0.3 m)
+    assert c == pytest.approx(radius_mismatch_rate(ratio, tuned), abs=5e-7)
+    assert abs(c) < 0.01
+    assert f"[ekf]\nwheel_rate_per_speed = {c:.6g}" in printed
     loaded = [read_logdir(p, imu_frame="imu") for p in sorted(logs.iterdir())]
     true_score = np.mean([job.odometry_yaw_rmse(true_robot, log) for log in loaded])
     default_score = np.mean([job.odometry_yaw_rmse(base, log) for log in loaded])
@@ -80,6 +88,22 @@ def test_umbmark_squares_separate_the_separation_from_the_radius_ratio(tmp_path)
     assert result.final.values["radius_ratio"] == pytest.approx(ratio, abs=5e-4)
     assert result.robot.chassis.wheel_distance == result.final.values["wheel_distance"]
     assert result.cv_score < 0.1 * result.default_score
+
+
+def test_a_robot_with_a_radius_mismatch_starts_the_search_from_its_ratio(logs):
+    # robot.toml keeps a radius ratio as its EKF's radius mismatch ([ekf]
+    # wheel_rate_per_speed): the defaults the search starts from and scores are that ratio
+    import dataclasses
+
+    base = read_robot_toml(logs / "log0" / "robot.toml")
+    c = radius_mismatch_rate(1.004, base.chassis.wheel_distance)
+    calibrated = dataclasses.replace(base, ekf=dataclasses.replace(base.ekf,
+                                                                   wheel_rate_per_speed=c))
+    values = job.TARGETS["odometry"].base_values(calibrated)
+    assert values["radius_ratio"] == pytest.approx(1.004, rel=1e-12)
+    assert job.TARGETS["odometry"].base_values(base)["radius_ratio"] == 1.0
+    back = job.apply_parameters(base, values, job.TARGETS["odometry"])
+    assert back.ekf.wheel_rate_per_speed == pytest.approx(c, rel=1e-12)
 
 
 def test_process_pool_gives_the_serial_result(logs):

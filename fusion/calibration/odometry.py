@@ -24,6 +24,10 @@ UMBmark (:func:`umbmark`)
     (absolute minus odometry) give the type A (wheelbase) error ``alpha`` and the type B
     (unequal diameters) error ``beta``, from which ``E_d = D_R/D_L`` and the wheelbase factor
     ``E_b`` follow.
+
+The fused EKF takes a radius ratio as its radius-mismatch state's prior
+(:func:`radius_mismatch_rate`; robot.toml's ``[ekf] wheel_rate_per_speed``): seed 000's
+driver has one ``speed_ratio`` for both wheels.
 """
 
 from __future__ import annotations
@@ -41,6 +45,9 @@ __all__ = [
     "OdometryCalibration",
     "UmbmarkResult",
     "calibrate_odometry",
+    "ekf_radius_lines",
+    "radius_mismatch_rate",
+    "radius_ratio_from_mismatch",
     "rest_bias",
     "umbmark",
 ]
@@ -93,6 +100,14 @@ class OdometryCalibration:
         """Right over left wheel radius (= right over left metres per tick)."""
         return self.right_ratio / self.left_ratio
 
+    @property
+    def ekf_radius_mismatch(self) -> tuple[float, float]:
+        """``(c, std)`` rad/m: :attr:`radius_ratio` as the EKF's radius mismatch
+        (:func:`radius_mismatch_rate`, at the corrected ``wheel_distance``) and its standard
+        deviation from :attr:`radius_ratio_std` (NaN where that is unknown)."""
+        r, L = self.radius_ratio, self.wheel_distance
+        return radius_mismatch_rate(r, L), 4.0 / (L * (1.0 + r) ** 2) * self.radius_ratio_std
+
     def params(self) -> DiffDriveParams:
         """The nominal parameters with the corrected ``wheel_distance`` and ``speed_ratio``."""
         return replace(self.nominal, wheel_distance=self.wheel_distance,
@@ -113,8 +128,8 @@ class OdometryCalibration:
             f"# right/left wheel radius ratio {self.radius_ratio:.5f} +- "
             f"{self.radius_ratio_std:.2g}: per wheel "
             f"{self.left_ratio:.6g} (left), {self.right_ratio:.6g} (right) m/tick; "
-            "seed 000's driver has one speed_ratio, the fused EKF estimates the mismatch "
-            "online",
+            "seed 000's driver has one speed_ratio: [ekf] below gives the mismatch to the "
+            "fused EKF",
             f"# from {self.windows_used} windows ({self.windows_rejected} rejected as slip"
             + (f", {self.windows_saturated} left out: the gyro saturated"
                if self.windows_saturated else "")
@@ -122,6 +137,8 @@ class OdometryCalibration:
                "finite numbers" if self.windows_not_finite else "")
             + f"), {math.degrees(self.turned):.0f} deg turned, {self.straight_distance:.1f} m "
             f"driven, gyro bias {math.degrees(self.gyro_bias):+.4f} deg/s",
+            "[ekf]",
+            *ekf_radius_lines(*self.ekf_radius_mismatch),
         ]
         if self.radius_ratio_std > RATIO_STD_NOTE:
             lines.append(
@@ -135,6 +152,45 @@ class OdometryCalibration:
                 "were left out: wheels slipping much of the time, or the IMU's stamps off the "
                 "wheels' (--imu-lag); the rest still fit, but check the floor and the clocks")
         return "\n".join(lines)
+
+
+def radius_mismatch_rate(radius_ratio: float, wheel_distance: float) -> float:
+    """rad/m: the yaw rate per m/s of speed that wheels whose right/left radius ratio is
+    ``radius_ratio`` (``r``) read on a straight drive, counted with one metres-per-tick for
+    both over ``wheel_distance`` (``L``, m): the fused EKF's radius mismatch ``c``
+    (``w_m = (1 + k) w + c v_m``, :func:`fusion.planar.model.wheel_h`; robot.toml's ``[ekf]
+    wheel_rate_per_speed``).
+
+    With the true travel per tick ``2/(1 + r)`` (left) and ``2r/(1 + r)`` (right) times
+    ``speed_ratio`` (the mean kept, as UMBmark's and ``fusion tune``'s factors), a straight
+    drive of ``d`` m per wheel counts ``d (1 + r)/2`` and ``d (1 + r)/(2r)`` nominal metres:
+    a turn of ``(1/r - 1) d (1 + r)/(2L)`` over a mean travel of ``d (1 + r)^2/(4r)``, so
+    ``c = 2 (1 - r) / ((1 + r) L)`` (about ``-(r - 1)/L``).
+    """
+    if not (radius_ratio > 0 and wheel_distance > 0):
+        raise ValueError(f"radius_ratio and wheel_distance must be > 0, got {radius_ratio!r} "
+                         f"and {wheel_distance!r}")
+    return 2.0 * (1.0 - radius_ratio) / ((1.0 + radius_ratio) * wheel_distance)
+
+
+def radius_ratio_from_mismatch(mismatch: float, wheel_distance: float) -> float:
+    """The right/left wheel radius ratio whose :func:`radius_mismatch_rate` over
+    ``wheel_distance`` (m) is ``mismatch`` (rad/m): ``r = (2 - c L)/(2 + c L)``."""
+    cl = mismatch * wheel_distance
+    if not (abs(cl) < 2.0 and wheel_distance > 0):
+        raise ValueError(f"no radius ratio gives a mismatch of {mismatch!r} rad/m over "
+                         f"{wheel_distance!r} m")
+    return (2.0 - cl) / (2.0 + cl)
+
+
+def ekf_radius_lines(c: float, std: float = math.nan) -> list[str]:
+    """robot.toml ``[ekf]`` lines (without the header) giving the EKF the radius mismatch
+    ``c`` (rad/m), and ``std`` (rad/m) as its prior's standard deviation when it is known."""
+    lines = [f"wheel_rate_per_speed = {c:.6g}  # rad/m: the radius ratio's yaw rate per m/s "
+             "(the EKF's radius mismatch, learnt on from there)"]
+    if math.isfinite(std) and std > 0:
+        lines.append(f"calib_c_std = {std:.2g}  # rad/m: the calibration's standard deviation")
+    return lines
 
 
 def rest_bias(

@@ -182,7 +182,11 @@ def run_odometry(args: argparse.Namespace) -> int:
         from fusion.io.robot_toml import write_robot_toml
 
         target = args.write
-        write_robot_toml(target, replace(log.robot, chassis=cal.params()))
+        c, c_std = cal.ekf_radius_mismatch
+        ekf = replace(log.robot.ekf, wheel_rate_per_speed=c)
+        if math.isfinite(c_std) and c_std > 0:
+            ekf = replace(ekf, calib_c_std=c_std)
+        write_robot_toml(target, replace(log.robot, chassis=cal.params(), ekf=ekf))
         print(f"wrote {target}")
     return 0
 
@@ -307,7 +311,7 @@ def _refuse_non_finite(d: Path, log) -> None:
 
 
 def run_umbmark(args: argparse.Namespace) -> int:
-    from fusion.calibration.odometry import umbmark
+    from fusion.calibration.odometry import ekf_radius_lines, radius_mismatch_rate, umbmark
     from fusion.io.logdir import read_logdir
     from fusion.planar.odometry import WheelOdometry
 
@@ -347,6 +351,10 @@ def run_umbmark(args: argparse.Namespace) -> int:
     print(f"wheel_distance = {r.wheel_distance:.6g}  # m, was {L:.6g}")
     print(f"# per-wheel factors on speed_ratio: left {r.left_factor:.5f}, right "
           f"{r.right_factor:.5f}")
+    if r.diameter_ratio > 0:  # a square shorter than the wheel distance can give E_d <= 0
+        print("[ekf]")
+        print("\n".join(ekf_radius_lines(radius_mismatch_rate(r.diameter_ratio,
+                                                              r.wheel_distance))))
     print("note: UMBmark's correction is first-order: drive the squares again with the "
           "corrected values and repeat until the return errors stop shrinking "
           "(Borenstein & Feng iterate too)")

@@ -5,9 +5,11 @@
 
 - ``odometry``: log directories with a ``truth.csv`` (``datasets/LOGDIR.md``; UMBmark squares
   from ``fusion synth --scenario square`` are such logs too); ``[chassis] wheel_distance``
-  (m) and the right/left wheel radius ratio (printed as a comment: robot.toml has no key for
-  it), scored by the yaw RMSE (deg) of the wheel-only dead reckoning against the truth: the
-  separation sets how far the wheels' yaw drifts on every turn, the ratio on every straight.
+  (m) and the right/left wheel radius ratio (seed 000's driver has one ``speed_ratio``: it
+  goes to the fused EKF as ``[ekf] wheel_rate_per_speed``,
+  :func:`fusion.calibration.odometry.radius_mismatch_rate`), scored by the yaw RMSE (deg) of
+  the wheel-only dead reckoning against the truth: the separation sets how far the wheels'
+  yaw drifts on every turn, the ratio on every straight.
 - ``ekf``: the same logs (with imu.csv); ``[ekf] gyro_std``, ``bias_psd``, ``scale_std``,
   scored by the position RMSE (m) of the fused odometry (the replay's pipeline,
   :func:`fusion.jobs.replay.fuse_streams`).
@@ -45,6 +47,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from fusion.calibration.odometry import (
+    ekf_radius_lines,
+    radius_mismatch_rate,
+    radius_ratio_from_mismatch,
+)
 from fusion.evaluation.crossval import kfold_splits
 from fusion.evaluation.trajectory import position_rmse, yaw_rmse
 from fusion.io.logdir import LogDir, read_logdir
@@ -107,8 +114,11 @@ class Target:
 
         tables: dict[str, Any] = {"attitude": KeelParams(**keel_settings(robot)),
                                   "wheels": SimpleNamespace(radius_ratio=1.0)}
-        if robot is not None:
-            tables |= {"chassis": robot.chassis, "ekf": robot.ekf}
+        if robot is not None:  # its radius ratio: the one its EKF's radius mismatch gives
+            ratio = radius_ratio_from_mismatch(robot.ekf.wheel_rate_per_speed,
+                                               robot.chassis.wheel_distance)
+            tables |= {"chassis": robot.chassis, "ekf": robot.ekf,
+                       "wheels": SimpleNamespace(radius_ratio=ratio)}
         return {p.name: float(getattr(tables[p.table], p.name)) for p in self.parameters}
 
 
@@ -125,7 +135,8 @@ def odometry_yaw_rmse(robot: RobotConfig, log: LogDir, radius_ratio: float = 1.0
     truth, at the wheel frames inside the truth's span.
 
     ``radius_ratio``: right over left wheel radius, split evenly so the mean travel per tick
-    stays ``speed_ratio`` (1: the wheels of robot.toml, which has no such key).
+    stays ``speed_ratio`` (1: equal wheels; robot.toml keeps a ratio as its EKF's radius
+    mismatch, ``[ekf] wheel_rate_per_speed``, not in the wheel-only dead reckoning).
     """
     sr = robot.chassis.speed_ratio
     wheel_t, ticks = _without_glitches(log, robot)
@@ -231,7 +242,8 @@ _DEG = math.pi / 180
 #: The targets of ``fusion tune``.
 TARGETS: dict[str, Target] = {
     # the radius ratio is searched too (a mismatch turns the wheels' yaw on every straight,
-    # which the separation alone would absorb on squares), but robot.toml has no key for it
+    # which the separation alone would absorb on squares); robot.toml keeps it as the EKF's
+    # radius mismatch ([ekf] wheel_rate_per_speed)
     "odometry": Target("odometry", (Parameter("chassis", "wheel_distance", 0.8, 1.25),
                                     Parameter("wheels", "radius_ratio", 0.95, 1 / 0.95)),
                        "wheel-only yaw RMSE, deg", _odometry_score,
@@ -266,6 +278,9 @@ def apply_parameters(robot: RobotConfig, values: dict[str, float], target: Targe
                                                                    **changes["chassis"]))
     if "ekf" in changes:
         out = dataclasses.replace(out, ekf=dataclasses.replace(out.ekf, **changes["ekf"]))
+    if "wheels" in changes:  # one speed_ratio: the ratio goes to the EKF's radius mismatch
+        c = radius_mismatch_rate(changes["wheels"]["radius_ratio"], out.chassis.wheel_distance)
+        out = dataclasses.replace(out, ekf=dataclasses.replace(out.ekf, wheel_rate_per_speed=c))
     if "attitude" in changes:
         keel = out.attitude.filter == "keel"
         params = {**keel_settings(out), **changes["attitude"]}
@@ -491,6 +506,10 @@ def tuned_section(result: TuneResult) -> str:
             if p.table == table:
                 lines.append(f"{p.name} = {result.final.values[p.name]!r}")
     if "radius_ratio" in result.final.values:
-        lines.append(f"# right/left wheel radius ratio {result.final.values['radius_ratio']:.6g}"
-                     " (no robot.toml key: the EKF estimates the mismatch online)")
+        ratio = result.final.values["radius_ratio"]
+        lines.append(f"# right/left wheel radius ratio {ratio:.8g} (seed 000's driver has one "
+                     "speed_ratio): as the EKF's radius mismatch")
+        lines += ["[ekf]", *ekf_radius_lines(radius_mismatch_rate(
+            ratio, result.final.values.get("wheel_distance",
+                                           result.robot.chassis.wheel_distance)))]
     return "\n".join(lines)

@@ -99,7 +99,8 @@ P_STRAIGHT_RATE = 48  # rad/s: an untrusted wheel yaw rate below this says "stra
 P_K_STD = 49  # 1: prior standard deviation of k (calib_k_std); see _refit_wheel_scale
 P_C_STD = 50  # rad/m: prior standard deviation of c (calib_c_std)
 P_REFIT = 51  # prior sigmas of k the wheels' fitted scale may be off before k restarts (0: off)
-PAR_SIZE = 52
+P_C_MEAN = 52  # rad/m: prior mean of c (wheel_rate_per_speed), where a restart puts it
+PAR_SIZE = 53
 # aux indices
 A_T = 0
 A_ZERO_COUNT = 1
@@ -987,7 +988,8 @@ def _refit_wheel_scale(x, P, aux, par, wheel_rate, turned):
     then restart ``k`` at that fit's slope when the two correlate (by
     :data:`LINEAR_SOURCE_CORRELATION`), the fit holds ``wheel_rate_proof_time`` s of
     turning, and the slope is more than ``wheel_scale_refit`` prior standard deviations of
-    ``k`` (``calib_k_std``) off ``1 + k``. The radius mismatch ``c`` restarts at 0. Both get
+    ``k`` (``calib_k_std``) off ``1 + k``. The radius mismatch ``c`` restarts at its prior
+    mean (``wheel_rate_per_speed``: 0, or a calibration's radius ratio). Both get
     their prior variances and lose their correlations with the other states; the bias keeps
     its own. The fit then starts afresh, so that one episode cannot ratchet ``k`` step by
     step. Off by default (``wheel_scale_refit`` 0): see there.
@@ -1021,7 +1023,7 @@ def _refit_wheel_scale(x, P, aux, par, wheel_rate, turned):
     if abs(slope - 1.0 - x[6]) <= par[P_REFIT] * par[P_K_STD]:
         return
     x[6] = slope - 1.0
-    x[7] = 0.0
+    x[7] = par[P_C_MEAN]
     for i in (6, 7):
         P[i, :] = 0.0
         P[:, i] = 0.0

@@ -915,6 +915,7 @@ class PlanarEKF(ExtendedKalmanFilter):
         par[core.P_STRAIGHT_RATE] = n.straight_rate
         par[core.P_K_STD] = n.calib_k_std
         par[core.P_REFIT] = n.wheel_scale_refit
+        par[core.P_C_MEAN] = n.wheel_rate_per_speed
         par[core.P_C_STD] = n.calib_c_std
         par[core.P_ODO_ALONG] = n.odometry_along_var
         par[core.P_ODO_CROSS] = n.odometry_cross_var
