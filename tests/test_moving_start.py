@@ -145,7 +145,11 @@ def test_the_wheel_calibration_is_the_runs_last_with_its_walk_and_half_its_weigh
     assert prior(c=np.full(t.size, RADIUS_MISMATCH_LIMIT + 0.01)) is None
     # neither learnt (odometry whose yaw rate was never fused): the note claims nothing
     assert prior(k_var=np.full(t.size, 0.05 ** 2), c_var=np.full(t.size, 0.05 ** 2)) is None
-    assert prior(k_var=np.full(t.size, 0.05 ** 2)) is not None  # c was
+    only_c = prior(k_var=np.full(t.size, 0.05 ** 2))  # c was learnt, k was not
+    assert (only_c.k, only_c.k_std) == (0.0, 0.05)  # k keeps the robot's own prior
+    assert only_c.c == 0.002
+    # a learnt state never gets looser than its prior
+    assert prior(c_var=np.full(t.size, 0.04 ** 2)).c_std == 0.05
     bad = c.copy()
     bad[-1] = np.nan
     assert prior(c=bad) is None

@@ -98,6 +98,15 @@ def test_parts_that_do_not_carry_on_are_left_out_and_named(datasets_dir, tmp_pat
     assert got == parts[:2]
     assert (f"{PREFIX}_2.bag (its first message 3600 s after {PREFIX}_1.bag's last: another "
             "recording?)") in note
+    # a part without messages (rosbags' span of one runs backwards): said as such
+    from rosbags.rosbag1 import Writer
+
+    parts[2].unlink()
+    with Writer(parts[2]):
+        pass
+    got, note = split_parts(parts[0])
+    assert got == parts[:2] and f"{PREFIX}_2.bag (no messages)" in note
+    assert f"{PREFIX}_3.bag (after {PREFIX}_2.bag, left out above)" in note
     # a part that cannot be read (cut short: no index)
     parts[2].write_bytes(parts[1].read_bytes()[:5000])
     got, note = split_parts(parts[0])

@@ -63,9 +63,10 @@ def register(subparsers) -> None:
                         "(default 50: the gyro's units or constant slip are likelier than so "
                         "wrong a robot.toml; raise it for a placeholder robot.toml)")
     o.add_argument("--write", type=Path, metavar="TOML",
-                   help="also write a robot.toml with the corrected [chassis] (frames and "
-                        "[ekf] copied from the log's robot.toml); refuses to overwrite the "
-                        "log's own")
+                   help="also write a robot.toml with the corrected [chassis] and the radius "
+                        "ratio as [ekf] wheel_rate_per_speed and calib_c_std (frames and the "
+                        "rest of [ekf] copied from the log's robot.toml); refuses to overwrite "
+                        "the log's own")
     o.set_defaults(func=run_odometry)
     u = sub.add_parser(
         "umbmark",
@@ -351,7 +352,10 @@ def run_umbmark(args: argparse.Namespace) -> int:
     print(f"wheel_distance = {r.wheel_distance:.6g}  # m, was {L:.6g}")
     print(f"# per-wheel factors on speed_ratio: left {r.left_factor:.5f}, right "
           f"{r.right_factor:.5f}")
-    if r.diameter_ratio > 0:  # a square shorter than the wheel distance can give E_d <= 0
+    if not r.diameter_ratio > 0:  # a square shorter than the wheel distance can give this
+        print(f"note: E_d {r.diameter_ratio:.5f} is no radius ratio: no [ekf] "
+              "wheel_rate_per_speed (check --side against the squares driven)")
+    else:
         print("[ekf]")
         print("\n".join(ekf_radius_lines(radius_mismatch_rate(r.diameter_ratio,
                                                               r.wheel_distance))))

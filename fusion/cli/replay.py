@@ -598,9 +598,9 @@ def _print_gps(topic: str, fixes, gps) -> None:
                "another clock")
         recorded = ", ".join(f"{label} {gps.rmse_at_stamps[name]:.2f} m"
                              for name, label in _GPS_TRACKS)
-        print(f"  (the fixes fit the tracks best taken as stamped {abs(gps.lag):.2f} s "
-              f"{'late' if gps.lag > 0 else 'early'} ({why}), and were compared so; at "
-              f"their stamps as recorded: {recorded})")
+        print(f"  (the fixes fit the tracks best, each with its scale fitted, taken as stamped "
+              f"{abs(gps.lag):.2f} s {'late' if gps.lag > 0 else 'early'} ({why}), and were "
+              f"compared so; at their stamps as recorded: {recorded})")
     if gps.lag_beyond:
         print(f"  (the fixes fit the tracks better {LAG_MAX:g} s off their stamps than on them, "
               "and best further off, beyond the lag searched: the GPS stamped on another "

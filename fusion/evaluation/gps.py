@@ -24,23 +24,26 @@ every fix stays in :attr:`GpsComparison.rmse_all`.
 
 A fix stamped when it reached the host, not at its epoch, is late: a receiver's solution and
 its serial line take 0.1-1 s, an NMEA bridge or a busy driver more. Every track then trails
-the fixes, by the speed times the lag along the path, which the alignment cannot take out
-in the turns: the probe's bag above with 1 Hz fixes stamped 2.5 s late printed 2.88 m for
-the fused track (1.55 m on time). :func:`compare_with_fixes` searches the fixes' lag within
+the fixes, by the speed times the lag along the path, which the alignment cannot take out in
+the turns: the probe's bag above with 1 Hz fixes stamped 2.5 s late printed 2.88 m for the
+fused track (1.55 m on time). :func:`compare_with_fixes` searches the fixes' lag within
 :data:`LAG_MAX` either side, the one that fits the tracks best together (the mean of their
-RMSEs' logarithms: each track's relative change counts, so a track tens of metres off does
-not outweigh a good one), each fitted with a rotation, a shift AND a scale for this search
+RMSEs' logarithms: each track's relative change counts, so a track tens of metres off does not
+outweigh a good one), each fitted with a rotation, a shift AND a scale for this search
 (:func:`_scaled_fit_rms`: a distance scale error, which the fused track, the bag's odometry
-and the gyro-at-stops track all share through the wheels' speed, stretches the path as a
-lag would: under a rigid fit on-time fixes read as -1.1 s late for a 3 % scale, review). It
+and the gyro-at-stops track all share through the wheels' speed, stretches the path as a lag
+would: under a rigid fit on-time fixes read as -1.1 s late for a 3 % scale, review). It
 compares at that lag where it is :data:`LAG_MIN` or more and lowers that mean RMSE to
 :data:`LAG_GAIN` or less; the figures are still after one SE(2) alignment each, and those at
 the stamps as recorded stay in :attr:`GpsComparison.rmse_at_stamps`. A best lag at the
 search's edge is not applied (:attr:`GpsComparison.lag_beyond` says when it gains as much).
-That bag now prints 1.50 m (lag 2.75 s); 1.0 and -1.5 s give 1.54 m (1.26 and -1.24 s),
-0.5 s is not applied (1.67 m); on time, 1.55 m, none. The lag is fitted on the tracks it scores, one parameter over
-hundreds of fixes. The odometry's own clock running ahead of the GPS would look the same, and
-is said the same way (the lag is printed).
+That bag now prints 1.50 m (lag 2.75 s); 1.0 and -1.5 s give 1.54 m (1.26 and -1.24 s), 0.5 s
+is not applied (1.67 m); on time, 1.55 m, none. Under a scale error shared by the tracks the
+rigid figures at the right lag can read higher than at the stamps, where the alignment had
+traded the one error against the other; the lag found is still the epochs', and both are
+printed (review). The lag is fitted on the tracks it scores, one parameter over hundreds of
+fixes. The odometry's own clock running ahead of the GPS would look the same, and is said the
+same way (the lag is printed).
 """
 
 from __future__ import annotations

@@ -33,9 +33,12 @@ def _span(path: Path) -> tuple[float, float] | str:
 
     try:
         with Reader(path) as reader:
-            return reader.start_time * 1e-9, reader.end_time * 1e-9
+            first, last = reader.start_time, reader.end_time
     except Exception as exc:  # rosbags' errors, struct errors of a truncated file
         return f"not readable ({exc}); `rosbag reindex` rebuilds a cut file's index"
+    if first > last:  # rosbags' span of a bag without messages
+        return "no messages"
+    return first * 1e-9, last * 1e-9
 
 
 def split_parts(path: Path) -> tuple[list[Path], str]:
@@ -80,10 +83,12 @@ def split_parts(path: Path) -> tuple[list[Path], str]:
     for other in sorted(path.parent.iterdir()):
         named = _PART.match(other.name)
         if (named and named["prefix"] == prefix and other not in parts
-                and other.name not in why):
+                and other.name not in why and other.is_file()):
+            stop = f"{prefix}_{len(parts)}{suffix}"
             why[other.name] = ("an unfinished recording: `rosbag reindex` it and rename it "
                                "to .bag" if named["active"] else
-                               f"after a gap in the numbering at {prefix}_{len(parts)}{suffix}"
+                               f"after {stop}, left out above" if stop in why else
+                               f"after a gap in the numbering at {stop}"
                                if int(named["n"]) > len(parts) else "not read")
     if len(parts) == 1 and not why:
         return parts, ""

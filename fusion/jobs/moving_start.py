@@ -219,7 +219,9 @@ def wheel_prior(t: NDArray[np.float64], k: NDArray[np.float64], k_var: NDArray[n
     (:data:`fusion.evaluation.trust.WHEEL_SCALE_LIMIT`, ``RADIUS_MISMATCH_LIMIT``: wheels
     and gyro in other units or geometry, a fault those checks name); or neither learnt
     (both standard deviations still above :data:`LEARNT_SHARE` of their priors ``k_std``
-    and ``c_std``: odometry whose yaw rate was never fused)."""
+    and ``c_std``: odometry whose yaw rate was never fused). A state not learnt keeps its
+    prior (``k_std`` or ``c_std``, the first row's mean), and a learnt one's standard
+    deviation is at most its prior's (review)."""
     span = float(t[-1] - t[0])
     k_end, c_end = float(k[-1]), float(c[-1])
     k_var_end = float(k_var[-1]) + k_psd * span
@@ -229,8 +231,13 @@ def wheel_prior(t: NDArray[np.float64], k: NDArray[np.float64], k_var: NDArray[n
         return None
     if abs(k_end) > WHEEL_SCALE_LIMIT or abs(c_end) > RADIUS_MISMATCH_LIMIT:
         return None
-    if (k_var_end > (LEARNT_SHARE * k_std) ** 2
-            and c_var_end > (LEARNT_SHARE * c_std) ** 2):
+    k_learnt = not k_var_end > (LEARNT_SHARE * k_std) ** 2
+    c_learnt = not c_var_end > (LEARNT_SHARE * c_std) ** 2
+    if not (k_learnt or c_learnt):
         return None
-    return WheelPrior(k=k_end, k_std=math.sqrt(2.0 * k_var_end), c=c_end,
-                      c_std=math.sqrt(2.0 * c_var_end))
+    # a state not learnt keeps the robot's own prior (its mean: the run's first row's); a
+    # learnt one never gets looser than that prior
+    return WheelPrior(k=k_end if k_learnt else float(k[0]),
+                      k_std=min(math.sqrt(2.0 * k_var_end), k_std) if k_learnt else k_std,
+                      c=c_end if c_learnt else float(c[0]),
+                      c_std=min(math.sqrt(2.0 * c_var_end), c_std) if c_learnt else c_std)

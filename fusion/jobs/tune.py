@@ -114,11 +114,17 @@ class Target:
 
         tables: dict[str, Any] = {"attitude": KeelParams(**keel_settings(robot)),
                                   "wheels": SimpleNamespace(radius_ratio=1.0)}
-        if robot is not None:  # its radius ratio: the one its EKF's radius mismatch gives
-            ratio = radius_ratio_from_mismatch(robot.ekf.wheel_rate_per_speed,
-                                               robot.chassis.wheel_distance)
-            tables |= {"chassis": robot.chassis, "ekf": robot.ekf,
-                       "wheels": SimpleNamespace(radius_ratio=ratio)}
+        if robot is not None:
+            tables |= {"chassis": robot.chassis, "ekf": robot.ekf}
+        if robot is not None and any(p.table == "wheels" for p in self.parameters):
+            # its radius ratio: the one its EKF's radius mismatch gives
+            try:
+                ratio = radius_ratio_from_mismatch(robot.ekf.wheel_rate_per_speed,
+                                                   robot.chassis.wheel_distance)
+            except ValueError as exc:
+                raise ValueError(f"the base robot.toml's [ekf] wheel_rate_per_speed: {exc}"
+                                 ) from exc
+            tables["wheels"] = SimpleNamespace(radius_ratio=ratio)
         return {p.name: float(getattr(tables[p.table], p.name)) for p in self.parameters}
 
 
