@@ -95,7 +95,16 @@ def test_sigkill_keeps_every_record_up_to_the_last_sync(tmp_path: Path) -> None:
     assert "unfinished MCAP recording" in bag.note
     odom = bag.odometry
     assert odom is not None and len(odom) == len(stamps)
-    np.testing.assert_array_equal(np.round(odom.t * 1e9).astype(np.int64), stamps)
+    # every record kept at its stamp; but two records the busy writer stamped a millisecond
+    # apart (under a tenth of the mean interval) are a batch to the reader, which spreads it
+    # back over the interval before (fusion.io.repeated_stamps: a CI run had records 1 ms
+    # apart at 40 ms): those stamps only may differ
+    steps = np.diff(stamps)
+    near = np.flatnonzero((steps > 0) & (steps < 0.1 * np.mean(steps)))
+    batched = np.zeros(len(stamps), dtype=bool)
+    batched[near] = batched[near + 1] = True
+    read = np.round(odom.t * 1e9).astype(np.int64)
+    np.testing.assert_array_equal(read[~batched], np.asarray(stamps)[~batched])
 
     lines = (tmp_path / "run.jsonl").read_text().splitlines()
     records = [r for r in map(json.loads, lines) if "status" not in r]  # every line complete
